@@ -1,0 +1,78 @@
+# Thermal-error compensation retrofit: top-level workflow.
+#   make demo   set up, train on the example runs, build the firmware (STM32F405 + native),
+#               replay a run through the native firmware over a pty, write the report
+#   make test   every test suite: Python (host, codegen, HIL) and C (firmware, cmocka)
+#   make flash  flash the STM32F405 with build/model.h through OpenOCD (ST-LINK)
+
+PY      := .venv/bin/python
+HOST    := .venv/bin/host
+STAMP   := .venv/.installed
+BUILD   := build
+EXAMPLES := examples
+MODEL_JSON := $(BUILD)/model.json
+MODEL_H    := $(BUILD)/model.h
+# Demo data: train on two example protocols, replay/judge on a third the model never saw.
+DEMO_TRAIN := $(EXAMPLES)/sim_constant.csv $(EXAMPLES)/sim_step.csv
+DEMO_TEST  := $(EXAMPLES)/sim_random.csv
+DEMO_TARGETS := --target dx_um --target dy_um --target dz_um
+
+.PHONY: setup system-deps test test-python test-firmware lint demo train firmware firmware-native \
+        firmware-stm32 hil flash bench examples report clean
+
+setup: $(STAMP)
+
+system-deps:
+	bash scripts/install-system-deps.sh
+
+$(STAMP): pyproject.toml scripts/install-system-deps.sh
+	bash scripts/install-system-deps.sh
+	python3 -m venv .venv
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+lint: $(STAMP)
+	$(PY) -m ruff check host codegen hil tests bench
+
+test: $(STAMP) lint test-firmware test-python
+
+test-python: $(STAMP)
+	$(PY) -m pytest
+
+test-firmware: $(STAMP)
+	$(MAKE) -C firmware test
+
+examples: $(STAMP)
+	$(PY) -m host.examples $(EXAMPLES)
+
+train: $(STAMP)
+	$(HOST) train $(DEMO_TRAIN) $(DEMO_TARGETS) --out $(BUILD)
+
+firmware-stm32: $(STAMP)
+	$(MAKE) -C firmware BOARD=stm32f405 MODEL=../$(MODEL_H)
+
+firmware-native: $(STAMP)
+	$(MAKE) -C firmware BOARD=native MODEL=../$(MODEL_H)
+
+firmware: firmware-stm32 firmware-native
+
+hil: $(STAMP)
+	@test -f $(MODEL_JSON) || $(MAKE) train
+	$(PY) -m hil replay --model $(MODEL_JSON) --data $(DEMO_TEST)
+
+flash: $(STAMP)
+	@test -f $(MODEL_H) || { echo "No $(MODEL_H): run 'host train ...' (or 'make train') first."; exit 2; }
+	$(MAKE) -C firmware BOARD=stm32f405 MODEL=../$(MODEL_H) flash
+
+report: $(STAMP)
+	$(HOST) report $(MODEL_JSON) --runs $(DEMO_TRAIN) $(DEMO_TEST) -o report
+
+bench: $(STAMP)
+	$(PY) -m bench
+
+demo: $(STAMP)
+	$(PY) -m host.demo
+
+clean:
+	rm -rf $(BUILD) report bench/results
+	$(MAKE) -C firmware clean

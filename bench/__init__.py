@@ -1,0 +1,1 @@
+"""`make bench`: performance figures as a printed table and JSON, never as test assertions."""

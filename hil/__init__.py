@@ -1,0 +1,1 @@
+"""Hardware-in-the-loop: the native firmware over a pseudo-terminal, checked against the host."""
