@@ -1,0 +1,19 @@
+"""Progress bars for long work: shown on a terminal, silent in --json mode and in pipes."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable, Iterator
+from typing import TypeVar
+
+from tqdm import tqdm
+
+T = TypeVar("T")
+
+
+def progress(items: Iterable[T], desc: str, total: int | None = None,
+             quiet: bool = False) -> Iterator[T]:
+    """Wrap an iterable with a tqdm bar on stderr unless quiet or stderr is not a terminal."""
+    disable = quiet or not sys.stderr.isatty()
+    yield from tqdm(items, desc=desc, total=total, disable=disable, leave=False,
+                    file=sys.stderr, dynamic_ncols=True)
