@@ -1,0 +1,41 @@
+"""`host report MODEL --runs A.csv B.csv -o report/`: the HTML report with its figures."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from host.report import build_report
+
+NAME = "report"
+HELP = "write an HTML report (with PNG figures) of a model on runs, its peers and effects"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", help="model.json written by `host train` (or `host codegen`)")
+    parser.add_argument("--runs", nargs="+", required=True, metavar="CSV",
+                        help="runs to show (training runs and unseen ones)")
+    parser.add_argument("-o", "--out", default="report", help="output folder (default: report)")
+    parser.add_argument("--protocols", metavar="FILE",
+                        help="`host compare-protocols` results (JSON or CSV) for the heat map")
+    parser.add_argument("--no-peers", action="store_true",
+                        help="do not fit the peer models of `host compare`")
+    parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
+                        help="interpolate gaps of at most N samples in the runs")
+    parser.add_argument("--json", action="store_true",
+                        help="print the summary as JSON instead of text")
+
+
+def run(args: argparse.Namespace) -> int:
+    report = build_report(args.model, args.runs, args.out, protocols=args.protocols,
+                          peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json)
+    if args.json:
+        print(json.dumps({"index": str(report.index), **report.summary}, indent=2))
+        return 0
+    print(f"report: {report.index} ({len(report.figures)} figures)")
+    for row in report.summary["axes"]:
+        val, raw = row["validation_rmse_um"], row["raw_rms_um"]
+        if val is not None and raw:
+            print(f"  {row['axis']}: {', '.join(row['sensors'])}; validation RMSE {val:.2f} µm "
+                  f"of {raw:.2f} µm raw ({row['reduction_pct']:.1f} % less)")
+    return 0

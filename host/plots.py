@@ -1,0 +1,217 @@
+"""The report's figures, one idea each, drawn with matplotlib's Agg canvas (no display needed).
+
+Every function takes plain arrays and names (no model or run objects), returns a
+``matplotlib.figure.Figure`` and leaves saving to the caller; ``Figure`` is used directly rather
+than ``pyplot`` so no global state or GUI backend is involved.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import numpy as np  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.colors import Normalize  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+
+WIDE = (9.0, 5.0)
+SQUARE = (7.0, 6.0)
+OURS_COLOUR = "tab:blue"
+PEER_COLOURS = ("tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
+HEATING_COLOUR = "tab:red"
+COOLING_COLOUR = "tab:blue"
+
+
+def time_axis(time_s: np.ndarray) -> tuple[np.ndarray, str]:
+    """Time in the unit a reader thinks in: minutes for short runs, hours for long ones."""
+    span = float(time_s[-1] - time_s[0]) if len(time_s) else 0.0
+    if span > 3 * 3600:
+        return time_s / 3600.0, "time (h)"
+    if span > 180:
+        return time_s / 60.0, "time (min)"
+    return time_s, "time (s)"
+
+
+def delay_axis(delays_s: np.ndarray) -> tuple[np.ndarray, str]:
+    span = float(np.max(np.abs(delays_s))) if len(delays_s) else 0.0
+    if span > 3 * 3600:
+        return delays_s / 3600.0, "time delay τ (h)"
+    if span > 180:
+        return delays_s / 60.0, "time delay τ (min)"
+    return delays_s, "time delay τ (s)"
+
+
+def rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+
+
+def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float],
+                    correlations: Sequence[float], labels: Sequence[int],
+                    chosen: Sequence[str]) -> Figure:
+    """Paper 000 Fig. 7: sensors in the (delay, correlation) plane by cluster, chosen ones named."""
+    fig = Figure(figsize=SQUARE, layout="constrained")
+    ax = fig.add_subplot()
+    delays, xlabel = delay_axis(np.asarray(delays_s, dtype=float))
+    corr = np.asarray(correlations, dtype=float)
+    labels_arr = np.asarray(labels, dtype=int)
+    groups = sorted(set(labels_arr.tolist()))
+    cmap = matplotlib.colormaps["tab10" if len(groups) <= 10 else "tab20"]
+    for k, group in enumerate(groups):
+        mask = labels_arr == group
+        ax.scatter(delays[mask], corr[mask], s=40, color=cmap(k % cmap.N), alpha=0.85,
+                   label=f"group {group} ({int(mask.sum())})")
+    chosen_set = set(chosen)
+    for name, x, y in zip(sensors, delays, corr, strict=True):
+        if name in chosen_set:
+            ax.scatter([x], [y], s=220, facecolors="none", edgecolors="black", linewidths=2)
+            ax.annotate(name, (x, y), xytext=(8, 6), textcoords="offset points",
+                        fontsize=11, fontweight="bold")
+    ax.scatter([], [], s=220, facecolors="none", edgecolors="black", linewidths=2,
+               label="chosen sensor")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("correlation coefficient r with displacement (–)")
+    ax.set_title(f"{axis}: sensors grouped by delay and correlation, "
+                 f"{len(chosen_set)} of {len(sensors)} chosen")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="best", ncol=2 if len(groups) > 6 else 1)
+    return fig
+
+
+def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
+             subsets: Sequence[Sequence[str]] | None = None) -> Figure:
+    """Paper 000 Fig. 8: the reduction criterion EC_i over model size, minimum marked."""
+    fig = Figure(figsize=WIDE, layout="constrained")
+    ax = fig.add_subplot()
+    sizes = np.arange(1, len(ec) + 1)
+    ax.plot(sizes, ec, "o-", color=OURS_COLOUR, label="EC$_i$ = (S$_i$/S$_1$)·(i/c)")
+    if 1 <= chosen_count <= len(ec):
+        y = ec[chosen_count - 1]
+        ax.scatter([chosen_count], [y], s=250, facecolors="none", edgecolors="tab:red",
+                   linewidths=2.5, zorder=3, label=f"chosen: {chosen_count} sensors")
+        if subsets and len(subsets) >= chosen_count:
+            ax.annotate(", ".join(subsets[chosen_count - 1]), (chosen_count, y),
+                        xytext=(0, 18), textcoords="offset points", ha="center", fontsize=10)
+    ax.set_xticks(sizes)
+    ax.set_xlabel("number of sensors i in the model")
+    ax.set_ylabel("evaluation criterion EC$_i$ (–)")
+    ax.set_title(f"{axis}: model size chosen where EC is smallest")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    return fig
+
+
+def run_fit(run: str, axis: str, time_s: np.ndarray, measured: np.ndarray,
+            predictions: Mapping[str, np.ndarray]) -> Figure:
+    """Measured displacement, each model's prediction (top) and its residual (bottom)."""
+    fig = Figure(figsize=(9.0, 6.5), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
+    t, tlabel = time_axis(np.asarray(time_s, dtype=float))
+    top.plot(t, measured, color="black", lw=2.2, label=f"measured (RMS {rms(measured):.2f} µm)")
+    for k, (name, pred) in enumerate(predictions.items()):
+        colour = OURS_COLOUR if k == 0 else PEER_COLOURS[(k - 1) % len(PEER_COLOURS)]
+        style = "-" if k == 0 else "--"
+        top.plot(t, pred, style, color=colour, lw=1.5, label=f"{name}")
+        residual = measured - pred
+        bottom.plot(t, residual, style, color=colour, lw=1.2,
+                    label=f"{name}: RMS {rms(residual):.2f} µm")
+    bottom.axhline(0.0, color="black", lw=0.8)
+    top.set_ylabel("displacement (µm)")
+    top.set_title(f"{run}, {axis}: prediction against measurement")
+    top.legend(fontsize=8, loc="best")
+    top.grid(True, alpha=0.3)
+    bottom.set_ylabel("residual = measured − predicted (µm)")
+    bottom.set_xlabel(tlabel)
+    bottom.legend(fontsize=8, loc="best")
+    bottom.grid(True, alpha=0.3)
+    return fig
+
+
+def residual_steps(run: str, axis: str, time_s: np.ndarray,
+                   stages: Sequence[tuple[str, np.ndarray]]) -> Figure:
+    """The residual after each model stage (baseline, then every effect added), RMS in legend."""
+    fig = Figure(figsize=WIDE, layout="constrained")
+    ax = fig.add_subplot()
+    t, tlabel = time_axis(np.asarray(time_s, dtype=float))
+    cmap = matplotlib.colormaps["viridis"]
+    n = len(stages)
+    for k, (label, residual) in enumerate(stages):
+        colour = cmap(0.85 * k / max(1, n - 1))
+        ax.plot(t, residual, color=colour, lw=1.6 if k in (0, n - 1) else 1.0,
+                label=f"{label}: RMS {rms(residual):.2f} µm")
+    ax.axhline(0.0, color="black", lw=0.8)
+    ax.set_xlabel(tlabel)
+    ax.set_ylabel("residual = measured − predicted (µm)")
+    ax.set_title(f"{run}, {axis}: residual before and after each added effect")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    return fig
+
+
+def heating_mask(temperature: np.ndarray, period_s: float, window_s: float = 300.0) -> np.ndarray:
+    """True where the temperature rises, judged on a moving average so noise does not flicker."""
+    n = max(1, int(round(window_s / max(period_s, 1e-9))))
+    kernel = np.ones(n) / n
+    padded = np.pad(np.asarray(temperature, dtype=float), (n // 2, n - 1 - n // 2), mode="edge")
+    smooth = np.convolve(padded, kernel, mode="valid")
+    return np.gradient(smooth) >= 0.0
+
+
+def _paths(ax, x: np.ndarray, y: np.ndarray, heating: np.ndarray) -> None:
+    points = np.column_stack([x, y]).reshape(-1, 1, 2)
+    segments = np.concatenate([points[:-1], points[1:]], axis=1)
+    colours = np.where(heating[1:], HEATING_COLOUR, COOLING_COLOUR)
+    ax.add_collection(LineCollection(segments, colors=colours, linewidths=1.4))
+    ax.autoscale_view()
+
+
+def hysteresis(run: str, axis: str, sensor: str, temperature: np.ndarray, measured: np.ndarray,
+               residual: np.ndarray, period_s: float) -> Figure:
+    """Displacement against the most important temperature: the heating/cooling loop
+    (pseudo-hysteresis) before compensation, and what is left of it after."""
+    fig = Figure(figsize=(10.0, 5.0), layout="constrained")
+    left, right = fig.subplots(1, 2, sharey=True)
+    heating = heating_mask(temperature, period_s)
+    for ax, y, title in ((left, measured, "before compensation (measured)"),
+                         (right, residual, "after compensation (residual)")):
+        _paths(ax, temperature, y, heating)
+        ax.set_title(f"{title}: span {np.ptp(y):.1f} µm")
+        ax.set_xlabel(f"{sensor} temperature (°C)")
+        ax.grid(True, alpha=0.3)
+    left.set_ylabel(f"{axis} displacement (µm)")
+    right.plot([], [], color=HEATING_COLOUR, label="heating (temperature rising)")
+    right.plot([], [], color=COOLING_COLOUR, label="cooling (temperature falling)")
+    right.legend(fontsize=8, loc="best")
+    fig.suptitle(f"{run}, {axis} against {sensor}: heating and cooling paths")
+    return fig
+
+
+def protocol_matrix(train_labels: Sequence[str], test_labels: Sequence[str],
+                    values: np.ndarray, metric: str) -> Figure:
+    """Heat map of a train-protocol × test-protocol error matrix, each cell written out."""
+    values = np.asarray(values, dtype=float)
+    fig = Figure(figsize=(1.6 * len(test_labels) + 3.5, 1.0 * len(train_labels) + 2.5),
+                 layout="constrained")
+    ax = fig.add_subplot()
+    finite = values[np.isfinite(values)]
+    norm = Normalize(vmin=float(finite.min()) if finite.size else 0.0,
+                     vmax=float(finite.max()) if finite.size else 1.0)
+    image = ax.imshow(values, cmap="viridis_r", norm=norm, aspect="auto")
+    cbar = fig.colorbar(image, ax=ax)
+    cbar.set_label(metric)
+    ax.set_xticks(range(len(test_labels)), test_labels, rotation=30, ha="right")
+    ax.set_yticks(range(len(train_labels)), train_labels)
+    ax.set_xlabel("judged on protocol")
+    ax.set_ylabel("trained on protocol")
+    middle = (norm.vmin + norm.vmax) / 2
+    for i in range(values.shape[0]):
+        for j in range(values.shape[1]):
+            v = values[i, j]
+            text = "—" if not np.isfinite(v) else f"{v:.2f}"
+            ax.text(j, i, text, ha="center", va="center", fontsize=10,
+                    color="white" if np.isfinite(v) and v > middle else "black")
+    ax.set_title("Which test protocol builds a model that holds on the others")
+    return fig

@@ -1,0 +1,539 @@
+"""`host report`: one self-contained HTML page (plus the PNGs) that tells the model's story.
+
+Why a static page: it opens anywhere without a server or network (images are embedded as data
+URIs, the same PNGs are written beside it for slides), and it is reproducible from the model
+file and the runs alone. The figures follow paper 000 (sensor plane, EC curve) and add what the
+papers do not show: unseen runs, peers, the effects added to close the loop, the heating and
+cooling paths and the fixed-point error bound. Figures are drawn in ``host.plots``.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import json
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from host import plots
+from host.data import Run, load_run
+from host.progress import progress
+from host.terms import Term, design_matrix
+
+SCHEMA = "thermal-model/1"
+
+
+class ReportError(ValueError):
+    """Input the report cannot use (the message names the file and what is wrong)."""
+
+
+# ---------------------------------------------------------------- model and predictions
+
+def load_model(path: str | Path) -> dict:
+    """Read model.json and check the parts the report relies on."""
+    path = Path(path)
+    if not path.is_file():
+        raise ReportError(f"{path}: model file not found")
+    try:
+        model = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): "
+                          f"{exc.msg}") from None
+    if not isinstance(model, dict) or model.get("schema") != SCHEMA:
+        raise ReportError(f"{path}: schema is {model.get('schema')!r}, expected {SCHEMA!r}")
+    for key in ("sample_period_s", "channels", "axes"):
+        if key not in model:
+            raise ReportError(f"{path}: missing '{key}'")
+    if not model["axes"]:
+        raise ReportError(f"{path}: the model has no axes")
+    for name, axis in model["axes"].items():
+        for key in ("intercept", "terms"):
+            if key not in axis:
+                raise ReportError(f"{path}: axis '{name}' has no '{key}'")
+    return model
+
+
+def axis_terms(axis: dict) -> tuple[list[Term], np.ndarray]:
+    terms = [Term.from_json(t) for t in axis["terms"]]
+    coefs = np.array([float(t["coef"]) for t in axis["terms"]], dtype=float)
+    return terms, coefs
+
+
+def predict(intercept: float, term_dicts: list[dict], run: Run, period_s: float) -> np.ndarray:
+    """Float prediction of one axis on a whole run (filters start at the run's first sample)."""
+    terms = [Term.from_json(t) for t in term_dicts]
+    coefs = np.array([float(t["coef"]) for t in term_dicts], dtype=float)
+    X = design_matrix(terms, run.columns(), period_s)
+    return float(intercept) + (X @ coefs if coefs.size else 0.0)
+
+
+def sensor_contributions(axis: dict, run: Run, period_s: float) -> dict[str, np.ndarray]:
+    """Each sensor's summed contribution (µm) over the run, from all its terms."""
+    terms, coefs = axis_terms(axis)
+    out: dict[str, np.ndarray] = {}
+    columns = run.columns()
+    for term, coef in zip(terms, coefs, strict=True):
+        if term.source is None or term.source not in run.sensor_names:
+            continue
+        value = coef * design_matrix([term], columns, period_s)[:, 0]
+        out[term.source] = out.get(term.source, 0.0) + value
+    return out
+
+
+def most_important_sensor(axis: dict, run: Run, period_s: float) -> str | None:
+    """The sensor whose contribution varies most over the run: the temperature that drives it."""
+    contrib = sensor_contributions(axis, run, period_s)
+    if not contrib:
+        return None
+    return max(contrib, key=lambda s: float(np.std(contrib[s])))
+
+
+# ---------------------------------------------------------------- inputs
+
+def _header(path: Path) -> list[str]:
+    if not path.is_file():
+        raise ReportError(f"{path}: run file not found")
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        row = next(csv.reader(fh), None)
+    if not row:
+        raise ReportError(f"{path}: empty file (no header row)")
+    return [h.strip() for h in row]
+
+
+def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0) -> list[Run]:
+    """Load each run with the model's axes it has, every temperature and the model's aux."""
+    training = model.get("training", {})
+    sensors = training.get("sensors", "T*")
+    aux_names = [a["name"] for a in model.get("aux", [])]
+    needed = {c["sensor"] for c in model["channels"]}
+    runs = []
+    for p in paths:
+        path = Path(p)
+        header = _header(path)
+        targets = [a for a in model["axes"] if a in header]
+        if not targets:
+            raise ReportError(f"{path}: none of the model's axes "
+                              f"({', '.join(model['axes'])}) is a column of this run")
+        missing = sorted(needed - set(header))
+        if missing:
+            raise ReportError(f"{path}: missing sensor column(s) the model uses: "
+                              f"{', '.join(missing)}")
+        run = load_run(path, targets, sensors, aux_names, fill_gaps=fill_gaps)
+        absent = sorted(needed - set(run.sensor_names))
+        if absent:  # the model's sensors may lie outside the training glob: add them
+            run = load_run(path, targets, sorted(set(run.sensor_names) | needed), aux_names,
+                           fill_gaps=fill_gaps)
+        runs.append(run)
+    return runs
+
+
+@dataclass
+class ProtocolMatrix:
+    train: list[str]
+    test: list[str]
+    values: np.ndarray
+    metric: str
+
+
+def load_protocols(path: str | Path) -> ProtocolMatrix:
+    """A train × test error matrix from `host compare-protocols` (JSON or CSV).
+
+    JSON: ``{"metric": ..., "train": [...], "test": [...], "matrix": [[...]]}`` or a list of
+    rows ``{"train": .., "test": .., <metric>: ..}``; CSV: rows with train, test and a value.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ReportError(f"{path}: protocol comparison file not found")
+    if path.suffix.lower() == ".csv":
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        return _matrix_from_rows(path, rows, None)
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: not valid JSON (line {exc.lineno}): {exc.msg}") from None
+    if isinstance(data, dict) and "matrix" in data:
+        train = [str(x) for x in data.get("train") or data.get("rows") or []]
+        test = [str(x) for x in data.get("test") or data.get("columns") or []]
+        values = np.array([[math.nan if v is None else float(v) for v in row]
+                           for row in data["matrix"]], dtype=float)
+        if values.shape != (len(train), len(test)):
+            raise ReportError(f"{path}: matrix is {values.shape[0]}×{values.shape[1]} but there "
+                              f"are {len(train)} train and {len(test)} test labels")
+        return ProtocolMatrix(train, test, values, str(data.get("metric", "RMSE (µm)")))
+    rows = data.get("results", data.get("rows")) if isinstance(data, dict) else data
+    if not isinstance(rows, list):
+        raise ReportError(f"{path}: expected a 'matrix' or a list of result rows")
+    metric = data.get("metric") if isinstance(data, dict) else None
+    return _matrix_from_rows(path, rows, metric)
+
+
+def _matrix_from_rows(path: Path, rows: list, metric: str | None) -> ProtocolMatrix:
+    if not rows:
+        raise ReportError(f"{path}: no rows")
+    keys = list(rows[0])
+    train_key = next((k for k in keys if k.lower() in ("train", "trained_on", "train_protocol")),
+                     None)
+    test_key = next((k for k in keys if k.lower() in ("test", "judged_on", "test_protocol")),
+                    None)
+    if train_key is None or test_key is None:
+        raise ReportError(f"{path}: rows need 'train' and 'test' fields (have: {', '.join(keys)})")
+    if metric is None or metric not in keys:
+        candidates = [k for k in keys if "rmse" in k.lower()] or \
+                     [k for k in keys if k not in (train_key, test_key)]
+        metric = candidates[0]
+    train = list(dict.fromkeys(str(r[train_key]) for r in rows))
+    test = list(dict.fromkeys(str(r[test_key]) for r in rows))
+    values = np.full((len(train), len(test)), math.nan)
+    for n, r in enumerate(rows, start=2):
+        try:
+            v = float(r[metric])
+        except (TypeError, ValueError):
+            raise ReportError(f"{path}: row {n}: '{metric}' is not a number: "
+                              f"{r.get(metric)!r}") from None
+        values[train.index(str(r[train_key])), test.index(str(r[test_key]))] = v
+    unit = " (µm)" if metric.endswith("_um") else ""
+    return ProtocolMatrix(train, test, values, metric + unit)
+
+
+# ---------------------------------------------------------------- report
+
+@dataclass
+class Figure:
+    key: str
+    section: str
+    title: str
+    caption: str
+    file: str
+
+
+@dataclass
+class Report:
+    out_dir: Path
+    figures: list[Figure] = field(default_factory=list)
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def index(self) -> Path:
+        return self.out_dir / "index.html"
+
+
+SECTIONS = [
+    ("selection", "1. Sensor selection (paper 000, Fig. 7)"),
+    ("ec", "2. How many sensors (paper 000, Fig. 8)"),
+    ("runs", "3. Prediction on each run"),
+    ("effects", "4. Effects added to close the loop"),
+    ("hysteresis", "5. Heating and cooling paths (pseudo-hysteresis)"),
+    ("protocols", "6. Which test protocol to run"),
+]
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
+
+
+def _save(fig, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    fig.savefig(tmp, format="png", dpi=100)
+    tmp.replace(path)
+
+
+def _fmt(value, digits: int = 2, unit: str = "") -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "—"
+    return f"{value:.{digits}f}{unit}"
+
+
+def summary_rows(model: dict) -> list[dict]:
+    """Row per axis: what the box stores and how well it did in validation (item 7)."""
+    fixed = (model.get("fixed_point") or {}).get("axes", {})
+    rows = []
+    for name, axis in model["axes"].items():
+        metrics = axis.get("metrics", {})
+        sensors = sorted({t["source"] for t in axis["terms"]
+                          if t.get("source") in {c["sensor"] for c in model["channels"]}})
+        channels = sorted(c["channel"] for c in model["channels"] if c["sensor"] in sensors)
+        val = metrics.get("validation_rmse_um")
+        raw = metrics.get("raw_rms_um")
+        reduction = (1.0 - val / raw) * 100.0 if val is not None and raw else None
+        rows.append({
+            "axis": name, "sensors": sensors, "channels": channels,
+            "coefficients": len(axis["terms"]) + 1,
+            "error_bound_um": (fixed.get(name) or {}).get("bound_um"),
+            "validation_rmse_um": val, "raw_rms_um": raw, "reduction_pct": reduction,
+            "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
+            "effects": [e.get("name", "?") for e in axis.get("effects", [])],
+            "validation": metrics.get("validation"),
+        })
+    return rows
+
+
+def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: str | Path,
+                 protocols: str | Path | None = None, peers: bool = True,
+                 fill_gaps: int = 0, quiet: bool = False) -> Report:
+    """Render every figure and write ``out_dir/index.html``; inputs are all checked first."""
+    model = load_model(model_path)
+    runs = load_report_runs(model, list(run_paths), fill_gaps)
+    matrix = load_protocols(protocols) if protocols else None
+    period = float(model["sample_period_s"])
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    report = Report(out)
+    peer_models = peer_predictions(model, runs) if peers else {}
+
+    jobs: list[tuple] = []
+    for axis_name, axis in model["axes"].items():
+        if axis.get("selection"):
+            jobs.append(("selection", axis_name, None))
+            if axis["selection"].get("ec_curve"):
+                jobs.append(("ec", axis_name, None))
+    for run in runs:
+        for axis_name in run.target_names:
+            jobs.append(("runs", axis_name, run))
+            if model["axes"][axis_name].get("effects"):
+                jobs.append(("effects", axis_name, run))
+            jobs.append(("hysteresis", axis_name, run))
+    if matrix is not None:
+        jobs.append(("protocols", None, None))
+
+    run_table: dict[str, dict] = {}
+    for kind, axis_name, run in progress(jobs, "report figures", quiet=quiet):
+        axis = model["axes"][axis_name] if axis_name else None
+        fig_obj = None
+        if kind == "selection":
+            fig_obj, title, caption = _selection_figure(axis_name, axis)
+            file = f"selection_{_slug(axis_name)}.png"
+        elif kind == "ec":
+            sel = axis["selection"]
+            fig_obj = plots.ec_curve(axis_name, sel["ec_curve"], int(sel.get("chosen_count", 0)),
+                                     sel.get("ec_subsets"))
+            title = f"{axis_name}: evaluation criterion"
+            caption = ("EC<sub>i</sub> = (S<sub>i</sub>/S<sub>1</sub>)·(i/c) trades the error "
+                       "variance of the best i-sensor model against its size; the circled "
+                       "minimum fixes how many sensors the box reads.")
+            file = f"ec_{_slug(axis_name)}.png"
+        elif kind == "runs":
+            measured = run.target(axis_name)
+            preds = {"our model": predict(axis["intercept"], axis["terms"], run, period)}
+            for peer_name, per_run in peer_models.items():
+                if (run.path, axis_name) in per_run:
+                    preds[peer_name] = per_run[(run.path, axis_name)]
+            fig_obj = plots.run_fit(run.name, axis_name, run.time_s, measured, preds)
+            entry = run_table.setdefault(run.name, {})
+            entry[axis_name] = {
+                "raw_rms_um": plots.rms(measured),
+                "residual_rms_um": {k: plots.rms(measured - v) for k, v in preds.items()},
+                "in_training": _in_training(model, run),
+            }
+            title = f"{run.name}, {axis_name}"
+            caption = ("Top: the measured displacement and what each model predicts from the "
+                       "temperatures alone. Bottom: what is left (RMS in the legend)."
+                       + (" This run was used for training." if entry[axis_name]["in_training"]
+                          else " The model never saw this run."))
+            file = f"run_{_slug(run.name)}_{_slug(axis_name)}.png"
+        elif kind == "effects":
+            stages = effect_stages({**axis, "_name": axis_name}, run, period)
+            if len(stages) < 2:
+                continue
+            fig_obj = plots.residual_steps(run.name, axis_name, run.time_s,
+                                           [(s["label"], s["residual"]) for s in stages])
+            title = f"{run.name}, {axis_name}: effects"
+            caption = "Residual of the model before and after each effect: " + "; ".join(
+                html.escape(s["label"]) + (f" ({html.escape(s['evidence'])})"
+                                           if s.get("evidence") else "") for s in stages[1:])
+            file = f"effects_{_slug(run.name)}_{_slug(axis_name)}.png"
+        elif kind == "hysteresis":
+            sensor = most_important_sensor(axis, run, period)
+            if sensor is None:
+                continue
+            measured = run.target(axis_name)
+            residual = measured - predict(axis["intercept"], axis["terms"], run, period)
+            fig_obj = plots.hysteresis(run.name, axis_name, sensor, run.column(sensor),
+                                       measured, residual, period)
+            title = f"{run.name}, {axis_name} against {sensor}"
+            caption = (f"{sensor} contributes most to the {axis_name} prediction on this run. "
+                       "Heating (red) and cooling (blue) follow different paths before "
+                       "compensation; after it the loop should collapse towards zero.")
+            file = f"hysteresis_{_slug(run.name)}_{_slug(axis_name)}.png"
+        else:  # protocols
+            fig_obj = plots.protocol_matrix(matrix.train, matrix.test, matrix.values,
+                                            matrix.metric)
+            title = "Protocol comparison"
+            caption = ("Each cell: a model trained on the row's protocol, judged on the "
+                       "column's. A row that stays low everywhere is the protocol to run.")
+            file = "protocols.png"
+        _save(fig_obj, out / file)
+        report.figures.append(Figure(kind, kind, title, caption, file))
+
+    report.summary = {
+        "model": str(model_path),
+        "model_hash": _model_hash(model),
+        "axes": summary_rows(model),
+        "runs": run_table,
+        "figures": [f.file for f in report.figures],
+    }
+    if matrix is not None:
+        report.summary["protocols"] = {"train": matrix.train, "test": matrix.test,
+                                       "values": matrix.values.tolist(), "metric": matrix.metric}
+    _write_atomic(out / "summary.json", json.dumps(report.summary, indent=2, default=_json_num))
+    _write_atomic(report.index, render_html(model, report))
+    return report
+
+
+def _json_num(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(type(value))
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _model_hash(model: dict) -> str | None:
+    try:
+        from codegen import model_hash  # lands with the code generator
+    except ImportError:
+        return None
+    return model_hash(model)
+
+
+def _in_training(model: dict, run: Run) -> bool:
+    names = {Path(p).stem for p in model.get("training", {}).get("runs", [])}
+    return run.name in names
+
+
+def _selection_figure(axis_name: str, axis: dict):
+    sel = axis["selection"]
+    names = list(sel.get("correlations", {}))
+    delays = [float(sel.get("delays_s", {}).get(n, math.nan)) for n in names]
+    corr = [float(sel["correlations"][n]) for n in names]
+    labels = [int(sel.get("labels", {}).get(n, 0)) for n in names]
+    chosen = sel.get("sensors", [])
+    fig = plots.selection_plane(axis_name, names, delays, corr, labels, chosen)
+    title = f"{axis_name}: sensors by delay and correlation"
+    caption = (f"Each dot is a thermocouple: how strongly it correlates with {axis_name} and how "
+               "far it lags behind it. Colours are the c-means groups; one representative per "
+               f"group is tried, and the circled ones ({html.escape(', '.join(chosen))}) "
+               f"are read by the box. Method: {html.escape(str(sel.get('method', '?')))}.")
+    return fig, title, caption
+
+
+def effect_stages(axis: dict, run: Run, period: float) -> list[dict]:
+    """Residual of the baseline model and after each effect, in the order they were added.
+
+    Provisional until the close-the-loop step's effect records settle: an effect that carries
+    the model it produced (``intercept`` and ``terms``) gives a stage; others are skipped.
+    """
+    measured = run.target(axis["_name"])
+    stages = []
+    baseline = axis.get("baseline")
+    if baseline and "terms" in baseline:
+        stages.append({"label": "baseline", "residual": measured - predict(
+            baseline["intercept"], baseline["terms"], run, period)})
+    for effect in axis.get("effects", []):
+        if "terms" in effect and "intercept" in effect:
+            stages.append({"label": f"+ {effect.get('name', '?')}", "residual": measured - predict(
+                effect["intercept"], effect["terms"], run, period)})
+    return stages
+
+
+def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, str], np.ndarray]]:
+    """Predictions of the peer models `host compare` fits (all sensors, top-k correlated)."""
+    return {}
+
+
+# ---------------------------------------------------------------- HTML
+
+CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:2em auto;
+max-width:1100px;padding:0 1em;color:#222;line-height:1.45}
+h1{font-size:1.7em;margin-bottom:.2em}h2{margin-top:2em;border-bottom:1px solid #ccc}
+table{border-collapse:collapse;margin:1em 0;font-size:.92em}
+th,td{border:1px solid #bbb;padding:.3em .6em;text-align:right}
+th{background:#f0f0f0}td.l,th.l{text-align:left}
+figure{margin:1.5em 0}figure img{max-width:100%;border:1px solid #ddd}
+figcaption{font-size:.92em;color:#444;max-width:900px}.meta{color:#666;font-size:.9em}
+"""
+
+
+def _cell(value, left: bool = False) -> str:
+    cls = ' class="l"' if left else ""
+    return f"<td{cls}>{value}</td>"
+
+
+def _th(text: str, left: bool = False) -> str:
+    cls = ' class="l"' if left else ""
+    return f"<th{cls}>{text}</th>"
+
+
+def render_html(model: dict, report: Report) -> str:
+    e = html.escape
+    summary = report.summary
+    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+             '<meta name="viewport" content="width=device-width, initial-scale=1">',
+             "<title>Thermal compensation report</title>", f"<style>{CSS}</style></head><body>",
+             "<h1>Thermal-error compensation report</h1>",
+             f'<p class="meta">Model <code>{e(str(summary["model"]))}</code>'
+             + (f', hash <code>{e(summary["model_hash"])}</code>' if summary["model_hash"] else "")
+             + f', sample period {model["sample_period_s"]:g} s, '
+             f'{len(model["channels"])} channel(s), axes {e(", ".join(model["axes"]))}. '
+             f'Trained on: {e(", ".join(model.get("training", {}).get("runs", [])) or "?")}.</p>']
+
+    parts.append("<h2>Summary</h2><table><tr>"
+                 + "".join(_th(h, left=i < 2) for i, h in enumerate(
+                     ["axis", "sensors", "channels", "coefficients", "fixed-point bound (µm)",
+                      "validation RMSE (µm)", "raw RMS (µm)", "reduction (%)", "effects"]))
+                 + "</tr>")
+    for row in summary["axes"]:
+        parts.append("<tr>" + _cell(e(row["axis"]), True) + _cell(e(", ".join(row["sensors"])),
+                                                                    True)
+                     + _cell(e(", ".join(str(c) for c in row["channels"])))
+                     + _cell(row["coefficients"]) + _cell(_fmt(row["error_bound_um"], 4))
+                     + _cell(_fmt(row["validation_rmse_um"])) + _cell(_fmt(row["raw_rms_um"]))
+                     + _cell(_fmt(row["reduction_pct"], 1))
+                     + _cell(e(", ".join(row["effects"])) or "—", True) + "</tr>")
+    parts.append("</table>")
+    validations = {r["validation"] for r in summary["axes"] if r.get("validation")}
+    if validations:
+        parts.append(f'<p class="meta">Validation: {e(", ".join(sorted(validations)))}. '
+                     "Coefficients include the intercept. The bound is the largest difference "
+                     "between the box's integer arithmetic and the float model.</p>")
+
+    if summary["runs"]:
+        models = list(dict.fromkeys(m for per in summary["runs"].values() for a in per.values()
+                                    for m in a["residual_rms_um"]))
+        parts.append("<h2>Error on each run, before and after compensation</h2><table><tr>"
+                     '<th class="l">run</th><th class="l">axis</th><th>seen in training</th>'
+                     "<th>raw RMS (µm)</th>"
+                     + "".join(f"<th>{e(m)} RMS (µm)</th>" for m in models) + "</tr>")
+        for run_name, per in summary["runs"].items():
+            for axis_name, row in per.items():
+                parts.append("<tr>" + _cell(e(run_name), True) + _cell(e(axis_name), True)
+                             + _cell("yes" if row["in_training"] else "no")
+                             + _cell(_fmt(row["raw_rms_um"]))
+                             + "".join(_cell(_fmt(row["residual_rms_um"].get(m)))
+                                       for m in models) + "</tr>")
+        parts.append("</table>")
+
+    for key, heading in SECTIONS:
+        figs = [f for f in report.figures if f.section == key]
+        if not figs:
+            continue
+        parts.append(f"<h2>{e(heading)}</h2>")
+        for fig in figs:
+            data = base64.b64encode((report.out_dir / fig.file).read_bytes()).decode("ascii")
+            parts.append(f'<figure id="{e(Path(fig.file).stem)}">'
+                         f'<img src="data:image/png;base64,{data}" alt="{e(fig.title)}">'
+                         f"<figcaption><b>{e(fig.title)}.</b> {fig.caption} "
+                         f'(<a href="{e(fig.file)}">{e(fig.file)}</a>)</figcaption></figure>')
+    parts.append("</body></html>")
+    return "\n".join(parts) + "\n"
