@@ -1,0 +1,45 @@
+"""`host monitor PORT [--model build/model.json] [--log run.csv]`: watch a box live."""
+
+from __future__ import annotations
+
+import argparse
+
+from host.monitor import Monitor, MonitorError
+
+NAME = "monitor"
+HELP = "show a box's live corrections, temperatures and status flags; check its model hash"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("port", help="serial port (/dev/ttyUSB0, the HIL's pty, or a pyserial "
+                        "URL such as socket://host:port)")
+    parser.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    parser.add_argument("--model", metavar="JSON",
+                        help="model.json whose hash the box must report (checked via INFO)")
+    parser.add_argument("--log", metavar="CSV", help="append every sample received to this CSV")
+    parser.add_argument("--count", type=int, metavar="N", help="stop after N samples")
+    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    parser.add_argument("--retry", type=float, default=1.0, metavar="S",
+                        help="seconds between reconnection attempts (default 1)")
+    display = parser.add_mutually_exclusive_group()
+    display.add_argument("--plain", action="store_true",
+                         help="one line per sample even on a terminal")
+    display.add_argument("--ansi", action="store_true",
+                         help="redraw in place even when the output is not a terminal")
+
+
+def run(args: argparse.Namespace) -> int:
+    expected = None
+    if args.model:
+        from codegen.hashing import model_hash
+        from host.model_io import read_model
+
+        expected = model_hash(read_model(args.model))
+    if args.count is not None and args.count < 1:
+        raise MonitorError(f"--count must be at least 1 (got {args.count})")
+    if args.duration is not None and args.duration <= 0:
+        raise MonitorError(f"--duration must be positive (got {args.duration})")
+    ansi = True if args.ansi else False if args.plain else None
+    monitor = Monitor(args.port, args.baud, expected_hash=expected, log=args.log,
+                      count=args.count, duration=args.duration, ansi=ansi, retry_s=args.retry)
+    return monitor.run()
