@@ -23,6 +23,7 @@ import numpy as np
 
 from host import plots
 from host.data import Run, load_run
+from host.fit import fit_linear
 from host.progress import progress
 from host.terms import Term, design_matrix
 
@@ -446,9 +447,55 @@ def effect_stages(axis: dict, run: Run, period: float) -> list[dict]:
     return stages
 
 
+K_CORRELATED = 4  # paper 002's four most correlated sensors
+
+
+def _abs_correlation(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    Xc, yc = X - X.mean(axis=0), y - y.mean()
+    den = np.sqrt((Xc ** 2).sum(axis=0) * (yc ** 2).sum())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(den > 0, (Xc.T @ yc) / den, 0.0)
+    return np.abs(r)
+
+
 def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, str], np.ndarray]]:
-    """Predictions of the peer models `host compare` fits (all sensors, top-k correlated)."""
-    return {}
+    """Predictions of the static peers `host compare` also fits (OLS on all sensors, OLS on the
+    k most correlated), trained on the model's own training runs so the comparison is fair.
+
+    Empty when the training runs are not readable here (the report then shows our model only).
+    """
+    training = model.get("training", {})
+    paths = [Path(p) for p in training.get("runs", [])]
+    axes = [a for a in model["axes"] if any(a in r.target_names for r in runs)]
+    if not paths or not all(p.is_file() for p in paths) or not axes:
+        return {}
+    try:
+        train_runs = [load_run(p, [a for a in axes if a in _header(p)],
+                               training.get("sensors", "T*")) for p in paths]
+    except ValueError:
+        return {}
+    names = train_runs[0].sensor_names
+    if any(r.sensor_names != names for r in train_runs) or \
+            not all(set(names) <= set(r.sensor_names) for r in runs):
+        return {}
+    k = min(K_CORRELATED, len(names))
+    labels = ("OLS, all sensors", f"{k} most correlated (paper 002)")
+    out: dict[str, dict[tuple[str, str], np.ndarray]] = {label: {} for label in labels}
+    for axis in axes:
+        have = [r for r in train_runs if axis in r.target_names]
+        if not have:
+            continue
+        X = np.vstack([r.temperatures for r in have])
+        y = np.concatenate([r.target(axis) for r in have])
+        top = np.argsort(-_abs_correlation(X, y), kind="stable")[:k]
+        for label, idx in zip(labels, (np.arange(len(names)), top), strict=True):
+            fit = fit_linear(X[:, idx], y)
+            cols = [names[i] for i in idx]
+            for run in runs:
+                if axis in run.target_names:
+                    Xr = np.column_stack([run.column(c) for c in cols])
+                    out[label][(run.path, axis)] = fit.predict(Xr)
+    return out
 
 
 # ---------------------------------------------------------------- HTML

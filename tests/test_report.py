@@ -109,7 +109,7 @@ def example(tmp_path_factory):
 def rendered(example, tmp_path_factory):
     out = tmp_path_factory.mktemp("report_out")
     report = build_report(example["model_path"], example["runs"], out,
-                          protocols=example["protocols"], peers=False, quiet=True)
+                          protocols=example["protocols"], quiet=True)
     return report
 
 
@@ -160,6 +160,15 @@ def test_summary_numbers_match_an_independent_computation(example, rendered):
             assert row["residual_rms_um"]["our model"] == pytest.approx(
                 np.sqrt(np.mean((col[axis] - pred) ** 2)), rel=1e-6)
             assert row["in_training"] == (path.stem == "fl_first")
+            # peer: OLS on all 16 temperatures, fitted on the training half only
+            train = np.loadtxt(example["runs"][0], delimiter=",", skiprows=1)
+            t_cols = [i for i, n in enumerate(header) if n.startswith("T")]
+            A = np.column_stack([np.ones(len(train)), train[:, t_cols]])
+            beta, *_ = np.linalg.lstsq(A, train[:, header.index(axis)], rcond=None)
+            peer = np.column_stack([np.ones(len(table)), table[:, t_cols]]) @ beta
+            assert row["residual_rms_um"]["OLS, all sensors"] == pytest.approx(
+                np.sqrt(np.mean((col[axis] - peer) ** 2)), rel=1e-6)
+            assert "4 most correlated (paper 002)" in row["residual_rms_um"]
     ch3 = next(r for r in summary["axes"] if r["axis"] == "ch3_um")
     assert ch3["sensors"] == ["T01", "T05"]
     assert ch3["coefficients"] == 3
