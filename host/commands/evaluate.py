@@ -1,0 +1,36 @@
+"""`host evaluate MODEL.json RUN.csv [--json]`: residual of a model on a run it never saw."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from host.evaluate import evaluate_model, load_for_model
+from host.model_io import jsonable, read_model
+
+NAME = "evaluate"
+HELP = "evaluate a model.json on a run: residual RMSE, peak, raw drift and reduction per axis"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", metavar="MODEL.json")
+    parser.add_argument("run", metavar="RUN.csv")
+    parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
+                        help="interpolate interior gaps of at most N samples (default: reject)")
+    parser.add_argument("--json", action="store_true", help="print JSON on stdout")
+
+
+def run(args: argparse.Namespace) -> int:
+    model = read_model(args.model)
+    data = load_for_model(args.run, model, args.fill_gaps)
+    doc = {"model": args.model, **evaluate_model(model, data)}
+    if args.json:
+        print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
+        return 0
+    print(f"model {args.model} on {args.run} ({data.n_samples} samples)")
+    print(f"{'axis':<10} {'rmse um':>9} {'max|e| um':>10} {'raw rms um':>11} {'raw peak um':>12} "
+          f"{'reduction':>10}")
+    for name, m in doc["axes"].items():
+        print(f"{name:<10} {m['rmse_um']:>9.3f} {m['max_abs_um']:>10.3f} {m['raw_rms_um']:>11.3f} "
+              f"{m['raw_peak_um']:>12.3f} {m['reduction_pct']:>9.1f}%")
+    return 0

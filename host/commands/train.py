@@ -1,0 +1,124 @@
+"""`host train RUN.csv [RUN2.csv ...] --target dz_um`: select sensors, fit, validate, write
+DIR/model.json and (by default) DIR/model.h."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from host.model_io import jsonable, write_model
+from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
+from host.train import summary, train_model
+
+NAME = "train"
+HELP = "select sensors (paper 000), fit and validate the thermal model; write model.json"
+
+
+def parse_channel(text: str) -> tuple[str, int]:
+    name, sep, ch = text.partition("=")
+    if not sep or not name or not ch.strip().isdigit():
+        raise argparse.ArgumentTypeError(f"--channel expects SENSOR=INDEX (e.g. T38=0), got "
+                                         f"{text!r}")
+    return name.strip(), int(ch)
+
+
+def add_data_arguments(parser: argparse.ArgumentParser) -> None:
+    """Column roles shared by train and compare."""
+    parser.add_argument("--target", action="append", required=True, metavar="COL",
+                        help="displacement column to model (repeat for several axes)")
+    parser.add_argument("--sensors", default="T*", metavar="GLOB",
+                        help="temperature columns (glob, default %(default)s)")
+    parser.add_argument("--aux", action="append", default=[], metavar="COL",
+                        help="auxiliary input column, e.g. spindle_rpm (repeatable)")
+    parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
+                        help="interpolate interior gaps of at most N samples (default: reject)")
+
+
+def add_selection_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--max-sensors", type=int, default=DEFAULT_MAX_SENSORS, metavar="N",
+                        help="most sensors per axis (default %(default)s, the firmware budget)")
+    parser.add_argument("--groups", type=int, default=DEFAULT_GROUPS, metavar="C",
+                        help="c-means groups (default %(default)s, capped by the sensor count)")
+    parser.add_argument("--selection", choices=METHODS, default="validated",
+                        help="'validated' (default): representatives and EC subset by "
+                        "out-of-fold error; 'paper': paper 000 exactly (training error)")
+    parser.add_argument("--max-delay-h", type=float, default=None, metavar="H",
+                        help="limit of the delay search (default a quarter of the shortest run)")
+    parser.add_argument("--blocks", type=int, default=DEFAULT_BLOCKS, metavar="N",
+                        help="time blocks for validation when there is one run (default "
+                        "%(default)s)")
+    parser.add_argument("--seed", type=int, default=0, help="c-means seed (default 0)")
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("runs", nargs="+", metavar="RUN.csv", help="training runs")
+    add_data_arguments(parser)
+    add_selection_arguments(parser)
+    parser.add_argument("--channel", action="append", type=parse_channel, default=[],
+                        metavar="SENSOR=INDEX", help="wire a sensor to a box channel "
+                        "(default 0..k-1 in column order)")
+    parser.add_argument("--tc-type", choices=("K", "J"), default="K",
+                        help="thermocouple type of every channel (default K)")
+    parser.add_argument("--out", default="build", metavar="DIR",
+                        help="output directory (default %(default)s)")
+    parser.add_argument("--no-codegen", action="store_true",
+                        help="only write model.json (skip DIR/model.h)")
+    parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+
+
+def _fmt(x: float | None, digits: int = 3) -> str:
+    return "-" if x is None else f"{x:.{digits}g}"
+
+
+def print_table(doc: dict, model: dict) -> None:
+    print(f"model: {doc['model']}  (selection: {model['training']['selection']}, validation: "
+          f"{model['training']['validation']})")
+    print(f"{'axis':<10} {'sensors':<34} {'train um':>9} {'valid um':>9} {'raw um':>9} "
+          f"{'R2':>7} {'cond':>7}")
+    for name, a in doc["axes"].items():
+        print(f"{name:<10} {','.join(a['sensors']):<34} {_fmt(a['train_rmse_um']):>9} "
+              f"{_fmt(a['validation_rmse_um']):>9} {_fmt(a['raw_rms_um']):>9} "
+              f"{_fmt(a['r2'], 4):>7} {_fmt(a['condition_number']):>7}")
+    if "header" in doc:
+        print(f"header: {doc['header']}")
+
+
+def run_codegen(model_path: Path, header_path: Path) -> str | None:
+    """Write the C header; None if codegen is not installed yet (reported, not an error)."""
+    try:
+        from codegen import write_header  # type: ignore[attr-defined]
+    except ImportError:
+        return None
+    write_header(model_path, header_path)
+    return str(header_path)
+
+
+def run(args: argparse.Namespace) -> int:
+    model = train_model(args.runs, args.target, sensors=args.sensors, aux=args.aux,
+                        max_sensors=args.max_sensors, groups=args.groups,
+                        effects=not getattr(args, "no_effects", False),
+                        channels=dict(args.channel), selection=args.selection,
+                        max_delay_s=None if args.max_delay_h is None else args.max_delay_h * 3600,
+                        n_blocks=args.blocks, seed=args.seed, fill_gaps=args.fill_gaps,
+                        tc_type=args.tc_type, quiet=args.json)
+    out = Path(args.out)
+    model_path = out / "model.json"
+    write_model(model, model_path)
+    doc = summary(model, str(model_path))
+    if not args.no_codegen:
+        try:
+            header = run_codegen(model_path, out / "model.h")
+        except ValueError as exc:
+            raise ValueError(f"{model_path} written, but codegen refused it: {exc}") from None
+        if header is None:
+            print("host train: codegen is not available; wrote model.json only",
+                  file=sys.stderr)
+        else:
+            doc["header"] = header
+    if args.json:
+        print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
+    else:
+        print_table(doc, model)
+    return 0

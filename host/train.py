@@ -1,0 +1,265 @@
+"""`host train`: select sensors per axis, fit the linear model, validate it, build model.json.
+
+``train_model`` is the library entry point (the CLI, the demo, `host compare` and the tests use
+it). Per target axis it runs the selection (host.selection: paper 000's method, ``validated``
+or ``paper``), fits eq. 4 on the chosen sensors with host.fit, reports training and out-of-fold
+metrics (host.validation), then hands the baseline to the effects step (issue 7). The model
+dict follows docs/model-json.md.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from host import __version__
+from host.data import Run, load_runs
+from host.fit import condition_number, fit_linear, r_squared, rmse, variance_inflation
+from host.model_io import AUX_KINDS, SCHEMA, TEMPERATURE_KINDS
+from host.progress import progress
+from host.selection import (
+    DEFAULT_BLOCKS,
+    DEFAULT_GROUPS,
+    DEFAULT_MAX_SENSORS,
+    METHODS,
+    select_sensors,
+)
+from host.terms import Term, make_temp
+from host.validation import common_period, fold_groups, stack, validation_rmse
+
+TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
+DEFAULT_TC_TYPE = "K"
+CHANNEL_MIN_C = -40.0
+CHANNEL_MAX_C = 200.0
+
+
+class TrainingError(ValueError):
+    """Training inputs are inconsistent (unknown target, bad channel map, ...)."""
+
+
+def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str | list[str],
+             aux: list[str], fill_gaps: int) -> list[Run]:
+    """Load paths; restrict already-loaded runs to the requested sensors."""
+    if not runs:
+        raise TrainingError("no training runs given")
+    if all(isinstance(r, (str, Path)) for r in runs):
+        return load_runs(list(runs), targets, sensors, aux, fill_gaps, min_samples=4)
+    out = []
+    for run in runs:
+        if not isinstance(run, Run):
+            raise TrainingError("runs must be all paths or all host.data.Run objects")
+        for t in targets:
+            if t not in run.target_names:
+                raise TrainingError(f"{run.path}: no target column '{t}'")
+        if isinstance(sensors, str):
+            names = [n for n in run.sensor_names if fnmatch.fnmatchcase(n, sensors)]
+        else:
+            names = list(sensors)
+        missing = [n for n in names if n not in run.sensor_names]
+        if missing or not names:
+            raise TrainingError(f"{run.path}: sensors {missing or sensors!r} not in the run")
+        idx = [run.sensor_names.index(n) for n in names]
+        out.append(Run(run.path, run.time_s, names, run.temperatures[:, idx],
+                       list(run.target_names), run.displacements, list(run.aux_names), run.aux,
+                       run.filled_cells))
+    first = out[0].sensor_names
+    for run in out[1:]:
+        if run.sensor_names != first:
+            raise TrainingError(f"{run.path}: sensor columns differ from {out[0].path}")
+    return out
+
+
+def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
+             n_blocks: int = DEFAULT_BLOCKS) -> dict:
+    """Fit ``target`` on fixed terms; the axis dict (unit, intercept, terms, metrics).
+
+    The validation RMSE refits the coefficients without each fold (run, or time block of a
+    single run) and predicts it; the terms themselves are taken as given.
+    """
+    st = stack(runs, terms, target, period_s, n_blocks)
+    fit = fit_linear(st.X, st.y)
+    residual = st.y - fit.predict(st.X)
+    vif = variance_inflation(st.X)
+    metrics = {
+        "train_rmse_um": rmse(residual),
+        "validation_rmse_um": validation_rmse(st.X, st.y, st.groups) if st.n_folds >= 2
+        else math.nan,
+        "raw_rms_um": rmse(st.y),
+        "r2": r_squared(st.y, st.y - residual),
+        "max_abs_um": float(np.max(np.abs(residual))),
+        "condition_number": condition_number(st.X),
+        "vif": {t.name: float(v) for t, v in zip(terms, vif, strict=True)},
+        "validation": st.scheme,
+        "n_samples": int(st.y.size),
+    }
+    return {
+        "unit": "um",
+        "intercept": float(fit.intercept),
+        "terms": [{**t.to_json(), "coef": float(c)} for t, c in zip(terms, fit.coef, strict=True)],
+        "metrics": metrics,
+    }
+
+
+# --- issue 7 hook -------------------------------------------------------------------------
+def _add_effects(axis: dict, *, runs: list[Run], target: str, period_s: float, n_blocks: int,
+                 enabled: bool) -> dict:
+    """EFFECTS HOOK (issue 7 replaces this): add dynamic/aux effects to a fitted baseline axis.
+
+    Receives the baseline axis dict from ``fit_axis`` and returns the final axis dict. Until
+    host.effects provides ``add_effects`` this returns the baseline unchanged.
+    """
+    if not enabled:
+        return axis
+    try:
+        from host import effects  # type: ignore[attr-defined]
+    except ImportError:
+        return axis
+    add = getattr(effects, "add_effects", None)
+    if add is None:
+        return axis
+    return add(axis, runs=runs, target=target, period_s=period_s, n_blocks=n_blocks)
+# ------------------------------------------------------------------------------------------
+
+
+def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapping[str, int],
+              tc_type: str) -> list[dict]:
+    """One channel per sensor any axis uses; defaults 0..k-1 in data-column order."""
+    used = {t["source"] for a in axes.values() for t in a["terms"]
+            if t["kind"] in TEMPERATURE_KINDS}
+    ordered = [s for s in sensor_order if s in used]
+    for name, ch in overrides.items():
+        if name not in used:
+            raise TrainingError(f"--channel {name}={ch}: no axis uses sensor '{name}' "
+                                f"(used: {', '.join(ordered) or 'none'})")
+        if not isinstance(ch, int) or ch < 0:
+            raise TrainingError(f"--channel {name}={ch}: channel must be an integer >= 0")
+    taken = list(overrides.values())
+    if len(set(taken)) != len(taken):
+        raise TrainingError(f"--channel: two sensors on one channel ({dict(overrides)})")
+    free = (i for i in range(len(ordered) + len(taken)) if i not in set(taken))
+    mapping = {s: overrides[s] if s in overrides else next(free) for s in ordered}
+    return [{"channel": mapping[s], "sensor": s, "tc_type": tc_type, "min_c": CHANNEL_MIN_C,
+             "max_c": CHANNEL_MAX_C} for s in sorted(ordered, key=lambda s: mapping[s])]
+
+
+def _aux(axes: Mapping[str, dict], runs: list[Run]) -> list[dict]:
+    """Aux inputs any term uses; declared range = observed range widened to include 0, +25 %."""
+    used = [n for n in runs[0].aux_names
+            if any(t["kind"] in AUX_KINDS and t["source"] == n
+                   for a in axes.values() for t in a["terms"])]
+    out = []
+    for i, name in enumerate(used):
+        values = np.concatenate([r.column(name) for r in runs])
+        lo, hi = float(np.min(values)), float(np.max(values))
+        out.append({"input": i, "name": name, "min": math.floor(min(0.0, lo * 1.25)),
+                    "max": math.ceil(max(0.0, hi * 1.25))})
+    return out
+
+
+def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
+                sensors: str | list[str] = "T*", aux: Sequence[str] | None = None,
+                max_sensors: int = DEFAULT_MAX_SENSORS, groups: int = DEFAULT_GROUPS,
+                effects: bool = True, channels: Mapping[str, int] | None = None,
+                selection: str = "validated", max_delay_s: float | None = None,
+                n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
+                tc_type: str = DEFAULT_TC_TYPE, quiet: bool = True) -> dict:
+    """Select, fit and validate a model for every target; returns the model.json dict.
+
+    ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
+    (representatives and EC subset by out-of-fold error, default) or ``"paper"`` (paper 000
+    exactly: by training error). ``channels`` maps sensor -> box channel (others get the
+    free indices in data-column order). ``max_delay_s`` limits the delay search.
+    """
+    targets = list(targets)
+    if not targets:
+        raise TrainingError("give at least one --target")
+    if len(set(targets)) != len(targets):
+        raise TrainingError(f"a target is given twice: {targets}")
+    if selection not in METHODS:
+        raise TrainingError(f"unknown --selection '{selection}' (known: {', '.join(METHODS)})")
+    if n_blocks < 2:
+        raise TrainingError(f"need at least 2 validation blocks (got {n_blocks})")
+    if tc_type not in ("K", "J"):
+        raise TrainingError(f"thermocouple type must be K or J (got {tc_type!r})")
+    aux = list(aux or [])
+    runs = _as_runs(runs, targets, sensors, aux, fill_gaps)
+    period_s = common_period(runs)
+    names = runs[0].sensor_names
+    n_min = min(r.n_samples for r in runs)
+    if len(runs) == 1 and n_min < 2 * n_blocks:
+        raise TrainingError(f"{runs[0].path}: {n_min} samples is too few for {n_blocks} "
+                            "validation blocks")
+    X = np.vstack([r.temperatures for r in runs])
+    run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
+    folds, scheme = fold_groups(runs, n_blocks)
+
+    axes: dict[str, dict] = {}
+    for target in progress(targets, "training axes", quiet=quiet):
+        y = np.concatenate([r.target(target) for r in runs])
+        result = select_sensors(X, y, run_ids, folds, period_s, n_groups=groups,
+                                max_sensors=max_sensors, method=selection,
+                                max_delay_s=max_delay_s, seed=seed, scheme=scheme)
+        terms = [make_temp(names[i]) for i in result.sensors]
+        axis = fit_axis(runs, target, terms, period_s, n_blocks)
+        axis["selection"] = result.trace(names)
+        axis["baseline_validation_rmse_um"] = axis["metrics"]["validation_rmse_um"]
+        axis["effects"] = []
+        axis = _add_effects(axis, runs=runs, target=target, period_s=period_s,
+                            n_blocks=n_blocks, enabled=effects)
+        final_terms = [Term.from_json(t) for t in axis["terms"]]
+        if final_terms != terms:  # effects changed the terms: refit, metrics on the final model
+            axis.update(fit_axis(runs, target, final_terms, period_s, n_blocks))
+        axes[target] = axis
+
+    return {
+        "schema": SCHEMA,
+        "tool_version": __version__,
+        "sample_period_s": float(period_s),
+        "channels": _channels(axes, names, dict(channels or {}), tc_type),
+        "aux": _aux(axes, runs),
+        "time_max_s": TIME_MAX_S,
+        "axes": axes,
+        "training": {
+            "runs": [r.path for r in runs],
+            "targets": targets,
+            "sensors": sensors if isinstance(sensors, str) else list(sensors),
+            "aux": aux,
+            "selection": selection,
+            "max_sensors": int(max_sensors),
+            "groups": int(groups),
+            "max_delay_s": max_delay_s,
+            "validation": scheme,
+            "seed": int(seed),
+        },
+    }
+
+
+def axis_sensors(axis: dict) -> list[str]:
+    """Temperature sources of an axis's terms, in term order, each once."""
+    out: list[str] = []
+    for t in axis["terms"]:
+        if t["kind"] in TEMPERATURE_KINDS and t["source"] not in out:
+            out.append(t["source"])
+    return out
+
+
+def summary(model: dict, model_path: str) -> dict:
+    """The ``host train --json`` document (issue 2's fixed shape plus a few extras)."""
+    axes = {}
+    for name, axis in model["axes"].items():
+        m = axis["metrics"]
+        axes[name] = {
+            "sensors": axis_sensors(axis),
+            "train_rmse_um": m["train_rmse_um"],
+            "validation_rmse_um": m["validation_rmse_um"],
+            "raw_rms_um": m["raw_rms_um"],
+            "r2": m.get("r2"),
+            "max_abs_um": m.get("max_abs_um"),
+            "condition_number": m.get("condition_number"),
+            "validation": m.get("validation"),
+        }
+    return {"model": model_path, "axes": axes}
