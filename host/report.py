@@ -333,21 +333,28 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                 "in_training": _in_training(model, run),
             }
             title = f"{run.name}, {axis_name}"
-            caption = ("Top: the measured displacement and what each model predicts from the "
-                       "temperatures alone. Bottom: what is left (RMS in the legend)."
+            caption = ("Top: the measured displacement and what each model predicts from what "
+                       "the box measures. Bottom: what is left (RMS in the legend)."
                        + (" This run was used for training." if entry[axis_name]["in_training"]
                           else " The model never saw this run."))
             file = f"run_{_slug(run.name)}_{_slug(axis_name)}.png"
         elif kind == "effects":
-            stages = effect_stages({**axis, "_name": axis_name}, run, period)
+            stages = effect_stages(axis, axis_name, run, period)
             if len(stages) < 2:
                 continue
             fig_obj = plots.residual_steps(run.name, axis_name, run.time_s,
                                            [(s["label"], s["residual"]) for s in stages])
-            title = f"{run.name}, {axis_name}: effects"
-            caption = "Residual of the model before and after each effect: " + "; ".join(
-                html.escape(s["label"]) + (f" ({html.escape(s['evidence'])})"
-                                           if s.get("evidence") else "") for s in stages[1:])
+            run_table[run.name][axis_name]["stages_rms_um"] = [
+                {"stage": s["label"], "rms_um": plots.rms(s["residual"])} for s in stages]
+            title = f"{run.name}, {axis_name}: effects added to close the loop"
+            caption = ("Residual of the temperature-only baseline and after each effect the "
+                       "close-the-loop step added (RMS on this run in the legend). Why each was "
+                       "added: " + "; ".join(f"<b>{html.escape(s['label'][2:])}</b>: "
+                                             f"{html.escape(s['evidence'])}" for s in stages[1:])
+                       + ".")
+            unexplained = axis.get("unexplained") or {}
+            if unexplained.get("message"):
+                caption += " Still unexplained: " + html.escape(str(unexplained["message"]))
             file = f"effects_{_slug(run.name)}_{_slug(axis_name)}.png"
         elif kind == "hysteresis":
             sensor = most_important_sensor(axis, run, period)
@@ -428,22 +435,42 @@ def _selection_figure(axis_name: str, axis: dict):
     return fig, title, caption
 
 
-def effect_stages(axis: dict, run: Run, period: float) -> list[dict]:
+def effect_evidence(effect: dict) -> str:
+    """The numbers that justified an effect, in one phrase."""
+    parts = []
+    before, after = effect.get("rmse_before_um"), effect.get("rmse_after_um")
+    if before is not None and after is not None:
+        parts.append(f"validation RMSE {before:.2f} → {after:.2f} µm")
+    ev = effect.get("evidence") or {}
+    if ev.get("improvement_pct") is not None:
+        parts.append(f"{ev['improvement_pct']:.0f} % better")
+    if ev.get("folds_improved"):
+        parts.append(f"better in {ev['folds_improved']} folds")
+    if ev.get("residual_corr") is not None:
+        parts.append(f"residual correlation {ev['residual_corr']:+.2f}")
+    return ", ".join(parts)
+
+
+def effect_stages(axis: dict, axis_name: str, run: Run, period: float) -> list[dict]:
     """Residual of the baseline model and after each effect, in the order they were added.
 
-    Provisional until the close-the-loop step's effect records settle: an effect that carries
-    the model it produced (``intercept`` and ``terms``) gives a stage; others are skipped.
+    Each effect records the model it produced (``intercept`` and ``terms``) and the axis keeps
+    the ``baseline`` it started from (host/effects.py), so every stage is re-evaluated here on
+    this run, seen or unseen.
     """
-    measured = run.target(axis["_name"])
+    measured = run.target(axis_name)
     stages = []
     baseline = axis.get("baseline")
     if baseline and "terms" in baseline:
-        stages.append({"label": "baseline", "residual": measured - predict(
-            baseline["intercept"], baseline["terms"], run, period)})
+        stages.append({"label": "baseline (temperatures only)", "evidence": "",
+                       "residual": measured - predict(baseline["intercept"], baseline["terms"],
+                                                      run, period)})
     for effect in axis.get("effects", []):
         if "terms" in effect and "intercept" in effect:
-            stages.append({"label": f"+ {effect.get('name', '?')}", "residual": measured - predict(
-                effect["intercept"], effect["terms"], run, period)})
+            stages.append({"label": f"+ {effect.get('name', effect.get('kind', '?'))}",
+                           "evidence": effect_evidence(effect),
+                           "residual": measured - predict(effect["intercept"], effect["terms"],
+                                                          run, period)})
     return stages
 
 
@@ -538,13 +565,15 @@ def render_html(model: dict, report: Report) -> str:
     parts.append("<h2>Summary</h2><table><tr>"
                  + "".join(_th(h, left=i < 2) for i, h in enumerate(
                      ["axis", "sensors", "channels", "coefficients", "fixed-point bound (µm)",
-                      "validation RMSE (µm)", "raw RMS (µm)", "reduction (%)", "effects"]))
+                      "validation RMSE before effects (µm)", "validation RMSE (µm)",
+                      "raw RMS (µm)", "reduction (%)", "effects"]))
                  + "</tr>")
     for row in summary["axes"]:
         parts.append("<tr>" + _cell(e(row["axis"]), True) + _cell(e(", ".join(row["sensors"])),
                                                                     True)
                      + _cell(e(", ".join(str(c) for c in row["channels"])))
                      + _cell(row["coefficients"]) + _cell(_fmt(row["error_bound_um"], 4))
+                     + _cell(_fmt(row["baseline_validation_rmse_um"]))
                      + _cell(_fmt(row["validation_rmse_um"])) + _cell(_fmt(row["raw_rms_um"]))
                      + _cell(_fmt(row["reduction_pct"], 1))
                      + _cell(e(", ".join(row["effects"])) or "—", True) + "</tr>")

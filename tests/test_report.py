@@ -72,6 +72,8 @@ def example(tmp_path_factory):
         labels = {s: int(corr[s] > 0) * 3 + int(np.digitize(delays[s], [-1800, 1800]))
                   for s in train.sensor_names}
         raw = float(np.sqrt(np.mean(y ** 2)))
+        # the temperature-only baseline the effect (lag of the second sensor) was added to
+        base, *_ = np.linalg.lstsq(A[:, :2], y, rcond=None)
         axes[axis] = {
             "unit": "um", "intercept": float(coef[0]),
             "terms": [{"kind": "temp", "source": s_temp, "coef": float(coef[1])},
@@ -83,8 +85,16 @@ def example(tmp_path_factory):
                           "ec_subsets": [[s_temp], [s_temp, s_lag]], "chosen_count": 2},
             "metrics": {"validation_rmse_um": raw / 4, "raw_rms_um": raw,
                         "validation": "time-blocked"},
-            "baseline_validation_rmse_um": raw / 3, "effects": [],
+            "baseline_validation_rmse_um": raw / 3,
+            "baseline": {"intercept": float(base[0]),
+                         "terms": [{"kind": "temp", "source": s_temp, "coef": float(base[1])}]},
+            "effects": [{"kind": "lag", "name": f"lag({s_lag}, tau=1800s)",
+                         "rmse_before_um": 3.21, "rmse_after_um": 1.23,
+                         "evidence": {"improvement_pct": 61.7, "folds_improved": "3/3",
+                                      "residual_corr": -0.48},
+                         "intercept": float(coef[0]), "terms": "FINAL"}],
         }
+        axes[axis]["effects"][0]["terms"] = axes[axis]["terms"]
     channels = sorted({s for pair in sensors_used.values() for s in pair})
     model = {
         "schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": PERIOD_S,
@@ -118,7 +128,8 @@ def expected_files() -> set[str]:
     for axis in AXES:
         files |= {f"selection_{axis}.png", f"ec_{axis}.png"}
         for run in ("fl_first", "fl_second"):
-            files |= {f"run_{run}_{axis}.png", f"hysteresis_{run}_{axis}.png"}
+            files |= {f"run_{run}_{axis}.png", f"hysteresis_{run}_{axis}.png",
+                      f"effects_{run}_{axis}.png"}
     return files
 
 
@@ -140,6 +151,7 @@ def test_html_embeds_every_figure_and_links_the_files(rendered):
     assert len(embedded) == len(expected_files())
     for name in expected_files():
         assert f'href="{name}"' in page
+    assert "lag(T05, tau=1800s)</b>: validation RMSE 3.21 → 1.23 µm, 62 % better" in page
     assert "http://" not in page and "https://" not in page  # nothing to fetch
 
 
@@ -169,6 +181,11 @@ def test_summary_numbers_match_an_independent_computation(example, rendered):
             assert row["residual_rms_um"]["OLS, all sensors"] == pytest.approx(
                 np.sqrt(np.mean((col[axis] - peer) ** 2)), rel=1e-6)
             assert "4 most correlated (paper 002)" in row["residual_rms_um"]
+            base = model["axes"][axis]["baseline"]
+            before = col[axis] - base["intercept"] - base["terms"][0]["coef"] * col[s_temp]
+            assert [s["rms_um"] for s in row["stages_rms_um"]] == pytest.approx(
+                [np.sqrt(np.mean(before ** 2)), np.sqrt(np.mean((col[axis] - pred) ** 2))],
+                rel=1e-6)
     ch3 = next(r for r in summary["axes"] if r["axis"] == "ch3_um")
     assert ch3["sensors"] == ["T01", "T05"]
     assert ch3["coefficients"] == 3
