@@ -1,1 +1,23 @@
-"""Turns a fitted model.json into a fixed-point C header (see docs/fixed-point.md)."""
+"""Turns a fitted model.json into a fixed-point C header (see docs/fixed-point.md).
+
+Two stages: ``codegen.quantise`` validates the model and decides every integer (shift,
+coefficients, ranges) exactly; ``codegen.render`` formats them through jinja2 templates.
+``codegen.bound`` proves the error bound, ``codegen.crc`` serialises the tables and
+``codegen.fixed`` is the integer twin of the C runtime used as the expectation in tests.
+"""
+
+from codegen.errors import CodegenError
+from codegen.generate import (
+    CODEGEN_VERSION,
+    DEFAULT_MAX_ERROR_UM,
+    GeneratedHeader,
+    generate,
+    load_model,
+    write_header,
+)
+from codegen.hashing import model_hash
+
+__version__ = CODEGEN_VERSION
+
+__all__ = ["CODEGEN_VERSION", "DEFAULT_MAX_ERROR_UM", "CodegenError", "GeneratedHeader",
+           "generate", "load_model", "model_hash", "write_header"]

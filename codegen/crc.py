@@ -1,0 +1,31 @@
+"""CRC-32 of the model tables, over the serialisation in docs/fixed-point.md.
+
+The firmware recomputes the same bytes from its flash tables at boot (tcm_model_crc32) and
+refuses to correct if they differ from TCM_MODEL_CRC32.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+from codegen.quantise import QModel
+
+
+def serialise(model: QModel) -> bytes:
+    """Little-endian, no padding: the exact byte stream the C runtime feeds its CRC."""
+    out = bytearray(struct.pack("<IIII", len(model.channels), len(model.aux),
+                                len(model.axes), model.period_ms))
+    for ch in model.channels:
+        out += struct.pack("<iiB", ch.min_code, ch.max_code, ch.tc_code)
+    for a in model.aux:
+        out += struct.pack("<ii", a.min, a.max)
+    for ax in model.axes:
+        out += struct.pack("<BBq", ax.shift, len(ax.terms), ax.intercept_q)
+        for t in ax.terms:
+            out += struct.pack("<BBiq", t.kind_code, t.input, t.param, t.coef_q)
+    return bytes(out)
+
+
+def model_crc32(model: QModel) -> int:
+    return zlib.crc32(serialise(model)) & 0xFFFFFFFF

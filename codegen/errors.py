@@ -1,0 +1,10 @@
+"""The one exception codegen raises for a model it cannot turn into a safe header."""
+
+from __future__ import annotations
+
+
+class CodegenError(ValueError):
+    """The model cannot be generated; the message names the axis, term, value and limit.
+
+    A ValueError so that ``host`` maps it to exit code 2 like every other bad input.
+    """

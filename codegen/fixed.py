@@ -1,0 +1,249 @@
+"""The integer twin of firmware/src/model_eval.c: the expectation for firmware and HIL tests.
+
+Same tables (``codegen.quantise``), same integer operations, same rounding (half away from
+zero, never shifting a negative value), same filter cold start, same frozen state while a
+channel is faulted, same treatment of out-of-range inputs as faults, same `time` counter.
+``FixedModel.step`` mirrors ``tcm_step`` call for call; ``FixedModel.evaluate_run`` does a
+whole run from power-up at numpy speed. Both are exact: Python ints in the recursions, and
+int64 numpy only where docs/codegen.md proves no value can exceed 2^62.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from codegen.quantise import (
+    ALPHA_FRAC_BITS,
+    AUX_KINDS,
+    CODE_MAX,
+    CODE_MIN,
+    FILTER_KINDS,
+    STATE_FRAC_BITS,
+    TEMPERATURE_KINDS,
+    UINT32_MAX,
+    QModel,
+    QTerm,
+    quantise,
+    rdiv,
+)
+
+_STATE_ONE = 1 << STATE_FRAC_BITS
+_ALPHA_HALF = 1 << (ALPHA_FRAC_BITS - 1)
+
+
+def temp_to_code(temp_c):
+    """degC -> the chip's code: nearest 1/128 degC (ties away from zero), clipped to 19 bits.
+
+    Accepts a scalar (returns int) or an array (returns int64 array). NaN is refused: a
+    missing reading is a fault, not a temperature.
+    """
+    x = np.asarray(temp_c, dtype=float)
+    if np.isnan(x).any():
+        raise ValueError("temp_to_code: NaN temperature (mark the channel invalid instead)")
+    code = np.sign(x) * np.floor(np.abs(x) * 128.0 + 0.5)  # x*128 is exact in binary
+    code = np.clip(code, CODE_MIN, CODE_MAX).astype(np.int64)
+    return int(code) if code.ndim == 0 else code
+
+
+def code_to_temp(codes) -> np.ndarray:
+    """The temperature (degC) a code stands for: what the float model is fed in comparisons."""
+    return np.asarray(codes, dtype=float) / 128.0
+
+
+def _filter_update(s: int, target: int, a: int) -> int:
+    p = (target - s) * a
+    return s + ((p + _ALPHA_HALF) >> ALPHA_FRAC_BITS if p >= 0
+                else -((-p + _ALPHA_HALF) >> ALPHA_FRAC_BITS))
+
+
+def _rdiv_array(v: np.ndarray, f: int) -> np.ndarray:
+    half = np.int64((1 << f) >> 1)
+    return np.where(v >= 0, (v + half) >> f, -((-v + half) >> f))
+
+
+class FixedModel:
+    """Bit-exact Python model of the box's evaluation. ``step`` keeps state between calls."""
+
+    def __init__(self, model: QModel) -> None:
+        self.model = model
+        self.terms: list[QTerm] = model.all_terms()
+        self.n_channels = len(model.channels)
+        self.n_aux = len(model.aux)
+        self.n_axes = len(model.axes)
+        self.reset()
+
+    @classmethod
+    def from_model(cls, model: Mapping) -> FixedModel:
+        """From a model.json dict (validated and quantised exactly as codegen does)."""
+        return cls(quantise(model))
+
+    def reset(self) -> None:
+        """Power-up: filters not started, counter 0, held outputs 0 (tcm_state_init)."""
+        n_states = self.model.n_states
+        self.s = [0] * n_states
+        self.started = [False] * n_states
+        self.k = 0
+        self.out = [0] * self.n_axes
+
+    # ---- one sample, exactly tcm_step ----------------------------------------------------
+
+    def _inputs_ok(self, temp_codes: Sequence[int], valid_mask: int,
+                   aux: Sequence[int]) -> tuple[list[bool], list[bool]]:
+        ch_ok = [bool((valid_mask >> c) & 1) and ch.min_code <= int(temp_codes[c]) <= ch.max_code
+                 for c, ch in enumerate(self.model.channels)]
+        aux_ok = [a.min <= int(aux[i]) <= a.max for i, a in enumerate(self.model.aux)]
+        return ch_ok, aux_ok
+
+    def _feature(self, t: QTerm, temp_codes: Sequence[int], aux: Sequence[int]) -> int:
+        if t.kind == "temp":
+            return int(temp_codes[t.input])
+        if t.kind == "lag":
+            return self.s[t.state]
+        if t.kind == "rate":
+            return int(temp_codes[t.input]) * _STATE_ONE - self.s[t.state]
+        if t.kind == "speed":
+            return int(aux[t.input])
+        if t.kind == "speed2":
+            return int(aux[t.input]) ** 2
+        if t.kind == "square":
+            return (int(temp_codes[t.input]) - t.param) ** 2
+        if t.kind == "time":
+            return min(self.k, t.param)
+        raise AssertionError(t.kind)
+
+    def step(self, temp_codes: Sequence[int], valid_mask: int | None = None,
+             aux: Sequence[int] = ()) -> tuple[list[int], int]:
+        """One sample: returns (outputs_nm, axes_mask). valid_mask None = all channels.
+
+        outputs_nm holds, for an axis not in axes_mask, its last computed value (0 before the
+        first): what a caller's out_nm buffer holds after tcm_step leaves it untouched.
+        """
+        if len(temp_codes) < self.n_channels or len(aux) < self.n_aux:
+            raise ValueError(f"step needs {self.n_channels} temperature codes and "
+                             f"{self.n_aux} aux values")
+        if valid_mask is None:
+            valid_mask = (1 << self.n_channels) - 1
+        ch_ok, aux_ok = self._inputs_ok(temp_codes, valid_mask, aux)
+        for t in self.terms:  # filter states first, in table order
+            if t.kind in FILTER_KINDS and ch_ok[t.input]:
+                target = int(temp_codes[t.input]) * _STATE_ONE
+                if not self.started[t.state]:
+                    self.s[t.state], self.started[t.state] = target, True
+                else:
+                    self.s[t.state] = _filter_update(self.s[t.state], target, t.param)
+        mask = 0
+        for ax in self.model.axes:
+            if all(ch_ok[t.input] for t in ax.terms if t.kind in TEMPERATURE_KINDS) and \
+                    all(aux_ok[t.input] for t in ax.terms if t.kind in AUX_KINDS):
+                acc = ax.intercept_q + sum(t.coef_q * self._feature(t, temp_codes, aux)
+                                           for t in ax.terms)
+                self.out[ax.index] = rdiv(acc, ax.shift)
+                mask |= 1 << ax.index
+        self.k = min(self.k + 1, UINT32_MAX)
+        return list(self.out), mask
+
+    # ---- a whole run from power-up, vectorised over samples ------------------------------
+
+    def evaluate_run(self, temp_codes, aux=None, valid=None, return_mask: bool = False):
+        """Outputs (nm, int64 [n, n_axes]) of a run fed to a freshly powered-up box.
+
+        temp_codes: int [n, n_channels]; aux: int [n, n_aux] (may be None without aux);
+        valid: bool [n, n_channels] (None = all flagged valid). An axis whose inputs are not
+        all valid holds its previous output (0 before its first valid sample), exactly like
+        calling ``step`` n times after ``reset``. ``return_mask`` also returns bool
+        [n, n_axes], True where the axis was computed. Does not touch ``step``'s state.
+        """
+        codes = self._int_matrix(temp_codes, self.n_channels, "temp_codes")
+        n = codes.shape[0]
+        auxv = (np.zeros((n, 0), dtype=np.int64) if aux is None and self.n_aux == 0
+                else self._int_matrix(aux, self.n_aux, "aux", n))
+        flagged = (np.ones(codes.shape, dtype=bool) if valid is None
+                   else np.asarray(valid, dtype=bool))
+        if flagged.shape != codes.shape:
+            raise ValueError(f"valid must have shape {codes.shape}, got {flagged.shape}")
+        lo = np.array([c.min_code for c in self.model.channels], dtype=np.int64)
+        hi = np.array([c.max_code for c in self.model.channels], dtype=np.int64)
+        ch_ok = flagged & (codes >= lo) & (codes <= hi)
+        alo = np.array([a.min for a in self.model.aux], dtype=np.int64)
+        ahi = np.array([a.max for a in self.model.aux], dtype=np.int64)
+        aux_ok = (auxv >= alo) & (auxv <= ahi)
+        # Rows where an input is faulted are computed on an in-range stand-in and discarded,
+        # so that no intermediate can leave the proven ranges.
+        codes = np.where(ch_ok, codes, lo)
+        auxv = np.where(aux_ok, auxv, alo)
+
+        states = {}
+        for t in self.terms:
+            if t.kind in FILTER_KINDS:
+                states[t.state] = self._filter_run(codes[:, t.input].tolist(),
+                                                   ch_ok[:, t.input].tolist(), t.param)
+        k = np.minimum(np.arange(n, dtype=np.int64), UINT32_MAX)
+        out = np.zeros((n, self.n_axes), dtype=np.int64)
+        computed = np.zeros((n, self.n_axes), dtype=bool)
+        for ax in self.model.axes:
+            ok = np.ones(n, dtype=bool)
+            acc = np.full(n, ax.intercept_q, dtype=np.int64)
+            for t in ax.terms:
+                if t.kind in TEMPERATURE_KINDS:
+                    ok &= ch_ok[:, t.input]
+                elif t.kind in AUX_KINDS:
+                    ok &= aux_ok[:, t.input]
+                acc += np.int64(t.coef_q) * self._feature_column(t, codes, auxv, states, k)
+            value = _rdiv_array(acc, ax.shift)
+            # Hold: each row takes the value of the latest computed row at or before it.
+            last = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
+            out[:, ax.index] = np.where(last >= 0, value[np.maximum(last, 0)], 0)
+            computed[:, ax.index] = ok
+        return (out, computed) if return_mask else out
+
+    @staticmethod
+    def _filter_run(codes: list[int], ok: list[bool], a: int) -> np.ndarray:
+        """The state after each sample's update (frozen while faulted); exact Python ints."""
+        s, started, res = 0, False, []
+        append = res.append
+        for code, valid in zip(codes, ok, strict=True):
+            if valid:
+                target = code * _STATE_ONE
+                if started:
+                    p = (target - s) * a
+                    s += ((p + _ALPHA_HALF) >> ALPHA_FRAC_BITS if p >= 0
+                          else -((-p + _ALPHA_HALF) >> ALPHA_FRAC_BITS))
+                else:
+                    s, started = target, True
+            append(s)
+        return np.array(res, dtype=np.int64)
+
+    @staticmethod
+    def _feature_column(t: QTerm, codes: np.ndarray, auxv: np.ndarray,
+                        states: dict[int, np.ndarray], k: np.ndarray) -> np.ndarray:
+        if t.kind == "temp":
+            return codes[:, t.input]
+        if t.kind == "lag":
+            return states[t.state]
+        if t.kind == "rate":
+            return codes[:, t.input] * np.int64(_STATE_ONE) - states[t.state]
+        if t.kind == "speed":
+            return auxv[:, t.input]
+        if t.kind == "speed2":
+            return auxv[:, t.input] * auxv[:, t.input]
+        if t.kind == "square":
+            e = codes[:, t.input] - np.int64(t.param)
+            return e * e
+        if t.kind == "time":
+            return np.minimum(k, np.int64(t.param))
+        raise AssertionError(t.kind)
+
+    @staticmethod
+    def _int_matrix(values, width: int, name: str, n: int | None = None) -> np.ndarray:
+        arr = np.asarray(values)
+        if arr.ndim != 2 or arr.shape[1] != width or (n is not None and arr.shape[0] != n):
+            want = f"({n if n is not None else 'n'}, {width})"
+            raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"{name} must be integers (temperatures: codegen.fixed."
+                             "temp_to_code)")
+        if arr.size and (arr.min() < -(1 << 31) or arr.max() > (1 << 31) - 1):
+            raise ValueError(f"{name}: values must fit int32 like the box's inputs")
+        return arr.astype(np.int64)

@@ -1,0 +1,148 @@
+"""The codegen API: model dict -> header text + fixed_point block; files written atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+from codegen.bound import FINAL_ROUNDING_NM, AxisBound, model_bounds
+from codegen.crc import model_crc32
+from codegen.errors import CodegenError
+from codegen.quantise import ACC_LIMIT, HEADER_FORMAT, QModel, quantise
+from codegen.render import render
+from host import __version__ as CODEGEN_VERSION
+
+DEFAULT_MAX_ERROR_UM = 0.01
+
+
+@dataclass(frozen=True)
+class GeneratedHeader:
+    """The rendered header and the numbers behind it (``fixed_point`` goes into model.json)."""
+
+    text: str
+    fixed_point: dict
+    model: QModel
+    bounds: tuple[AxisBound, ...]
+    crc32: int
+
+
+def _check_bounds(bounds: list[AxisBound], model: QModel, max_error_um: float) -> None:
+    limit = Fraction(max_error_um)
+    for b, ax in zip(bounds, model.axes, strict=True):
+        if b.bound_exact_um <= limit:
+            continue
+        # Name the largest single part of the bound: a term's share, or the final rounding.
+        worst = max(b.terms, key=lambda e: e.total_nm, default=None)
+        if worst is None or worst.total_nm <= FINAL_ROUNDING_NM:
+            detail = (f"; largest part: the final rounding to whole nanometres "
+                      f"({float(FINAL_ROUNDING_NM) / 1000:g} um), which no model avoids")
+        else:
+            t = worst.term
+            why = (f"state quantisation {float(worst.state_nm) / 1000:.3g} um: its alpha "
+                   f"{t.param / 2**30:.3g} is too small for the 16-bit filter state fraction"
+                   if worst.state_nm >= worst.coef_nm else
+                   f"coefficient quantisation {float(worst.coef_nm) / 1000:.3g} um")
+            detail = (f"; largest part: term {t.position} {t.label}, coef {t.coef_um!r} "
+                      f"{t.coef_unit}, {why}")
+        raise CodegenError(
+            f"axis '{ax.name}': worst-case fixed-point error {b.bound_um:.6g} um exceeds "
+            f"--max-error-um {max_error_um:g}{detail}")
+
+
+def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
+                       max_error_um: float) -> dict:
+    return {
+        "header_format": HEADER_FORMAT,
+        "codegen_version": CODEGEN_VERSION,
+        "model_hash": model.model_hash,
+        "crc32": f"0x{crc32:08X}",
+        "max_error_um": max_error_um,
+        "temp_lsb_c": 1 / 128,
+        "sample_period_ms": model.period_ms,
+        "time_max_samples": model.time_max_samples,
+        "acc_limit": ACC_LIMIT,
+        "channels": [{"channel": c.index, "sensor": c.sensor, "min_code": c.min_code,
+                      "max_code": c.max_code} for c in model.channels],
+        "aux": [{"input": a.index, "name": a.name, "min": a.min, "max": a.max}
+                for a in model.aux],
+        "axes": {
+            ax.name: {
+                "shift": ax.shift,
+                "intercept_q": ax.intercept_q,
+                "terms": [{"kind": t.kind, "source": t.source, "input": t.input,
+                           "param": t.param, "coef_q": t.coef_q, "max_abs_x": t.xmax}
+                          for t in ax.terms],
+                "acc_max": ax.acc_max,
+                "out_max_nm": ax.out_max_nm,
+                **b.to_json(),
+            }
+            for ax, b in zip(model.axes, bounds, strict=True)
+        },
+    }
+
+
+def generate(model: Mapping, max_error_um: float = DEFAULT_MAX_ERROR_UM) -> GeneratedHeader:
+    """Quantise, prove and render ``model`` (a model.json dict); raises CodegenError."""
+    if not max_error_um > 0:
+        raise CodegenError(f"--max-error-um must be positive, got {max_error_um!r}")
+    q = quantise(model)
+    bounds = model_bounds(q)
+    _check_bounds(bounds, q, max_error_um)
+    crc = model_crc32(q)
+    text = render(q, bounds, crc, CODEGEN_VERSION)
+    return GeneratedHeader(text, _fixed_point_block(q, bounds, crc, max_error_um), q,
+                           tuple(bounds), crc)
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    """Write via a temp file in the same directory and rename: never a half-written file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_model(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such model file") from None
+    try:
+        model = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CodegenError(f"{path}, line {exc.lineno}, column {exc.colno}: "
+                           f"invalid JSON: {exc.msg}") from None
+    if not isinstance(model, dict):
+        raise CodegenError(f"{path}: the model must be a JSON object")
+    return model
+
+
+def write_header(model_json_path: str | Path, header_path: str | Path,
+                 max_error_um: float = DEFAULT_MAX_ERROR_UM) -> Path:
+    """Generate ``header_path`` from a model.json and store the fixed_point block back in it.
+
+    Nothing is written unless generation succeeds; each file is replaced atomically.
+    """
+    model_json_path, header_path = Path(model_json_path), Path(header_path)
+    model = load_model(model_json_path)
+    try:
+        gen = generate(model, max_error_um)
+    except CodegenError as exc:
+        raise CodegenError(f"{model_json_path}: {exc}") from None
+    _atomic_write(header_path, gen.text)
+    model["fixed_point"] = gen.fixed_point
+    _atomic_write(model_json_path, json.dumps(model, indent=2) + "\n")
+    return header_path

@@ -1,0 +1,164 @@
+"""Stage 2 of codegen: a quantised model -> the text of model.h (jinja2, no arithmetic).
+
+This module only *formats*: every number was decided by ``codegen.quantise`` and
+``codegen.bound``. The template sees ready-made strings (C literals, macro names, comments)
+and ``StrictUndefined`` turns a missing one into an error instead of empty text.
+"""
+
+from __future__ import annotations
+
+import math
+from fractions import Fraction
+
+import jinja2
+
+from codegen.bound import AxisBound
+from codegen.quantise import (
+    FILTER_KINDS,
+    HEADER_FORMAT,
+    INT32_MIN,
+    X_UNIT_TEXT,
+    QModel,
+    QTerm,
+)
+
+GUARD = "TCM_GENERATED_MODEL_H"
+
+_ENV = jinja2.Environment(
+    loader=jinja2.PackageLoader("codegen", "templates"),
+    undefined=jinja2.StrictUndefined,
+    autoescape=False,  # C, not HTML
+    keep_trailing_newline=True,
+    trim_blocks=True,
+    lstrip_blocks=True,
+)
+
+
+def c_int32(v: int) -> str:
+    # INT32_C(-2147483648) would be the negation of a too-wide literal.
+    return "(-INT32_C(2147483647) - 1)" if v == INT32_MIN else f"INT32_C({v})"
+
+
+def c_int64(v: int) -> str:
+    return f"INT64_C({v})"
+
+
+def _num(x: float) -> str:
+    """Shortest text that reads back as the same double (repr), for comments."""
+    return repr(float(x))
+
+
+def _ceil_pm(um: Fraction) -> int:
+    return math.ceil(um * 10**6)
+
+
+def _term_view(t: QTerm, ax_prefix: str, model: QModel) -> dict:
+    prefix = f"{ax_prefix}_TERM{t.position}"
+    if t.kind in ("temp", "lag", "rate", "square"):
+        ch = model.channels[t.input]
+        lo, hi = f"TCM_CH{ch.index}_MIN_CODE", f"TCM_CH{ch.index}_MAX_CODE"
+        what = f"channel {ch.index} ({ch.sensor})"
+    elif t.kind in ("speed", "speed2"):
+        a = model.aux[t.input]
+        lo, hi = f"TCM_AUX{a.index}_MIN", f"TCM_AUX{a.index}_MAX"
+        what = f"aux {a.index} ({a.name})"
+    else:
+        lo = hi = ""
+        what = "samples since power-up"
+    param_macro = f"{prefix}_PARAM"
+    if t.kind == "time":
+        param_lit = "TCM_TIME_MAX_SAMPLES"
+        xmax_expr = f"TCM_XMAX_TIME({param_macro})"
+    elif t.kind == "square":
+        param_lit = c_int32(t.param)
+        xmax_expr = f"TCM_XMAX_SQUARE({lo}, {hi}, {param_macro})"
+    else:
+        param_lit = c_int32(t.param)
+        xmax_expr = f"TCM_XMAX_{t.kind.upper()}({lo}, {hi})"
+    extra = ""
+    if t.kind in FILTER_KINDS:
+        tau = t.params.get("tau_s")
+        extra = (f", tau {_num(tau)} s" if tau is not None else "") + \
+            f", a = alpha*2^30 = {t.param}"
+    elif t.kind == "square":
+        extra = f", reference {_num(t.param / 128)} degC = code {t.param}"
+    elif t.kind == "time":
+        extra = f", saturating at {t.param} samples"
+    return {
+        "position": t.position,
+        "description": f"{t.kind} {what}{extra}",
+        "coef_um": _num(t.coef_um),
+        "coef_unit": t.coef_unit,
+        "x_unit": X_UNIT_TEXT[t.kind],
+        "xmax": t.xmax,
+        "coef_macro": f"{prefix}_COEF_Q",
+        "coef_lit": c_int64(t.coef_q),
+        "param_macro": param_macro,
+        "param_lit": param_lit,
+        "xmax_macro": f"{prefix}_XMAX",
+        "xmax_expr": xmax_expr,
+        "filter": t.kind in FILTER_KINDS,
+        "range_lo": lo,
+        "range_hi": hi,
+        "kind_upper": t.kind.upper(),
+        "input": t.input,
+    }
+
+
+def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: str) -> dict:
+    """Everything the template prints, as strings and flags."""
+    axes = []
+    for ax, b in zip(model.axes, bounds, strict=True):
+        prefix = f"TCM_AXIS{ax.index}"
+        axes.append({
+            "index": ax.index,
+            "name": ax.name,
+            "prefix": prefix,
+            "shift": ax.shift,
+            "n_terms": len(ax.terms),
+            "intercept_um": _num(ax.intercept_um),
+            "intercept_q_lit": c_int64(ax.intercept_q),
+            "terms": [_term_view(t, prefix, model) for t in ax.terms],
+            "bound": {k: _num(v) for k, v in b.to_json().items()},
+            "bound_pm": _ceil_pm(b.bound_exact_um),
+            "input_pm": _ceil_pm(sum((e.input_um for e in b.terms), Fraction(0))),
+        })
+    return {
+        "codegen_version": codegen_version,
+        "header_format": HEADER_FORMAT,
+        "guard": GUARD,
+        "schema": model.schema,
+        "model_hash": model.model_hash,
+        "period_ms": model.period_ms,
+        "crc32": f"0x{crc32:08X}",
+        "n_channels": len(model.channels),
+        "n_aux": len(model.aux),
+        "n_axes": len(model.axes),
+        "n_terms": model.n_terms,
+        "n_states": model.n_states,
+        "channels": [{
+            "index": ch.index, "sensor": ch.sensor, "tc_type": ch.tc_type,
+            "min_c": _num(ch.min_c), "max_c": _num(ch.max_c),
+            "min_macro": f"TCM_CH{ch.index}_MIN_CODE", "max_macro": f"TCM_CH{ch.index}_MAX_CODE",
+            "min_lit": c_int32(ch.min_code), "max_lit": c_int32(ch.max_code),
+        } for ch in model.channels],
+        "aux": [{
+            "index": a.index, "name": a.name,
+            "min_value": _num(a.min_value), "max_value": _num(a.max_value),
+            "min_macro": f"TCM_AUX{a.index}_MIN", "max_macro": f"TCM_AUX{a.index}_MAX",
+            "min_lit": c_int32(a.min), "max_lit": c_int32(a.max),
+        } for a in model.aux],
+        "time_max": None if model.time_max_samples is None else {
+            "seconds": _num(model.time_max_s), "lit": c_int32(model.time_max_samples)},
+        "axes": axes,
+        "term_count_sum": " + ".join(f"{a['prefix']}_N_TERMS" for a in axes),
+        "tables": {
+            "channels": "tcm_channels" if model.channels else "NULL",
+            "aux": "tcm_aux" if model.aux else "NULL",
+            "terms": "tcm_terms" if model.n_terms else "NULL",
+        },
+    }
+
+
+def render(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: str) -> str:
+    return _ENV.get_template("model.h.j2").render(view(model, bounds, crc32, codegen_version))

@@ -1,0 +1,225 @@
+/*
+ * model_eval.c -- integer-only evaluation of a generated thermal model (runtime format 1).
+ *
+ * The Python twin codegen/fixed.py performs exactly the same operations; tests compare the
+ * two bit for bit. Contract: docs/fixed-point.md; proofs of the bounds below: docs/codegen.md.
+ *
+ * Scaling and Overflow Behavior
+ * -----------------------------
+ * Inputs
+ *   temperature code T  int32, 1/128 degC (Q7), valid iff in [min_code, max_code], a
+ *                       sub-range of the chip's 19-bit range [-2^18, 2^18-1].
+ *   aux value n         int32, rpm, valid iff in [min, max].
+ * Filter state (lag/rate terms), int64, unit 2^-16/128 degC (code in Q16):
+ *   cold start          s = T * 65536 (a multiplication: a negative T is never shifted).
+ *   update              d = T*65536 - s;  s = s + rdiv(d * a, 30),  1 <= a <= 2^30.
+ *                       |rdiv(d*a, 30)| <= |d| and has the sign of d, so s stays between its
+ *                       old value and T*65536: s is always within [min_code, max_code]*2^16.
+ *                       Hence |d| <= (max_code - min_code)*2^16 and the generated header
+ *                       asserts |d * a| <= 2^62, so the product and the rounding add fit.
+ * Features x_j (int64): temp T; lag s; rate T*65536 - s; speed n; speed2 n*n;
+ *   square (T - ref)^2 (the difference in int64); time min(k, time_max_samples).
+ * Accumulator (per axis), int64:
+ *   acc = intercept_q + sum_j coef_q[j] * x_j. The generator picks the shift F so that
+ *   |intercept_q| + sum_j |coef_q[j]| * max|x_j| <= 2^62 over the declared ranges, and the
+ *   header _Static_asserts it: every product and every partial sum fits int64 with one guard
+ *   bit to spare, whatever the order of summation. No saturation is needed or done.
+ * Output, int32 nanometres:
+ *   out = rdiv(acc, F): one rounding, half away from zero, with no right shift of a negative
+ *   value (rdiv(v) = -rdiv(-v) for v < 0). |acc| + 2^(F-1) <= 2^62 + 2^61 < 2^63. The header
+ *   asserts rdiv(acc_max, F) <= INT32_MAX, so the conversion to int32_t is exact.
+ * Faults: a channel that is not valid freezes its filter states and makes every axis that
+ *   reads it skip this sample (output untouched, bit clear in the returned mask). An input the
+ *   caller marks valid but whose value is outside its declared range is treated as a fault,
+ *   so no input can break the bounds above.
+ * Error: |out - real-valued model| <= coefficient + state quantisation + 0.5 nm, written per
+ *   axis in the header (TCM_AXISn_BOUND_PM) and in model.json.
+ */
+#include "model_eval.h"
+
+/* v / 2^f rounded half away from zero; f <= 62, |v| <= 2^62 (callers guarantee both). */
+static int64_t tcm_rdiv(int64_t v, uint8_t f)
+{
+    const int64_t half = (INT64_C(1) << f) >> 1; /* 2^(f-1), or 0 when f == 0 */
+    if (v >= 0) {
+        return (v + half) >> f;
+    }
+    return -((-v + half) >> f);
+}
+
+void tcm_state_init(tcm_state_t *state)
+{
+    for (uint32_t i = 0; i < TCM_MAX_STATES; ++i) {
+        state->s[i] = 0;
+    }
+    state->started = 0u;
+    state->k = 0u;
+}
+
+/* ---- CRC-32 (IEEE 802.3, reflected, init and final xor 0xFFFFFFFF: zlib.crc32) ---------- */
+
+static uint32_t crc_u8(uint32_t crc, uint8_t b)
+{
+    crc ^= b;
+    for (int i = 0; i < 8; ++i) {
+        crc = (crc >> 1) ^ (UINT32_C(0xEDB88320) & (0u - (crc & 1u)));
+    }
+    return crc;
+}
+
+static uint32_t crc_le(uint32_t crc, uint64_t v, int n_bytes)
+{
+    for (int i = 0; i < n_bytes; ++i) {
+        crc = crc_u8(crc, (uint8_t)(v >> (8 * i)));
+    }
+    return crc;
+}
+
+/* Signed values are serialised as their two's complement bits (conversion to unsigned). */
+static uint32_t crc_i32(uint32_t crc, int32_t v) { return crc_le(crc, (uint32_t)v, 4); }
+static uint32_t crc_i64(uint32_t crc, int64_t v) { return crc_le(crc, (uint64_t)v, 8); }
+
+uint32_t tcm_model_crc32(const tcm_model_t *m)
+{
+    uint32_t crc = UINT32_C(0xFFFFFFFF);
+    crc = crc_le(crc, m->n_channels, 4);
+    crc = crc_le(crc, m->n_aux, 4);
+    crc = crc_le(crc, m->n_axes, 4);
+    crc = crc_le(crc, m->period_ms, 4);
+    for (uint32_t c = 0; c < m->n_channels; ++c) {
+        crc = crc_i32(crc, m->channels[c].min_code);
+        crc = crc_i32(crc, m->channels[c].max_code);
+        crc = crc_u8(crc, m->channels[c].tc_type);
+    }
+    for (uint32_t k = 0; k < m->n_aux; ++k) {
+        crc = crc_i32(crc, m->aux[k].min);
+        crc = crc_i32(crc, m->aux[k].max);
+    }
+    uint32_t t = 0;
+    for (uint32_t a = 0; a < m->n_axes; ++a) {
+        const tcm_axis_t *ax = &m->axes[a];
+        crc = crc_u8(crc, ax->shift);
+        crc = crc_u8(crc, ax->n_terms);
+        crc = crc_i64(crc, ax->intercept_q);
+        for (uint32_t j = 0; j < ax->n_terms; ++j, ++t) {
+            const tcm_term_t *term = &m->terms[t];
+            crc = crc_u8(crc, term->kind);
+            crc = crc_u8(crc, term->input);
+            crc = crc_i32(crc, term->param);
+            crc = crc_i64(crc, term->coef_q);
+        }
+    }
+    return crc ^ UINT32_C(0xFFFFFFFF);
+}
+
+/* ---- Evaluation ---------------------------------------------------------------------- */
+
+static int is_filter(uint8_t kind) { return kind == TCM_KIND_LAG || kind == TCM_KIND_RATE; }
+
+static int is_temperature(uint8_t kind)
+{
+    return kind == TCM_KIND_TEMP || is_filter(kind) || kind == TCM_KIND_SQUARE;
+}
+
+static int is_aux(uint8_t kind) { return kind == TCM_KIND_SPEED || kind == TCM_KIND_SPEED2; }
+
+/* Feature x_j of one term (docs/fixed-point.md table); inputs already known valid. */
+static int64_t feature(const tcm_term_t *term, const tcm_state_t *st, uint32_t state_index,
+                       const int32_t *temp_codes, const int32_t *aux)
+{
+    switch (term->kind) {
+    case TCM_KIND_TEMP:
+        return temp_codes[term->input];
+    case TCM_KIND_LAG:
+        return st->s[state_index];
+    case TCM_KIND_RATE:
+        return (int64_t)temp_codes[term->input] * INT64_C(65536) - st->s[state_index];
+    case TCM_KIND_SPEED:
+        return aux[term->input];
+    case TCM_KIND_SPEED2:
+        return (int64_t)aux[term->input] * (int64_t)aux[term->input];
+    case TCM_KIND_SQUARE: {
+        const int64_t e = (int64_t)temp_codes[term->input] - (int64_t)term->param;
+        return e * e;
+    }
+    case TCM_KIND_TIME:
+        return (int64_t)(st->k < (uint32_t)term->param ? st->k : (uint32_t)term->param);
+    default:
+        return 0; /* unreachable for a model that passed its CRC and _Static_asserts */
+    }
+}
+
+uint32_t tcm_step(const tcm_model_t *m, tcm_state_t *st, const int32_t *temp_codes,
+                  uint32_t valid_mask, const int32_t *aux, int32_t *out_nm)
+{
+    /* 1. Which inputs are usable this sample: flagged valid and inside the declared range. */
+    uint32_t ch_ok = 0u;
+    for (uint32_t c = 0; c < m->n_channels; ++c) {
+        const int32_t code = temp_codes[c];
+        if (((valid_mask >> c) & 1u) != 0u && code >= m->channels[c].min_code &&
+            code <= m->channels[c].max_code) {
+            ch_ok |= UINT32_C(1) << c;
+        }
+    }
+    uint32_t aux_ok = 0u;
+    for (uint32_t k = 0; k < m->n_aux; ++k) {
+        if (aux[k] >= m->aux[k].min && aux[k] <= m->aux[k].max) {
+            aux_ok |= UINT32_C(1) << k;
+        }
+    }
+
+    /* 2. Filter states of valid channels: cold start, then one update (frozen if faulted). */
+    uint32_t state_index = 0u;
+    for (uint32_t t = 0; t < m->n_terms; ++t) {
+        const tcm_term_t *term = &m->terms[t];
+        if (!is_filter(term->kind)) {
+            continue;
+        }
+        const uint32_t bit = UINT32_C(1) << state_index;
+        if (((ch_ok >> term->input) & 1u) != 0u) {
+            const int64_t target = (int64_t)temp_codes[term->input] * INT64_C(65536);
+            if ((st->started & bit) == 0u) {
+                st->s[state_index] = target;
+                st->started |= bit;
+            } else {
+                const int64_t d = target - st->s[state_index];
+                st->s[state_index] += tcm_rdiv(d * (int64_t)term->param, TCM_ALPHA_FRAC_BITS);
+            }
+        }
+        ++state_index;
+    }
+
+    /* 3. Axes whose inputs are all valid: int64 dot product, one rounding. */
+    uint32_t axes_ok = 0u;
+    uint32_t t = 0u;
+    state_index = 0u;
+    for (uint32_t a = 0; a < m->n_axes; ++a) {
+        const tcm_axis_t *ax = &m->axes[a];
+        int64_t acc = ax->intercept_q;
+        int valid = 1;
+        for (uint32_t j = 0; j < ax->n_terms; ++j, ++t) {
+            const tcm_term_t *term = &m->terms[t];
+            const uint32_t this_state = state_index;
+            if (is_filter(term->kind)) {
+                ++state_index;
+            }
+            if ((is_temperature(term->kind) && ((ch_ok >> term->input) & 1u) == 0u) ||
+                (is_aux(term->kind) && ((aux_ok >> term->input) & 1u) == 0u)) {
+                valid = 0;
+            }
+            if (valid) {
+                acc += term->coef_q * feature(term, st, this_state, temp_codes, aux);
+            }
+        }
+        if (valid) {
+            out_nm[a] = (int32_t)tcm_rdiv(acc, ax->shift);
+            axes_ok |= UINT32_C(1) << a;
+        }
+    }
+
+    /* 4. The `time` term's sample counter (saturating; time_max_samples <= INT32_MAX). */
+    if (st->k != UINT32_MAX) {
+        ++st->k;
+    }
+    return axes_ok;
+}

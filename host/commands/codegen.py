@@ -1,0 +1,40 @@
+"""`host codegen`: model.json -> fixed-point C header with a proven error bound."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "codegen"
+HELP = "generate the firmware's fixed-point model header (model.h) from a model.json"
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", type=Path, help="model.json written by `host train`")
+    parser.add_argument("-o", "--output", type=Path, default=None,
+                        help="header to write (default: model.h next to the model.json)")
+    parser.add_argument("--max-error-um", type=float, default=None,
+                        help="refuse if any axis's worst-case fixed-point error exceeds this "
+                             "(um, default 0.01)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the fixed_point block as JSON instead of a summary")
+
+
+def run(args: argparse.Namespace) -> int:
+    import codegen
+
+    max_error = codegen.DEFAULT_MAX_ERROR_UM if args.max_error_um is None else args.max_error_um
+    out = args.output or args.model.with_name("model.h")
+    codegen.write_header(args.model, out, max_error_um=max_error)
+    block = json.loads(args.model.read_text(encoding="utf-8"))["fixed_point"]
+    if args.json:
+        print(json.dumps(block, indent=2))
+        return 0
+    print(f"{out}: model {block['model_hash']}, CRC-32 {block['crc32']}, "
+          f"{len(block['channels'])} channel(s), {len(block['axes'])} axis/axes")
+    for name, ax in block["axes"].items():
+        print(f"  {name}: shift {ax['shift']}, {len(ax['terms'])} term(s), error bound "
+              f"{ax['bound_um']:.6f} um (limit {max_error:g}; input quantisation "
+              f"{ax['input_quantisation_um']:.6f} um reported separately)")
+    return 0
