@@ -1,0 +1,63 @@
+/* Build-time configuration of the box. Override any of these with -D on the make command line,
+ * e.g. `make BOARD=stm32f405 MODEL=... BOX_CFLAGS='-DBOX_SLEW_NM_PER_S=500'`.
+ * docs/firmware.md explains what each one does and why the defaults are what they are. */
+#ifndef BOX_CONFIG_H
+#define BOX_CONFIG_H
+
+#define BOX_FW_VERSION_DEFAULT "0.1.0"
+#ifndef BOX_FW_VERSION
+#define BOX_FW_VERSION BOX_FW_VERSION_DEFAULT
+#endif
+
+/* Largest number of MAX31856 chips (one chip select each). */
+#ifndef BOX_MAX_CHANNELS
+#define BOX_MAX_CHANNELS 8
+#endif
+
+/* Largest number of axes and auxiliary inputs the application keeps state for. */
+#ifndef BOX_MAX_AXES
+#define BOX_MAX_AXES 6
+#endif
+#ifndef BOX_MAX_AUX
+#define BOX_MAX_AUX 2
+#endif
+
+/* Walk-back rate after a hold (and from 0 after power-up), nanometres per second. */
+#ifndef BOX_SLEW_NM_PER_S
+#define BOX_SLEW_NM_PER_S 1000
+#endif
+
+/* Every correction is clamped to +-this many nanometres (CLAMP status bit). */
+#ifndef BOX_MAX_CORRECTION_NM
+#define BOX_MAX_CORRECTION_NM 200000
+#endif
+
+/* 1: after power-up the output starts at 0 and walks to the first computed value at the slew
+ * limit (a box power-cycled mid-job never steps an axis). 0: the first valid value is output
+ * directly. */
+#ifndef BOX_COLD_START_SLEW
+#define BOX_COLD_START_SLEW 1
+#endif
+
+/* Independent-watchdog timeout: the main loop passes at least once per millisecond tick. */
+#ifndef BOX_WATCHDOG_MS
+#define BOX_WATCHDOG_MS 500
+#endif
+
+/* MAX31856 conversion settings: mains filter 50 Hz (1) or 60 Hz (0); averaged samples per
+ * conversion as the CR1 AVGSEL code (0=1, 1=2, 2=4, 3=8, 4=16 samples). */
+#ifndef BOX_MAINS_50HZ
+#define BOX_MAINS_50HZ 1
+#endif
+#ifndef BOX_TC_AVGSEL
+#define BOX_TC_AVGSEL 2
+#endif
+
+_Static_assert(BOX_MAX_CHANNELS >= 1 && BOX_MAX_CHANNELS <= 16, "1..16 chip selects");
+_Static_assert(BOX_SLEW_NM_PER_S > 0, "slew limit must be positive");
+_Static_assert(BOX_MAX_CORRECTION_NM > 0 && BOX_MAX_CORRECTION_NM < 2000000000,
+               "clamp must be positive and fit int32");
+_Static_assert(BOX_WATCHDOG_MS >= 10 && BOX_WATCHDOG_MS <= 4000, "IWDG range at 1 kHz");
+_Static_assert(BOX_TC_AVGSEL >= 0 && BOX_TC_AVGSEL <= 4, "AVGSEL code 0..4");
+
+#endif

@@ -1,0 +1,43 @@
+/* Commands from the CNC side (docs/protocol.md): assembles bytes into lines and parses them.
+ * A line ends at CR or LF (CR LF is one end; empty lines are ignored). Lines longer than
+ * CMD_MAX_LEN characters are discarded up to the next line end and answered TOO_LONG once;
+ * lines with bytes outside printable ASCII are answered BINARY. */
+#ifndef CMD_H
+#define CMD_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#define CMD_MAX_LEN 64u
+#define CMD_RATE_MIN 1u
+#define CMD_RATE_MAX 3600u
+
+typedef enum {
+    CMD_INFO,
+    CMD_STATUS,
+    CMD_RATE,
+    CMD_ERROR,
+} cmd_kind_t;
+
+typedef struct {
+    cmd_kind_t kind;
+    uint32_t arg;       /* RATE: n */
+    const char *reason; /* ERROR: "UNKNOWN", "TOO_LONG", "BINARY" or "BAD_ARG" */
+} cmd_t;
+
+typedef struct {
+    char buf[CMD_MAX_LEN];
+    uint8_t len;
+    bool too_long;
+    bool binary;
+} cmd_reader_t;
+
+void cmd_reader_init(cmd_reader_t *r);
+
+/* Feed one received byte; true when it completed a line, with the command in *out. */
+bool cmd_reader_push(cmd_reader_t *r, uint8_t byte, cmd_t *out);
+
+/* Parse one complete line (without its line end) of printable ASCII. */
+cmd_t cmd_parse(const char *line, uint8_t len);
+
+#endif

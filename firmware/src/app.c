@@ -1,0 +1,350 @@
+/* The box application (docs/firmware.md describes the behaviour, docs/protocol.md the lines). */
+#include "app.h"
+
+#include <stdbool.h>
+#include <stddef.h>
+
+#include "axis_output.h"
+#include "box_config.h"
+#include "cmd.h"
+#include "hal_aux.h"
+#include "hal_board.h"
+#include "hal_time.h"
+#include "hal_uart.h"
+#include "hal_watchdog.h"
+#include "line.h"
+#include "max31856.h"
+#include "model_binding.h"
+#include "model_eval.h"
+#include "status.h"
+
+/* Longest sample line: "$C," seq "," status "," n_axes ("," corr)* "," n_ch ("," code)* + trailer.
+ * A 19-bit code has at most 7 characters, a correction (clamped) at most 11. */
+#define SAMPLE_LINE_MAX                                                                      \
+    (3 + 10 + 1 + 4 + 1 + 1 + BOX_MAX_AXES * (1 + 11) + 1 + 2 + BOX_MAX_CHANNELS * (1 + 7) + \
+     LINE_TRAILER_LEN)
+_Static_assert(SAMPLE_LINE_MAX <= LINE_MAX, "a full sample line must fit the line buffer");
+_Static_assert(BOX_MAX_CHANNELS <= 32 && BOX_MAX_AXES <= 32, "masks are uint32_t");
+
+#define DEFAULT_PERIOD_MS 1000u
+
+typedef struct {
+    const tcm_model_t *model;
+    bool model_ok;
+    uint32_t n_channels; /* bounded copies of the table sizes, safe even for a bad table */
+    uint32_t n_aux;
+    uint32_t n_axes;
+    uint32_t period_ms;
+
+    uint16_t sticky;  /* MODEL_BAD, WDT_RESET: hold for the whole power cycle */
+    uint16_t status;  /* status word of the latest sample */
+    uint32_t seq;     /* seq of the next sample */
+    bool sampled;     /* a sample has been taken since power-up */
+    uint32_t next_sample_ms;
+    uint32_t rate;
+    uint32_t rate_left; /* samples until the next emitted line */
+
+    tcm_state_t tcm;
+    int32_t codes[BOX_MAX_CHANNELS];
+    uint16_t ch_fault[BOX_MAX_CHANNELS];
+    int32_t aux[BOX_MAX_AUX];
+    int32_t computed_nm[BOX_MAX_AXES];
+    axis_output_t axes[BOX_MAX_AXES];
+    axis_output_cfg_t out_cfg;
+
+    cmd_reader_t reader;
+    line_t line;
+} app_t;
+
+static app_t app;
+
+static uint32_t min_u32(uint32_t a, uint32_t b)
+{
+    return a < b ? a : b;
+}
+
+static void send_line(void)
+{
+    size_t n = line_finish(&app.line);
+    if (n > 0u) {
+        hal_uart_write((const uint8_t *)app.line.buf, n);
+    }
+}
+
+static void send_error(const char *reason)
+{
+    line_begin(&app.line, "E");
+    line_sep(&app.line);
+    line_put_str(&app.line, reason);
+    send_line();
+}
+
+static bool model_fits(const tcm_model_t *m)
+{
+    return m->n_channels <= BOX_MAX_CHANNELS && m->n_aux <= BOX_MAX_AUX &&
+           m->n_axes <= BOX_MAX_AXES && m->n_states <= TCM_MAX_STATES &&
+           (m->n_channels == 0u || m->channels != NULL) && (m->n_aux == 0u || m->aux != NULL) &&
+           (m->n_axes == 0u || (m->axes != NULL && m->terms != NULL));
+}
+
+void app_init(void)
+{
+    hal_board_init();
+
+    app = (app_t){0};
+    app.model = model_binding_model();
+    app.sticky = hal_reset_was_watchdog() ? STATUS_WDT_RESET : 0u;
+    app.model_ok = model_fits(app.model) &&
+                   tcm_model_crc32(app.model) == model_binding_expected_crc();
+    if (!app.model_ok) {
+        app.sticky |= STATUS_MODEL_BAD;
+    }
+    /* Keep sampling and reporting temperatures with a bad model, within safe bounds. */
+    app.n_channels = min_u32(app.model->channels ? app.model->n_channels : 0u, BOX_MAX_CHANNELS);
+    app.n_aux = min_u32(app.model->aux ? app.model->n_aux : 0u, BOX_MAX_AUX);
+    app.n_axes = app.model_ok ? app.model->n_axes : 0u;
+    app.period_ms = model_binding_period_ms();
+    if (app.period_ms == 0u) {
+        app.period_ms = DEFAULT_PERIOD_MS;
+    }
+
+    for (uint32_t ch = 0; ch < app.n_channels; ch++) {
+        (void)max31856_configure((uint8_t)ch, app.model->channels[ch].tc_type);
+    }
+    tcm_state_init(&app.tcm);
+    for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
+        axis_output_init(&app.axes[a]);
+    }
+    app.out_cfg.max_abs_nm = BOX_MAX_CORRECTION_NM;
+    app.out_cfg.step_nm = axis_output_step_nm(BOX_SLEW_NM_PER_S, app.period_ms);
+    app.out_cfg.cold_start_slew = BOX_COLD_START_SLEW != 0;
+
+    app.status = app.sticky | (app.n_axes > 0u ? STATUS_NO_DATA : 0u);
+    app.rate = 1u;
+    app.rate_left = 1u;
+    cmd_reader_init(&app.reader);
+    app.next_sample_ms = hal_millis() + app.period_ms;
+    hal_watchdog_start(BOX_WATCHDOG_MS);
+}
+
+uint32_t app_next_sample_ms(void)
+{
+    return app.next_sample_ms;
+}
+
+/* ---- sampling -------------------------------------------------------------------------- */
+
+static uint16_t sample_channels(uint32_t *valid_mask)
+{
+    uint16_t st = 0;
+    *valid_mask = 0;
+    for (uint32_t ch = 0; ch < app.n_channels; ch++) {
+        const tcm_channel_t *c = &app.model->channels[ch];
+        max31856_reading_t r;
+        uint16_t fault = 0;
+        if (!max31856_read((uint8_t)ch, c->tc_type, &r)) {
+            fault |= CHFAULT_NO_RESPONSE;
+            st |= STATUS_TC_FAULT;
+        } else if (r.sr != 0u) {
+            fault |= r.sr;
+            st |= (r.sr & MAX31856_SR_OPEN) ? STATUS_OPEN : 0u;
+            st |= (r.sr & (uint8_t)~MAX31856_SR_OPEN) ? STATUS_TC_FAULT : 0u;
+        } else if (r.code < c->min_code || r.code > c->max_code) {
+            fault |= CHFAULT_RANGE;
+            st |= STATUS_RANGE;
+        } else {
+            *valid_mask |= (uint32_t)1u << ch;
+        }
+        app.codes[ch] = r.code;
+        app.ch_fault[ch] = fault;
+    }
+    return st;
+}
+
+static uint16_t sample_aux(void)
+{
+    uint16_t st = 0;
+    for (uint32_t k = 0; k < app.n_aux; k++) {
+        const tcm_aux_t *x = &app.model->aux[k];
+        int32_t v;
+        if (!hal_aux_read((uint8_t)k, &v)) {
+            /* The runtime judges aux validity by range: hand it a value outside the range. */
+            v = x->min > INT32_MIN ? x->min - 1 : (x->max < INT32_MAX ? x->max + 1 : 0);
+            st |= STATUS_AUX_FAULT;
+        } else if (v < x->min || v > x->max) {
+            st |= STATUS_AUX_FAULT;
+        }
+        app.aux[k] = v;
+    }
+    return st;
+}
+
+static void send_sample_line(uint32_t seq)
+{
+    line_t *l = &app.line;
+    line_begin(l, "C");
+    line_sep(l);
+    line_put_u32(l, seq);
+    line_sep(l);
+    line_put_hex(l, app.status, 4);
+    line_sep(l);
+    line_put_u32(l, app.n_axes);
+    for (uint32_t a = 0; a < app.n_axes; a++) {
+        line_sep(l);
+        line_put_i32(l, app.axes[a].out_nm);
+    }
+    line_sep(l);
+    line_put_u32(l, app.n_channels);
+    for (uint32_t ch = 0; ch < app.n_channels; ch++) {
+        line_sep(l);
+        line_put_i32(l, app.codes[ch]);
+    }
+    send_line();
+}
+
+static void take_sample(void)
+{
+    uint32_t valid_mask;
+    uint16_t st = app.sticky;
+    st |= sample_channels(&valid_mask);
+    st |= sample_aux();
+    if (app.model_ok) {
+        /* Called every period, also with every channel faulted, so the time term counts. */
+        uint32_t ok = tcm_step(app.model, &app.tcm, app.codes, valid_mask,
+                               app.n_aux > 0u ? app.aux : NULL, app.computed_nm);
+        for (uint32_t a = 0; a < app.n_axes; a++) {
+            st |= axis_output_update(&app.axes[a], &app.out_cfg, ((ok >> a) & 1u) != 0u,
+                                     app.computed_nm[a]);
+        }
+    }
+    app.status = st;
+    app.sampled = true;
+    uint32_t seq = app.seq++;
+    if (--app.rate_left == 0u) {
+        app.rate_left = app.rate;
+        send_sample_line(seq);
+    }
+}
+
+/* ---- commands -------------------------------------------------------------------------- */
+
+static char tc_letter(uint8_t tc_type)
+{
+    return tc_type == TCM_TC_K ? 'K' : (tc_type == TCM_TC_J ? 'J' : '?');
+}
+
+static void send_info(void)
+{
+    line_t *l = &app.line;
+    line_begin(l, "I");
+    line_sep(l);
+    line_put_str(l, BOX_FW_VERSION);
+    line_sep(l);
+    line_put_name(l, model_binding_hash());
+    line_sep(l);
+    line_put_str(l, app.model_ok ? "OK" : "BAD");
+    line_sep(l);
+    line_put_u32(l, app.period_ms);
+    line_sep(l);
+    for (uint32_t a = 0; a < app.n_axes; a++) {
+        if (a > 0u) {
+            line_put_char(l, ';');
+        }
+        line_put_name(l, app.model->axes[a].name ? app.model->axes[a].name : "");
+    }
+    line_sep(l);
+    for (uint32_t ch = 0; ch < app.n_channels; ch++) {
+        const tcm_channel_t *c = &app.model->channels[ch];
+        if (ch > 0u) {
+            line_put_char(l, ';');
+        }
+        line_put_u32(l, ch);
+        line_put_char(l, ':');
+        line_put_name(l, c->sensor ? c->sensor : "");
+        line_put_char(l, ':');
+        line_put_char(l, tc_letter(c->tc_type));
+    }
+    send_line();
+}
+
+static void send_status(void)
+{
+    line_t *l = &app.line;
+    line_begin(l, "S");
+    line_sep(l);
+    line_put_hex(l, app.status, 4);
+    line_sep(l);
+    line_put_u32(l, app.sampled ? app.seq - 1u : 0u);
+    line_sep(l);
+    line_put_u32(l, hal_millis() / 1000u);
+    line_sep(l);
+    for (uint32_t ch = 0; ch < app.n_channels; ch++) {
+        if (ch > 0u) {
+            line_put_char(l, ';');
+        }
+        line_put_hex(l, app.ch_fault[ch], 4);
+    }
+    send_line();
+}
+
+static void handle_command(const cmd_t *c)
+{
+    switch (c->kind) {
+    case CMD_INFO:
+        send_info();
+        break;
+    case CMD_STATUS:
+        send_status();
+        break;
+    case CMD_RATE:
+        app.rate = c->arg;
+        app.rate_left = 1u; /* the next sample goes out, then every n-th */
+        line_begin(&app.line, "OK");
+        line_sep(&app.line);
+        line_put_str(&app.line, "RATE");
+        line_sep(&app.line);
+        line_put_u32(&app.line, c->arg);
+        send_line();
+        break;
+    case CMD_ERROR:
+    default:
+        send_error(c->reason ? c->reason : "UNKNOWN");
+        break;
+    }
+}
+
+/* ---- main loop ------------------------------------------------------------------------- */
+
+void app_poll(void)
+{
+    hal_watchdog_kick();
+
+    uint8_t rx[32];
+    size_t n;
+    while ((n = hal_uart_read(rx, sizeof rx)) > 0u) {
+        for (size_t i = 0; i < n; i++) {
+            cmd_t c;
+            if (cmd_reader_push(&app.reader, rx[i], &c)) {
+                handle_command(&c);
+            }
+        }
+    }
+
+    uint32_t late = hal_millis() - app.next_sample_ms;
+    if ((int32_t)late >= 0) {
+        /* Periods that passed without a sample (a stalled loop) show as a gap in seq. */
+        uint32_t missed = late / app.period_ms;
+        app.seq += missed;
+        app.next_sample_ms += (missed + 1u) * app.period_ms;
+        take_sample();
+    }
+}
+
+int app_main(void)
+{
+    app_init();
+    do {
+        app_poll();
+    } while (hal_wait_for_event(app.next_sample_ms));
+    return 0;
+}
