@@ -196,7 +196,9 @@ def test_end_to_end_fl_thermal_split_train_evaluate(tmp_path, capsys):
     assert main(["train", str(parts[0]), "--target", "ch3_um", "--out", str(out),
                  "--no-codegen", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert 1 <= len(doc["axes"]["ch3_um"]["sensors"]) <= 5
+    assert doc["axes"]["ch3_um"]["sensors"]
+    selected = read_model(out / "model.json")["axes"]["ch3_um"]["selection"]["sensors"]
+    assert 1 <= len(selected) <= 5
     assert main(["evaluate", str(out / "model.json"), str(parts[1]), "--json"]) == 0
     m = json.loads(capsys.readouterr().out)["axes"]["ch3_um"]
     # the uncompensated drift of the 5000 rpm cycle is ~45 um RMS; the model removes most

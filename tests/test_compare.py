@@ -1,0 +1,110 @@
+"""`host compare`: every peer is present, and the peers' numbers are recomputed with numpy."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+
+import numpy as np
+import pytest
+
+from host.cli import main
+from host.compare import best_subset, compare_methods
+from host.data import Run, write_run
+
+
+def _run(path: str, n: int, seed: int, scale: float) -> Run:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n, dtype=float)
+    a = np.sin(2 * np.pi * t / 150.0) * scale
+    b = np.cos(2 * np.pi * t / 390.0) * scale
+    T = np.column_stack([a + 0.05 * rng.normal(size=n), a * 0.8 + 0.3 * rng.normal(size=n),
+                         b + 0.05 * rng.normal(size=n), rng.normal(size=n),
+                         a + b + 0.2 * rng.normal(size=n), 0.5 * b + 0.3 * rng.normal(size=n)])
+    y = 2.0 * a - 1.0 * b + 0.05 * rng.normal(size=n)
+    return Run(path, t * 60.0, [f"T{i}" for i in range(1, 7)], T + 22.0, ["dz_um"], y[:, None])
+
+
+def _ols_test_rmse(train: Run, test: Run, cols: list[int]) -> float:
+    A = np.column_stack([np.ones(train.n_samples), train.temperatures[:, cols]])
+    beta, *_ = np.linalg.lstsq(A, train.target("dz_um"), rcond=None)
+    At = np.column_stack([np.ones(test.n_samples), test.temperatures[:, cols]])
+    return float(np.sqrt(np.mean((test.target("dz_um") - At @ beta) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def doc():
+    train = [_run("a.csv", 400, 1, 1.0), _run("b.csv", 400, 2, 1.3)]
+    test = [_run("c.csv", 300, 3, 1.6)]
+    return train, test, compare_methods(train, test, ["dz_um"], engineering=["T2", "T6"],
+                                        groups=4)
+
+
+def test_all_methods_reported(doc):
+    _, _, d = doc
+    names = [m["method"] for m in d["axes"]["dz_um"]["methods"]]
+    for key in ("ours, validated", "ours, paper 000", "OLS, all sensors", "4 most correlated",
+                "engineering pick", "SequentialFeatureSelector", "LassoCV", "exhaustive"):
+        assert any(n.startswith(key) for n in names), key
+    for m in d["axes"]["dz_um"]["methods"]:
+        assert m["n_sensors"] == len(m["sensors"]) and m["fit_time_s"] >= 0
+
+
+def test_peer_numbers_match_numpy(doc):
+    train, test, d = doc
+    rows = {m["method"].split(" (")[0].split(",")[0]: m for m in d["axes"]["dz_um"]["methods"]}
+    merged = Run("ab", np.r_[train[0].time_s, train[1].time_s],
+                 train[0].sensor_names, np.vstack([r.temperatures for r in train]), ["dz_um"],
+                 np.vstack([r.displacements for r in train]))
+    assert rows["OLS"]["test_rmse_um"] == pytest.approx(
+        _ols_test_rmse(merged, test[0], list(range(6))), rel=1e-9)
+    assert rows["engineering pick"]["test_rmse_um"] == pytest.approx(
+        _ols_test_rmse(merged, test[0], [1, 5]), rel=1e-9)
+    y = merged.target("dz_um")
+    r = [abs(np.corrcoef(merged.temperatures[:, j], y)[0, 1]) for j in range(6)]
+    top = sorted(np.argsort(r)[::-1][:4])
+    corr_row = next(m for m in d["axes"]["dz_um"]["methods"] if "most correlated" in m["method"])
+    assert sorted(corr_row["sensors"]) == [f"T{j + 1}" for j in top]
+    assert d["axes"]["dz_um"]["raw_rms_um"] == pytest.approx(
+        np.sqrt(np.mean(test[0].target("dz_um") ** 2)))
+
+
+def test_best_subset_is_the_brute_force_minimum():
+    rng = np.random.default_rng(5)
+    X = rng.normal(size=(200, 6)).cumsum(axis=0)
+    y = X[:, 1] - 2 * X[:, 4] + rng.normal(size=200)
+    errs = {}
+    for combo in itertools.combinations(range(6), 2):
+        A = np.column_stack([np.ones(200), X[:, combo]])
+        beta, *_ = np.linalg.lstsq(A, y, rcond=None)
+        errs[combo] = float(np.sum((y - A @ beta) ** 2))
+    assert tuple(best_subset(X, y, 2)) == min(errs, key=errs.get)
+
+
+def test_exhaustive_search_skipped_above_limit():
+    train = [_run("a.csv", 300, 1, 1.0)]
+    test = [_run("c.csv", 200, 3, 1.2)]
+    d = compare_methods(train, test, ["dz_um"], groups=4, exhaustive_limit=1)
+    row = next(m for m in d["axes"]["dz_um"]["methods"] if m["method"].startswith("exhaustive"))
+    assert row["note"].startswith("skipped") and math.isnan(row["test_rmse_um"])
+
+
+def test_cli_compare_json_with_split(tmp_path, capsys):
+    run = _run("x.csv", 600, 7, 1.0)
+    path = tmp_path / "x.csv"
+    cols = {n: run.temperatures[:, i] for i, n in enumerate(run.sensor_names)}
+    cols["dz_um"] = run.target("dz_um")
+    write_run(path, run.time_s, cols)
+    split_h = run.time_s[400] / 3600
+    assert main(["compare", str(path), "--split-at-h", str(split_h), "--target", "dz_um",
+                 "--groups", "4", "--engineering", "T1,T3", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["test"][0].endswith("h]") and "dz_um" in d["axes"]
+    rows = d["axes"]["dz_um"]["methods"]
+    assert all(set(m) >= {"method", "n_sensors", "test_rmse_um", "fit_time_s"} for m in rows)
+    assert main(["compare", str(path), "--target", "dz_um"]) == 2
+    assert "give test runs with --test" in capsys.readouterr().err
+    assert main(["compare", str(path), "--split-at-h", str(split_h), "--target", "dz_um",
+                 "--engineering", "T9"]) == 2
+    assert "unknown sensor(s) T9" in capsys.readouterr().err
