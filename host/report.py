@@ -563,7 +563,7 @@ def render_html(model: dict, report: Report) -> str:
              f'Trained on: {e(", ".join(model.get("training", {}).get("runs", [])) or "?")}.</p>']
 
     parts.append("<h2>Summary</h2><table><tr>"
-                 + "".join(_th(h, left=i < 2) for i, h in enumerate(
+                 + "".join(_th(h, left=i < 2 or i == 9) for i, h in enumerate(
                      ["axis", "sensors", "channels", "coefficients", "fixed-point bound (µm)",
                       "validation RMSE before effects (µm)", "validation RMSE (µm)",
                       "raw RMS (µm)", "reduction (%)", "effects"]))

@@ -1,0 +1,304 @@
+"""`make demo`: from nothing to a compensating box, a replay and a report, with real data too.
+
+Every step runs the real command line (``host ...``, ``make -C firmware``, ``python -m hil``) in
+a subprocess, exactly what a user would type, so the demo exercises the product rather than a
+shortcut through its internals. Each step prints a header and its key numbers; the first step
+that fails stops the demo with its command, the tail of its output and exit code 1.
+
+The story:
+  1. example runs (simulated constant/step/random spindle protocols; made only if missing)
+  2. train on constant + step: the sensors chosen per axis and the validation error
+  3. the fixed-point C header and its error bound
+  4. firmware for the STM32F405 (flash/RAM) and for the native board
+  5. HIL: the native firmware replays the unseen random run over a pty, checked against the host
+  6. protocol comparison (which test protocol to run) and the report
+  7. real data (FL_THERMAL): train on the first three heat/cool cycles (0-24 h), judge on the
+     fourth (24-32 h, 5000 rpm, a speed never seen in training), and its report
+  8. where the reports are, and the error before/after compensation on every run
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = Path("examples")
+BUILD = Path("build")
+REPORT = Path("report")
+SIM_TRAIN = [EXAMPLES / "sim_constant.csv", EXAMPLES / "sim_step.csv"]
+SIM_TEST = EXAMPLES / "sim_random.csv"
+SIM_TARGETS = ["dx_um", "dy_um", "dz_um"]
+FL_RUN = EXAMPLES / "fl_thermal_steps.csv"
+FL_SPLIT_H = 24.0  # three 8 h heat/cool cycles for training, the fourth (5000 rpm) for judging
+FL_TARGETS = ["ch1_um", "ch2_um", "ch3_um", "ch4_um", "ch5_um"]
+FL_BUILD = BUILD / "fl"
+FL_REPORT = REPORT / "fl"
+STEP_TIMEOUT_S = 600
+
+
+class DemoFailed(RuntimeError):
+    """A step failed; the message says which, with the command and its output's tail."""
+
+
+class Demo:
+    def __init__(self, out=None) -> None:
+        self.out = out or sys.stdout
+        self.step_no = 0
+        self.started = time.monotonic()
+        self.step_started = self.started
+        self.current = ""
+
+    # ---- printing ------------------------------------------------------------------------
+    def say(self, text: str = "") -> None:
+        print(text, file=self.out, flush=True)
+
+    def step(self, title: str) -> None:
+        self.step_no += 1
+        self.current = title
+        self.step_started = time.monotonic()
+        self.say(f"\n==> [{self.step_no}] {title}")
+
+    def done(self) -> None:
+        self.say(f"    ({time.monotonic() - self.step_started:.1f} s)")
+
+    # ---- running -------------------------------------------------------------------------
+    def run(self, args: Sequence[str | Path], what: str | None = None,
+            timeout: float = STEP_TIMEOUT_S) -> str:
+        """Run one command from the project root; its stdout, or DemoFailed with the output."""
+        cmd = [str(a) for a in args]
+        shown = " ".join(shlex.quote(c) for c in cmd).replace(str(ROOT) + "/", "")
+        self.say(f"    $ {shown}")
+        env = dict(os.environ)
+        env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
+        try:
+            done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True,
+                                  timeout=timeout, env=env)
+        except FileNotFoundError as exc:
+            raise DemoFailed(f"{what or self.current}: cannot run {cmd[0]}: {exc}") from None
+        except subprocess.TimeoutExpired:
+            raise DemoFailed(f"{what or self.current}: `{shown}` did not finish within "
+                             f"{timeout:g} s") from None
+        if done.returncode != 0:
+            tail = "\n".join((done.stdout + "\n" + done.stderr).strip().splitlines()[-25:])
+            raise DemoFailed(f"{what or self.current}: `{shown}` exited with code "
+                             f"{done.returncode}:\n{tail}")
+        return done.stdout
+
+    def host(self, *args: str | Path, timeout: float = STEP_TIMEOUT_S) -> str:
+        return self.run([sys.executable, "-m", "host", *args], timeout=timeout)
+
+    def host_json(self, *args: str | Path, timeout: float = STEP_TIMEOUT_S) -> dict:
+        text = self.host(*args, timeout=timeout)
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise DemoFailed(f"{self.current}: `host {args[0]}` printed no valid JSON "
+                             f"({exc.msg}): {text[:300]!r}") from None
+
+
+# ---------------------------------------------------------------- formatting helpers
+
+def fmt_um(value: float | None, digits: int = 2) -> str:
+    return "—" if value is None else f"{value:.{digits}f} µm"
+
+
+def run_shape(path: Path) -> str:
+    """Samples, duration and column count of a run, read from the file (a few ms)."""
+    with (ROOT / path).open() as fh:
+        header = fh.readline().strip().split(",")
+        rows = [line for line in fh if line.strip()]
+    t0 = float(rows[0].split(",")[0])
+    t1 = float(rows[-1].split(",")[0])
+    temps = sum(1 for h in header if h.startswith("T"))
+    return (f"{len(rows)} samples over {(t1 - t0) / 3600:.1f} h, {temps} temperatures, "
+            f"columns: {', '.join(h for h in header if not h.startswith('T'))}")
+
+
+def print_training(demo: Demo, doc: dict, model: dict) -> None:
+    for axis, row in doc["axes"].items():
+        spec = model["axes"][axis]
+        base = spec.get("baseline_validation_rmse_um")
+        effects = [e.get("name", "?") for e in spec.get("effects", [])]
+        line = (f"    {axis}: sensors {', '.join(row['sensors'])}; validation RMSE "
+                f"{fmt_um(row['validation_rmse_um'])} of {fmt_um(row['raw_rms_um'])} raw")
+        if effects:
+            line += f" (before effects {fmt_um(base)}; added {', '.join(effects)})"
+        demo.say(line)
+
+
+def load_json(path: Path) -> dict:
+    return json.loads((ROOT / path).read_text())
+
+
+# ---------------------------------------------------------------- the steps
+
+def step_examples(demo: Demo) -> None:
+    demo.step("Example runs")
+    missing = [p for p in [*SIM_TRAIN, SIM_TEST] if not (ROOT / p).is_file()]
+    if missing:
+        demo.say(f"    missing {', '.join(str(p) for p in missing)}: simulating them")
+        demo.run([sys.executable, "-m", "host.examples", EXAMPLES])
+    for path in [*SIM_TRAIN, SIM_TEST, FL_RUN]:
+        demo.say(f"    {path}: {run_shape(path)}")
+    demo.done()
+
+
+def step_train_sim(demo: Demo) -> dict:
+    demo.step("Train on the constant and step protocols (sensor selection, fit, effects)")
+    targets = [a for t in SIM_TARGETS for a in ("--target", t)]
+    doc = demo.host_json("train", *SIM_TRAIN, *targets, "--out", BUILD, "--json")
+    model = load_json(BUILD / "model.json")
+    print_training(demo, doc, model)
+    demo.done()
+    return model
+
+
+def step_header(demo: Demo, model_dir: Path) -> dict:
+    demo.step("Fixed-point C header")
+    header = model_dir / "model.h"
+    if not (ROOT / header).is_file():
+        demo.host("codegen", model_dir / "model.json", "-o", header)
+    model = load_json(model_dir / "model.json")
+    demo.say(f"    {header}: {(ROOT / header).stat().st_size} bytes")
+    for axis, fp in (model.get("fixed_point") or {}).get("axes", {}).items():
+        demo.say(f"    {axis}: shift {fp.get('shift')}, box vs float model ≤ "
+                 f"{fp.get('bound_um', float('nan')) * 1000:.2f} nm (bound), input "
+                 f"quantisation {fmt_um(fp.get('input_quantisation_um'), 3)}")
+    demo.done()
+    return model
+
+
+def step_firmware(demo: Demo, header: Path) -> Path:
+    demo.step("Firmware for the STM32F405 and for the native board")
+    model_arg = f"MODEL={ROOT / header}"
+    demo.run(["make", "-C", "firmware", "BOARD=stm32f405", model_arg])
+    elf = ROOT / "firmware" / "build" / "stm32f405" / "thermal_box.elf"
+    size = demo.run(["arm-none-eabi-size", elf]).splitlines()
+    if len(size) >= 2:
+        text, data, bss = (int(v) for v in size[1].split()[:3])
+        demo.say(f"    STM32F405 image: {text + data} bytes flash (of 1 MiB), {data + bss} bytes "
+                 "static RAM (of 128 KiB)")
+    demo.run(["make", "-C", "firmware", "BOARD=native", model_arg])
+    native = ROOT / "firmware" / "build" / "native" / "thermal_box"
+    demo.say(f"    native board: {native.relative_to(ROOT)} (UART on a pty, virtual time)")
+    demo.done()
+    return native
+
+
+def step_hil(demo: Demo) -> dict:
+    demo.step(f"HIL: the native firmware replays the unseen run {SIM_TEST.name}")
+    text = demo.run([sys.executable, "-m", "hil", "replay", "--model", BUILD / "model.json",
+                     "--data", SIM_TEST, "--json"])
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError:
+        raise DemoFailed(f"HIL replay printed no valid JSON: {text[:300]!r}") from None
+    (ROOT / BUILD / "hil_replay.json").write_text(json.dumps(doc, indent=2))
+    for key, value in doc.items():
+        if isinstance(value, (int, float, str, bool)) or value is None:
+            demo.say(f"    {key}: {value}")
+    demo.done()
+    return doc
+
+
+def step_protocols(demo: Demo) -> Path | None:
+    demo.step("Which test protocol to run: train on one, judge on the others")
+    out = BUILD / "protocols.json"
+    doc = demo.host_json("compare-protocols", "--json")
+    (ROOT / out).write_text(json.dumps(doc, indent=2))
+    demo.say(f"    written to {out}")
+    demo.done()
+    return out
+
+
+def step_report(demo: Demo, model_dir: Path, runs: list[Path], out: Path,
+                protocols: Path | None = None) -> dict:
+    demo.step(f"Report for {model_dir / 'model.json'}")
+    args: list[str | Path] = ["report", model_dir / "model.json", "--runs", *runs, "-o", out,
+                              "--json"]
+    if protocols is not None:
+        args += ["--protocols", protocols]
+    doc = demo.host_json(*args)
+    demo.say(f"    {out / 'index.html'}: {len(doc['figures'])} figures")
+    demo.done()
+    return doc
+
+
+def step_fl(demo: Demo) -> tuple[list[Path], dict]:
+    demo.step(f"Real data: split {FL_RUN.name} at {FL_SPLIT_H:g} h (3 cycles to train, "
+              "the 4th to judge)")
+    parts = [Path(p) for p in demo.host_json("split", FL_RUN, "--at-hours", str(FL_SPLIT_H),
+                                             "-o", FL_BUILD, "--json")["parts"]]
+    parts = [p.relative_to(ROOT) if p.is_absolute() else p for p in parts]
+    for p in parts:
+        demo.say(f"    {p}: {run_shape(p)}")
+    demo.done()
+
+    demo.step("Real data: train on the first three cycles (1250, 2500, 3750 rpm)")
+    targets = [a for t in FL_TARGETS for a in ("--target", t)]
+    doc = demo.host_json("train", parts[0], *targets, "--aux", "spindle_rpm", "--out", FL_BUILD,
+                         "--json")
+    model = load_json(FL_BUILD / "model.json")
+    print_training(demo, doc, model)
+    demo.done()
+
+    demo.step("Real data: judge on the fourth cycle (5000 rpm, never seen)")
+    result = demo.host_json("evaluate", FL_BUILD / "model.json", parts[1], "--json")
+    runs = result.get("runs", [result]) if isinstance(result, dict) else result
+    for entry in runs:
+        for axis, m in entry.get("axes", {}).items():
+            demo.say(f"    {axis}: RMS {fmt_um(m['raw_rms_um'])} raw → {fmt_um(m['rmse_um'])} "
+                     f"compensated ({m['reduction_pct']:.0f} % less), worst "
+                     f"{fmt_um(m['max_abs_um'])}")
+    demo.done()
+    return parts, model
+
+
+def print_error_table(demo: Demo, reports: list[tuple[str, dict]]) -> None:
+    demo.say("\nError before and after compensation (RMS over each run; 'seen' = training run):")
+    demo.say(f"    {'data':<10} {'run':<28} {'axis':<8} {'seen':<5} {'raw':>10} "
+             f"{'compensated':>12} {'reduction':>10}")
+    for label, summary in reports:
+        for run_name, per_axis in summary["runs"].items():
+            for axis, row in per_axis.items():
+                raw = row["raw_rms_um"]
+                ours = row["residual_rms_um"]["our model"]
+                red = 100.0 * (1.0 - ours / raw) if raw else float("nan")
+                demo.say(f"    {label:<10} {run_name[:28]:<28} {axis:<8} "
+                         f"{'yes' if row['in_training'] else 'no':<5} {raw:>7.2f} µm "
+                         f"{ours:>9.2f} µm {red:>9.0f} %")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    del argv
+    demo = Demo()
+    demo.say("Thermal-error compensation retrofit: the whole story, every step through the CLI")
+    try:
+        step_examples(demo)
+        step_train_sim(demo)
+        step_header(demo, BUILD)
+        step_firmware(demo, BUILD / "model.h")
+        step_hil(demo)
+        protocols = step_protocols(demo)
+        sim = step_report(demo, BUILD, [*SIM_TRAIN, SIM_TEST], REPORT, protocols)
+        fl_parts, _ = step_fl(demo)
+        fl = step_report(demo, FL_BUILD, fl_parts, FL_REPORT)
+    except DemoFailed as exc:
+        demo.say(f"\ndemo: step {demo.step_no} ({demo.current}) failed:\n{exc}")
+        return 1
+    demo.say(f"\nReports: {ROOT / REPORT / 'index.html'} (simulated protocols)")
+    demo.say(f"         {ROOT / FL_REPORT / 'index.html'} (real FL_THERMAL data)")
+    print_error_table(demo, [("simulated", sim), ("FL_THERMAL", fl)])
+    demo.say(f"\ndemo finished in {time.monotonic() - demo.started:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

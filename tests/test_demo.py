@@ -1,0 +1,41 @@
+"""The demo's own machinery: a failing step stops it with the command and its output, and the
+closing table's numbers are the summary's (the full demo runs as `make demo`, not in tests)."""
+
+from __future__ import annotations
+
+import io
+import sys
+
+import pytest
+
+from host.demo import Demo, DemoFailed, print_error_table
+
+
+def test_a_failing_command_stops_with_its_output_and_exit_code():
+    demo = Demo(out=io.StringIO())
+    demo.step("a step that fails")
+    with pytest.raises(DemoFailed) as info:
+        demo.run([sys.executable, "-c",
+                  "import sys; print('partial result'); print('why it broke', file=sys.stderr); "
+                  "sys.exit(3)"])
+    text = str(info.value)
+    assert "a step that fails" in text and "exited with code 3" in text
+    assert "partial result" in text and "why it broke" in text
+
+
+def test_a_missing_program_is_a_clear_failure():
+    demo = Demo(out=io.StringIO())
+    demo.step("needs a tool")
+    with pytest.raises(DemoFailed, match="needs a tool: cannot run no-such-tool-xyz"):
+        demo.run(["no-such-tool-xyz"])
+
+
+def test_error_table_shows_raw_compensated_and_reduction():
+    out = io.StringIO()
+    summary = {"runs": {"unseen_run": {"dz_um": {
+        "raw_rms_um": 20.0, "in_training": False,
+        "residual_rms_um": {"our model": 1.4, "OLS, all sensors": 3.0}}}}}
+    print_error_table(Demo(out=out), [("simulated", summary)])
+    row = [ln for ln in out.getvalue().splitlines() if "unseen_run" in ln][0]
+    assert row.split() == ["simulated", "unseen_run", "dz_um", "no", "20.00", "µm", "1.40",
+                           "µm", "93", "%"]  # 100 * (1 - 1.4 / 20) = 93
