@@ -1,0 +1,272 @@
+"""Judge a captured replay against the host's expectation.
+
+Four checks (issue 6): 1. every correction equals the integer twin's (after the documented
+output stage), bit for bit, and so do the status word and the echoed temperature codes;
+2. the float model (host/terms.py on the quantised temperatures) is within the bound codegen
+proved, wherever the box outputs the model value directly; 3. no sample line is lost,
+duplicated or reordered (``seq``); 4. the residual measured − correction beside the raw
+displacement, per axis, RMS and peak. The lines are decoded with host/protocol.py only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hil.expect import CLAMP, HOLD, MODEL_BAD, NO_DATA, SLEW, Expected, status_text
+from hil.feed import Feed
+from hil.runner import Capture, Session
+from host.protocol import ErrorReply, Info, ProtocolError, Sample, decode
+from host.terms import Term, design_matrix
+
+MAX_PROBLEMS = 20  # detail lines kept in a report; counts are always complete
+
+
+@dataclass
+class AxisReport:
+    name: str
+    mismatches: int = 0
+    max_abs_diff_nm: int = 0
+    raw_rms_um: float | None = None
+    raw_peak_um: float | None = None
+    compensated_rms_um: float | None = None
+    compensated_peak_um: float | None = None
+    float_max_diff_um: float | None = None
+    float_samples: int = 0
+    bound_um: float | None = None
+
+    def to_json(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k != "name"}
+
+
+@dataclass
+class SessionLines:
+    """A session's lines, decoded and sorted by kind."""
+
+    samples: list[Sample] = field(default_factory=list)
+    info: list[Info] = field(default_factory=list)
+    errors: list[ErrorReply] = field(default_factory=list)
+    other: list[object] = field(default_factory=list)
+    bad: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ReplayReport:
+    samples: int
+    received: int = 0
+    mismatches: int = 0  # samples where a correction differs from the expectation
+    status_mismatches: int = 0
+    code_mismatches: int = 0
+    max_abs_diff_nm: int = 0
+    lost: int = 0
+    duplicated: int = 0
+    reordered: int = 0
+    bad_lines: int = 0
+    sessions: int = 1
+    axes: dict[str, AxisReport] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)  # $E reasons received, in order
+    fw_out_nm: np.ndarray | None = None  # (n, axes) what the box sent; missing rows = 0
+    fw_status: np.ndarray | None = None  # (n,) status words; -1 where no line arrived
+    elapsed_s: float | None = None
+    problems_fatal: bool = False  # the replay itself broke (timeout, crash)
+
+    @property
+    def float_ok(self) -> bool:
+        return all(a.float_max_diff_um is None or a.bound_um is None
+                   or a.float_max_diff_um <= a.bound_um + 1e-9 for a in self.axes.values())
+
+    @property
+    def checks(self) -> dict[str, bool]:
+        return {
+            "twin_bit_exact": self.mismatches == 0 and self.status_mismatches == 0
+            and self.code_mismatches == 0,
+            "float_within_bound": self.float_ok,
+            "no_lost_duplicated_reordered": self.lost == 0 and self.duplicated == 0
+            and self.reordered == 0 and self.bad_lines == 0,
+        }
+
+    @property
+    def ok(self) -> bool:
+        return all(self.checks.values()) and not self.problems_fatal
+
+    def note(self, text: str) -> None:
+        if len(self.problems) < MAX_PROBLEMS:
+            self.problems.append(text)
+
+    def to_json(self) -> dict:
+        out = {
+            "samples": self.samples,
+            "mismatches": self.mismatches,
+            "max_abs_diff_nm": self.max_abs_diff_nm,
+            "axes": {name: a.to_json() for name, a in self.axes.items()},
+            "ok": self.ok,
+            "checks": self.checks,
+            "received": self.received,
+            "status_mismatches": self.status_mismatches,
+            "code_mismatches": self.code_mismatches,
+            "lost": self.lost,
+            "duplicated": self.duplicated,
+            "reordered": self.reordered,
+            "bad_lines": self.bad_lines,
+            "sessions": self.sessions,
+            "problems": self.problems,
+        }
+        if self.elapsed_s is not None:
+            out["elapsed_s"] = round(self.elapsed_s, 3)
+            out["samples_per_s"] = round(self.samples / self.elapsed_s, 1) if self.elapsed_s \
+                else None
+        return out
+
+
+def decode_session(session: Session) -> SessionLines:
+    res = SessionLines()
+    for raw in session.lines:
+        if not raw:
+            continue
+        try:
+            msg = decode(raw)
+        except ProtocolError as exc:
+            res.bad.append(str(exc))
+            continue
+        if isinstance(msg, Sample):
+            res.samples.append(msg)
+        elif isinstance(msg, Info):
+            res.info.append(msg)
+        elif isinstance(msg, ErrorReply):
+            res.errors.append(msg)
+        else:
+            res.other.append(msg)
+    return res
+
+
+def sequence_problems(seqs: list[int], n_fed: int) -> tuple[int, int, int]:
+    """(lost, duplicated, reordered) for one session fed ``n_fed`` samples with RATE 1."""
+    arr = np.asarray(seqs, dtype=np.int64)
+    reordered = int(np.count_nonzero(np.diff(arr) < 0)) if arr.size > 1 else 0
+    uniq, counts = np.unique(arr, return_counts=True)
+    duplicated = int(np.sum(counts - 1))
+    lost = n_fed - int(np.count_nonzero((uniq >= 0) & (uniq < n_fed)))
+    return lost, duplicated, reordered
+
+
+def float_predictions(model: dict, feed: Feed, codes: np.ndarray, rows: slice) -> np.ndarray:
+    """The float model (host/terms.py) on the quantised inputs of one session: (n, axes) um."""
+    from hil.feed import aux_names, channel_sensors
+
+    cols: dict[str, np.ndarray] = {}
+    for c, name in enumerate(channel_sensors(model)):
+        cols[name] = codes[rows, c].astype(float) / 128.0
+    for k, name in enumerate(aux_names(model)):
+        cols[name] = feed.aux[rows, k].astype(float)
+    period = float(model["sample_period_s"])
+    out = []
+    for axis in feed.axes:
+        spec = model["axes"][axis]
+        terms = [Term.from_json(t) for t in spec["terms"]]
+        coefs = np.array([float(t["coef"]) for t in spec["terms"]])
+        x = design_matrix(terms, cols, period) if cols else np.empty((rows.stop - rows.start, 0))
+        out.append(float(spec["intercept"]) + x @ coefs)
+    return np.column_stack(out) if out else np.empty((rows.stop - rows.start, 0))
+
+
+def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
+          bounds_um: dict[str, float]) -> ReplayReport:
+    """Compare every session's lines with its expectation and compute the residuals."""
+    n = capture.n_samples
+    n_axes = len(feed.axes)
+    rep = ReplayReport(samples=n, sessions=len(capture.sessions))
+    rep.axes = {a: AxisReport(a, bound_um=bounds_um.get(a)) for a in feed.axes}
+    fw_out = np.zeros((n, n_axes), dtype=np.int64)
+    fw_status = np.full(n, -1, dtype=np.int64)
+    got = np.zeros(n, dtype=bool)
+    codes_fed = np.asarray(capture.codes_fed, dtype=np.int64)
+    float_diff = np.zeros(n_axes)
+    float_count = np.zeros(n_axes, dtype=np.int64)
+
+    for s_index, (session, exp) in enumerate(zip(capture.sessions, expected, strict=True)):
+        if session.error:
+            rep.problems_fatal = True
+            rep.note(f"session {s_index} (from sample {session.first_sample}): {session.error}")
+        lines = decode_session(session)
+        rep.bad_lines += len(lines.bad)
+        for b in lines.bad:
+            rep.note(f"session {s_index}: undecodable line: {b}")
+        rep.errors += [e.reason for e in lines.errors]
+        seqs = [s.seq for s in lines.samples]
+        lost, dup, reord = sequence_problems(seqs, session.n_fed)
+        rep.lost += lost
+        rep.duplicated += dup
+        rep.reordered += reord
+        if lost or dup or reord:
+            rep.note(f"session {s_index}: {lost} lost, {dup} duplicated, {reord} reordered "
+                     f"sample lines")
+        seen: set[int] = set()
+        for line in lines.samples:
+            if line.seq >= session.n_fed or line.seq in seen:
+                continue
+            seen.add(line.seq)
+            i = session.first_sample + line.seq
+            j = line.seq
+            got[i] = True
+            fw_status[i] = line.status
+            want_out = exp.out_nm[j]
+            if len(line.corrections_nm) != want_out.shape[0]:
+                rep.mismatches += 1
+                rep.note(f"sample {i}: {len(line.corrections_nm)} corrections, expected "
+                         f"{want_out.shape[0]}")
+            else:
+                diff = np.abs(np.asarray(line.corrections_nm, dtype=np.int64) - want_out)
+                if n_axes and want_out.shape[0] == n_axes:
+                    fw_out[i] = line.corrections_nm
+                if diff.any():
+                    rep.mismatches += 1
+                    rep.max_abs_diff_nm = max(rep.max_abs_diff_nm, int(diff.max()))
+                    for a, d in enumerate(diff):
+                        if d and a < n_axes:
+                            ax = rep.axes[feed.axes[a]]
+                            ax.mismatches += 1
+                            ax.max_abs_diff_nm = max(ax.max_abs_diff_nm, int(d))
+                    rep.note(f"sample {i}: corrections {list(line.corrections_nm)} nm, twin "
+                             f"{want_out.tolist()} nm")
+            if line.status != int(exp.status[j]):
+                rep.status_mismatches += 1
+                rep.note(f"sample {i}: status {line.status:04X} ({status_text(line.status)}), "
+                         f"expected {int(exp.status[j]):04X} ({status_text(int(exp.status[j]))})")
+            if list(line.temp_codes) != exp.codes[j].tolist():
+                rep.code_mismatches += 1
+                rep.note(f"sample {i}: temperature codes {list(line.temp_codes)}, fed "
+                         f"{exp.codes[j].tolist()}")
+        # 2. float model, where the box outputs the model's value directly and no fault has
+        # touched the filter states yet in this session.
+        if n_axes and exp.out_nm.shape[1] == n_axes and session.n_fed:
+            stop = session.first_sample + session.n_fed
+            rows = slice(session.first_sample, stop)
+            local = np.arange(session.n_fed)
+            clean = np.cumprod(exp.computed.all(axis=1)).astype(bool)
+            direct = clean & ((exp.status & (HOLD | SLEW | CLAMP | NO_DATA | MODEL_BAD)) == 0)
+            direct &= got[rows]
+            if direct.any():
+                pred = float_predictions(model, feed, codes_fed, rows)
+                d = np.abs(fw_out[rows][local[direct]] / 1000.0 - pred[local[direct]])
+                float_diff = np.maximum(float_diff, d.max(axis=0))
+                float_count += int(direct.sum())
+
+    rep.received = int(got.sum())
+    rep.fw_out_nm, rep.fw_status = fw_out, fw_status
+    for a, name in enumerate(feed.axes):
+        ax = rep.axes[name]
+        if float_count[a]:
+            ax.float_max_diff_um, ax.float_samples = float(float_diff[a]), int(float_count[a])
+            if ax.bound_um is not None and ax.float_max_diff_um > ax.bound_um + 1e-9:
+                rep.note(f"axis {name}: float model differs by {ax.float_max_diff_um:.6g} um, "
+                         f"bound {ax.bound_um:.6g} um")
+        if name in feed.measured and got.any():
+            meas = feed.measured[name][got]
+            comp = meas - fw_out[got, a] / 1000.0
+            ax.raw_rms_um = float(np.sqrt(np.mean(meas ** 2)))
+            ax.raw_peak_um = float(np.max(np.abs(meas)))
+            ax.compensated_rms_um = float(np.sqrt(np.mean(comp ** 2)))
+            ax.compensated_peak_um = float(np.max(np.abs(comp)))
+    return rep

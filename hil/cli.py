@@ -1,0 +1,109 @@
+"""``python -m hil replay --model build/model.json --data RUN.csv [--json]``.
+
+Exit codes as ``host``: 0 every check passed, 1 a check failed, 2 bad input or the replay
+could not be carried out (no firmware, build error, box did not start).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from hil.build import BuildError
+from hil.checks import ReplayReport
+from hil.link import LinkTimeout
+from hil.native import BoxStartError
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def format_table(report: ReplayReport, data: str) -> str:
+    """The human-readable replay summary."""
+    rate = (f", {report.samples / report.elapsed_s:,.0f} samples/s"
+            if report.elapsed_s else "")
+    lines = [f"HIL replay of {data}: {report.samples} samples, {report.received} lines "
+             f"received{rate}", ""]
+    head = (f"{'axis':<10} {'raw rms':>9} {'raw peak':>9} {'comp rms':>9} {'comp peak':>10} "
+            f"{'twin diff':>10} {'float diff':>11} {'bound':>9}")
+    lines += [head, f"{'':<10} {'um':>9} {'um':>9} {'um':>9} {'um':>10} {'nm':>10} "
+              f"{'um':>11} {'um':>9}", "-" * len(head)]
+    for name, a in report.axes.items():
+        lines.append(f"{name:<10} {_fmt(a.raw_rms_um):>9} {_fmt(a.raw_peak_um):>9} "
+                     f"{_fmt(a.compensated_rms_um):>9} {_fmt(a.compensated_peak_um):>10} "
+                     f"{a.max_abs_diff_nm:>10d} {_fmt(a.float_max_diff_um, 6):>11} "
+                     f"{_fmt(a.bound_um, 6):>9}")
+    lines.append("")
+    checks = {k: "PASS" if v else "FAIL" for k, v in report.checks.items()}
+    lines.append(f"1. firmware = twin, bit for bit   {checks['twin_bit_exact']}"
+                 f"  ({report.mismatches} correction, {report.status_mismatches} status, "
+                 f"{report.code_mismatches} code mismatches)")
+    lines.append(f"2. float model within bound       {checks['float_within_bound']}")
+    lines.append(f"3. no lost/duplicated/reordered   {checks['no_lost_duplicated_reordered']}"
+                 f"  ({report.lost} lost, {report.duplicated} duplicated, {report.reordered} "
+                 f"reordered, {report.bad_lines} bad lines)")
+    lines.append("4. residuals                      reported above (measured - correction)")
+    if report.problems:
+        lines += ["", "problems:"] + [f"  {p}" for p in report.problems]
+    lines += ["", "RESULT: " + ("PASS" if report.ok else "FAIL")]
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m hil", description="Hardware-in-the-loop: replay recorded runs through "
+        "the real firmware (native build over a pty, or QEMU) and check it against the host.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    p = sub.add_parser("replay", help="replay a run through the firmware and check every line",
+                       description="Build the firmware with the model's header, feed every "
+                       "sample of the run, and check the box against the integer twin, the "
+                       "float model and its own sequence numbers.")
+    p.add_argument("--model", required=True, help="model.json (header generated if needed)")
+    p.add_argument("--data", required=True, help="run CSV to replay")
+    p.add_argument("--json", action="store_true", help="print the result as JSON, no progress")
+    p.add_argument("--build-dir", default=None,
+                   help="where headers and firmware builds go (default: <model dir>/hil)")
+    p.add_argument("--box-cflags", default="",
+                   help="extra -D options for the firmware build (e.g. -DBOX_SLEW_NM_PER_S=500)")
+    p.add_argument("--firmware", default=None,
+                   help="use this prebuilt native binary instead of building one")
+    p.add_argument("--window", type=int, default=256,
+                   help="samples in flight between feed and answer (default 256)")
+    p.add_argument("--target", choices=["native", "qemu"], default="native",
+                   help="native build over a pty (default) or the STM32F405 image in QEMU")
+    return parser
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from hil import replay as hil_replay
+
+    setup = hil_replay.prepare(args.model, args.data, args.build_dir, args.box_cflags,
+                               args.firmware)
+    start_box = None
+    if args.target == "qemu":
+        from hil import qemu
+
+        start_box = qemu.box_factory(setup, args.build_dir, args.box_cflags)
+    report, _ = hil_replay.run(setup, quiet=args.json, window=args.window, start_box=start_box)
+    if args.json:
+        print(json.dumps(report.to_json(), indent=2))
+    else:
+        print(format_table(report, args.data))
+    return 0 if report.ok else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return cmd_replay(args)
+    except (ValueError, KeyError, FileNotFoundError, BuildError, BoxStartError,
+            LinkTimeout) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+        print(f"hil {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"hil {args.command}: interrupted", file=sys.stderr)
+        return 130

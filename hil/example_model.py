@@ -1,0 +1,75 @@
+"""A small model.json fitted in a blink, for HIL tests and the benchmark.
+
+``host train`` (sensor selection, validation) takes tens of seconds on a long run; the HIL does
+not care how a model was chosen, only that the box evaluates it exactly. This fits a fixed term
+list by least squares (host/terms.py features, numpy lstsq) and writes a valid model.json, so
+tests can exercise every term kind the box supports on real and simulated runs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from host.data import load_run
+from host.terms import Term, design_matrix, make_lag, make_rate, make_speed, make_temp
+
+
+def fit_example_model(data: str | Path, axes: dict[str, list[Term]],
+                      aux_names: list[str] | None = None, aux_max: float = 12000.0,
+                      min_c: float = -40.0, max_c: float = 200.0) -> dict:
+    """A model.json dict with the given terms per axis, coefficients fitted on ``data``."""
+    aux_names = list(aux_names or [])
+    sensors: list[str] = []
+    for terms in axes.values():
+        for t in terms:
+            if t.kind not in ("speed", "speed2", "time") and t.source not in sensors:
+                sensors.append(str(t.source))
+    run = load_run(data, targets=list(axes), sensors=sensors, aux=aux_names)
+    cols = run.columns()
+    period = run.period_s
+    model_axes = {}
+    for axis, terms in axes.items():
+        x = design_matrix(terms, cols, period)
+        a = np.column_stack([np.ones(run.n_samples), x])
+        coef, *_ = np.linalg.lstsq(a, run.target(axis), rcond=None)
+        model_axes[axis] = {
+            "unit": "um",
+            "intercept": float(coef[0]),
+            "terms": [{**t.to_json(), "coef": float(c)} for t, c in zip(terms, coef[1:],
+                                                                       strict=True)],
+        }
+    return {
+        "schema": "thermal-model/1",
+        "tool_version": "0.1.0",
+        "sample_period_s": period,
+        "channels": [{"channel": i, "sensor": s, "tc_type": "K", "min_c": min_c,
+                      "max_c": max_c} for i, s in enumerate(sensors)],
+        "aux": [{"input": i, "name": n, "min": 0.0, "max": aux_max}
+                for i, n in enumerate(aux_names)],
+        "time_max_s": 604800.0,
+        "axes": model_axes,
+        "training": {"runs": [str(data)], "targets": list(axes), "sensors": sensors,
+                     "aux": aux_names},
+    }
+
+
+def default_terms(sensors: list[str], period_s: float, aux: str | None = None) -> list[Term]:
+    """temp, lag and rate of the first sensors (+ speed if an aux column is given)."""
+    terms = [make_temp(sensors[0])]
+    if len(sensors) > 1:
+        terms.append(make_lag(sensors[1], 30 * 60.0, period_s))
+    if len(sensors) > 2:
+        terms.append(make_rate(sensors[2], 10 * 60.0, period_s))
+    if aux:
+        terms.append(make_speed(aux))
+    return terms
+
+
+def write_model(model: dict, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(model, indent=2) + "\n", encoding="utf-8")
+    return path

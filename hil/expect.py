@@ -1,0 +1,178 @@
+"""What the box should send for each sample, computed on the host only.
+
+The model part is the integer twin ``codegen.fixed.FixedModel`` (bit-exact by contract). Around
+it sit the parts of the application the wire protocol and the firmware's documented behaviour
+define: which channel is faulted (chip fault status register, valid code range), which status
+bits that raises, and the output stage of ``firmware/include/axis_output.h`` (hold on a fault,
+walk back at the slew limit, clamp). Its configuration is read from ``box_config.h`` (the
+defaults the firmware is built with) plus any ``-D`` overrides passed to the build. Nothing
+here looks at what the firmware sent.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from codegen.fixed import FixedModel
+from codegen.quantise import AUX_KINDS, TEMPERATURE_KINDS
+
+# docs/protocol.md status word
+MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA = (
+    1 << i for i in range(10))
+STATUS_NAMES = ("MODEL_BAD", "HOLD", "SLEW", "CLAMP", "RANGE", "OPEN", "TC_FAULT", "AUX_FAULT",
+                "WDT_RESET", "NO_DATA")
+SR_OPEN = 0x01  # MAX31856 fault status register bit OPEN
+
+BOX_CONFIG = Path(__file__).resolve().parent.parent / "firmware" / "include" / "box_config.h"
+
+
+def status_text(status: int) -> str:
+    names = [n for i, n in enumerate(STATUS_NAMES) if status >> i & 1]
+    return "|".join(names) if names else "-"
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """The output stage's build-time configuration (box_config.h)."""
+
+    slew_nm_per_s: int
+    max_abs_nm: int
+    cold_start_slew: bool
+
+    def step_nm(self, period_ms: int) -> int:
+        """Slew step per sample period, as axis_output_step_nm: rounded, at least 1 nm."""
+        return max(1, min((self.slew_nm_per_s * period_ms + 500) // 1000, 2**31 - 1))
+
+    @classmethod
+    def from_build(cls, cflags: str = "", config_h: Path = BOX_CONFIG) -> OutputConfig:
+        """Defaults from box_config.h, overridden by ``-DNAME=value`` in the build's cflags."""
+        text = config_h.read_text(encoding="utf-8")
+        values: dict[str, int] = {}
+        for name in ("BOX_SLEW_NM_PER_S", "BOX_MAX_CORRECTION_NM", "BOX_COLD_START_SLEW"):
+            m = re.search(rf"^#define {name} (\d+)\s*$", text, re.M)
+            if m is None:
+                raise ValueError(f"{config_h}: no '#define {name} <number>' default")
+            values[name] = int(m.group(1))
+        for m in re.finditer(r"-D(BOX_\w+)=(\d+)", cflags):
+            if m.group(1) in values:
+                values[m.group(1)] = int(m.group(2))
+        return cls(values["BOX_SLEW_NM_PER_S"], values["BOX_MAX_CORRECTION_NM"],
+                   bool(values["BOX_COLD_START_SLEW"]))
+
+
+@dataclass
+class Expected:
+    """Per-sample expectation for one power-up of the box."""
+
+    out_nm: np.ndarray  # (n, n_axes) int64: what the sample line carries
+    computed_nm: np.ndarray  # (n, n_axes): the model's value (twin), before the output stage
+    computed: np.ndarray  # (n, n_axes) bool: the model computed the axis at this sample
+    status: np.ndarray  # (n,) int: expected status word
+    codes: np.ndarray  # (n, n_channels): the codes the chips report (echoed in the line)
+
+
+def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
+                   max_code: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(valid [n, ch], status bits [n]) from the chips' SR and the channels' valid ranges.
+
+    A chip reporting a fault is a fault of the chip (OPEN / TC_FAULT), whatever its code; only
+    a chip without fault is range-checked (RANGE).
+    """
+    chip_fault = sr != 0
+    out_of_range = ~chip_fault & ((codes < min_code) | (codes > max_code))
+    valid = ~chip_fault & ~out_of_range
+    bits = np.zeros(codes.shape[0], dtype=np.int64)
+    bits |= np.where((sr & SR_OPEN).any(axis=1), OPEN, 0)
+    bits |= np.where((sr & ~SR_OPEN & 0xFF).any(axis=1), TC_FAULT, 0)
+    bits |= np.where(out_of_range.any(axis=1), RANGE, 0)
+    return valid, bits
+
+
+def output_stage(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
+                 step: int) -> tuple[np.ndarray, np.ndarray]:
+    """The axis output logic over a session: (out_nm [n, axes], status bits [n])."""
+    n, n_axes = computed_nm.shape
+    out = np.zeros((n, n_axes), dtype=np.int64)
+    bits = np.zeros(n, dtype=np.int64)
+    lim = cfg.max_abs_nm
+    for a in range(n_axes):
+        value, has, walking = 0, False, False
+        col_v = computed_nm[:, a].tolist()
+        col_ok = computed[:, a].tolist()
+        for i in range(n):
+            if not col_ok[i]:
+                bits[i] |= HOLD
+                if not has:
+                    bits[i] |= NO_DATA
+                else:
+                    walking = True
+                out[i, a] = value
+                continue
+            target = col_v[i]
+            if target > lim or target < -lim:
+                target = lim if target > 0 else -lim
+                bits[i] |= CLAMP
+            if not has:
+                has, walking = True, cfg.cold_start_slew
+            if not walking:
+                value = target
+            else:
+                diff = target - value
+                if -step <= diff <= step:
+                    value, walking = target, False
+                else:
+                    value += step if diff > 0 else -step
+                    bits[i] |= SLEW
+            out[i, a] = value
+    return out, bits
+
+
+def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.ndarray,
+                   cfg: OutputConfig, wdt_reset: bool = False,
+                   model_bad: bool = False) -> Expected:
+    """Expected lines for samples fed to one freshly powered-up box.
+
+    ``codes`` [n, ch] are the chips' readings, ``sr`` [n, ch] their fault status registers,
+    ``aux`` [n, n_aux] the aux inputs.
+    """
+    m = twin.model
+    n = codes.shape[0]
+    lo = np.array([c.min_code for c in m.channels], dtype=np.int64)
+    hi = np.array([c.max_code for c in m.channels], dtype=np.int64)
+    valid, bits = channel_faults(codes, sr, lo, hi)
+    if m.aux:
+        alo = np.array([a.min for a in m.aux], dtype=np.int64)
+        ahi = np.array([a.max for a in m.aux], dtype=np.int64)
+        bits |= np.where(((aux < alo) | (aux > ahi)).any(axis=1), AUX_FAULT, 0)
+    sticky = (WDT_RESET if wdt_reset else 0) | (MODEL_BAD if model_bad else 0)
+    bits |= sticky
+    if model_bad:  # no corrections at all, temperatures still reported
+        empty = np.zeros((n, 0), dtype=np.int64)
+        return Expected(empty, empty, empty.astype(bool), bits, codes)
+    computed_nm, computed = twin.evaluate_run(codes, aux if m.aux else None, valid,
+                                              return_mask=True)
+    out, out_bits = output_stage(computed_nm, computed, cfg, cfg.step_nm(m.period_ms))
+    return Expected(out, computed_nm, computed, bits | out_bits, codes)
+
+
+def axis_inputs(twin: FixedModel) -> list[tuple[set[int], set[int]]]:
+    """Per axis: (channels, aux inputs) its terms read (which faults hold which axis)."""
+    res = []
+    for ax in twin.model.axes:
+        res.append(({t.input for t in ax.terms if t.kind in TEMPERATURE_KINDS},
+                    {t.input for t in ax.terms if t.kind in AUX_KINDS}))
+    return res
+
+
+def sr_timeline(n_samples: int, n_channels: int,
+                faults: Sequence[tuple[int, int, int]]) -> np.ndarray:
+    """Chip SR per sample from (at, channel, sr) events; an event holds until the next one."""
+    sr = np.zeros((n_samples, n_channels), dtype=np.int64)
+    for at, ch, value in sorted(faults, key=lambda f: f[0]):
+        sr[at:, ch] = value
+    return sr

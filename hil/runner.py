@@ -1,0 +1,183 @@
+"""Drive a box through a run: feed samples with a window in flight, inject faults, collect lines.
+
+The runner knows nothing about what the lines should contain (hil.expect and hil.checks do);
+it only makes sure every feed command reaches the box in order and every line the box sends is
+kept, per power-up ("session"), so the checks can look for lost, duplicated or reordered lines.
+
+Pacing: time on the native board is virtual (one sample period per ``S`` command), so the
+runner feeds as fast as the box answers. It keeps at most ``window`` samples in flight (fed but
+not yet answered): enough to hide the pty round trip, small enough that a box that stops
+answering is noticed within one window.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from hil.feed import Feed
+from hil.link import LinkTimeout, SerialLink
+from host.progress import progress
+
+
+class Box(Protocol):
+    """What the runner needs from a box (native process or QEMU)."""
+
+    link: SerialLink
+
+    def feed(self, data: bytes) -> None: ...
+    def stop(self, timeout: float = 5.0) -> int: ...
+    def kill(self) -> None: ...
+    def alive(self) -> bool: ...
+
+
+# --- the script: what happens during a replay ---------------------------------------------
+@dataclass(frozen=True)
+class ChipFault:
+    """Before sample ``at``: chip ``channel``'s fault status register becomes ``sr``."""
+
+    at: int
+    channel: int
+    sr: int
+
+
+@dataclass(frozen=True)
+class CodeOverride:
+    """Samples [start, stop): channel ``channel`` reads ``code`` instead of the run's value."""
+
+    start: int
+    stop: int
+    channel: int
+    code: int
+
+
+@dataclass(frozen=True)
+class SerialNoise:
+    """Before sample ``at`` (all earlier lines received): ``data`` arrives on the box's UART.
+
+    ``replies`` is how many reply lines (``$E``...) the host expects for it; the runner waits
+    for them so the next sample line cannot overtake them.
+    """
+
+    at: int
+    data: bytes
+    replies: int
+
+
+@dataclass(frozen=True)
+class Restart:
+    """Before sample ``at``: the box loses power (process killed) and boots again."""
+
+    at: int
+    wdt_reset: bool = False
+
+
+Event = ChipFault | CodeOverride | SerialNoise | Restart
+
+
+@dataclass
+class Session:
+    """One power-up of the box: samples [first_sample, first_sample + n_fed) were fed to it."""
+
+    first_sample: int
+    wdt_reset: bool
+    lines: list[bytes] = field(default_factory=list)
+    n_fed: int = 0
+    info: bytes = b""
+    error: str = ""  # why the session ended early (timeout, crash), empty if it did not
+    exit_code: int | None = None
+
+
+@dataclass
+class Capture:
+    """Everything the box sent during a replay, per session, plus the inputs fed."""
+
+    sessions: list[Session]
+    codes_fed: list[list[int]]  # the channel codes actually fed per sample (after overrides)
+    n_samples: int
+
+
+class ReplayError(RuntimeError):
+    """The replay itself could not be carried out (box did not start, stopped answering)."""
+
+
+BoxFactory = Callable[[bool], Box]  # wdt_reset -> a started box
+
+
+def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), window: int = 256,
+           chunk: int = 64, timeout: float = 20.0, quiet: bool = False,
+           desc: str = "replay") -> Capture:
+    """Feed every sample of ``feed`` to boxes made by ``start_box``; collect what they send."""
+    n = feed.n_samples
+    overrides = [e for e in events if isinstance(e, CodeOverride)]
+    codes = feed.codes.copy()
+    for o in overrides:
+        codes[o.start:o.stop, o.channel] = o.code
+    before: dict[int, list[Event]] = {}
+    for e in events:
+        if not isinstance(e, CodeOverride):
+            before.setdefault(e.at, []).append(e)
+    lines = feed.feed_lines(codes)
+    sr_now: dict[int, int] = {}  # chip faults in force (physical: they survive a restart)
+    sessions: list[Session] = []
+    box = start_box(False)
+    session = Session(0, False)
+    sessions.append(session)
+
+    def sync() -> None:
+        """Wait until every sample fed to this session has been answered."""
+        box.link.wait_prefixed(session.n_fed, timeout, f"sample line of sample "
+                               f"{session.first_sample + session.n_fed - 1}")
+
+    def finish(s: Session, b: Box, kill: bool) -> None:
+        if kill:
+            b.kill()
+        else:
+            s.exit_code = b.stop()
+        s.lines = list(b.link.lines)
+
+    try:
+        session.info = box.link.command("INFO", b"$I,", timeout)
+        pos = 0
+        bar = iter(progress(range(n), desc=desc, total=n, quiet=quiet))
+        for point in sorted({*before, n}):
+            while pos < point:
+                take = min(chunk, point - pos)
+                # keep at most `window` samples in flight
+                box.link.wait_prefixed(session.n_fed + take - window, timeout,
+                                       f"the line of sample {pos + take - window}")
+                box.feed(b"".join(lines[pos:pos + take]))
+                session.n_fed += take
+                pos += take
+                for _ in range(take):
+                    next(bar, None)
+            for e in before.get(point, []):
+                if isinstance(e, ChipFault):
+                    sr_now[e.channel] = e.sr
+                    box.feed(f"F {e.channel} {e.sr:02x}\n".encode("ascii"))
+                elif isinstance(e, SerialNoise):
+                    sync()
+                    start = box.link.count()
+                    box.link.write(e.data)
+                    box.link.wait_count(start + e.replies, timeout,
+                                        f"{e.replies} replies to serial noise before sample "
+                                        f"{point}")
+                elif isinstance(e, Restart):
+                    finish(session, box, kill=True)
+                    box = start_box(e.wdt_reset)
+                    session = Session(point, e.wdt_reset)
+                    sessions.append(session)
+                    session.info = box.link.command("INFO", b"$I,", timeout)
+                    for ch, value in sorted(sr_now.items()):
+                        if value:
+                            box.feed(f"F {ch} {value:02x}\n".encode("ascii"))
+        sync()
+        finish(session, box, kill=False)
+    except LinkTimeout as exc:
+        session.error = str(exc)
+        finish(session, box, kill=True)
+    except BaseException:
+        box.kill()
+        raise
+    return Capture(sessions, codes.tolist(), n)
