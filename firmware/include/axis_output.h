@@ -32,6 +32,8 @@ void axis_output_init(axis_output_t *a);
 uint16_t axis_output_update(axis_output_t *a, const axis_output_cfg_t *cfg, bool valid,
                             int32_t computed_nm);
 
+#define AXIS_OUTPUT_MAX_SLEW_NM_PER_S (UINT32_C(1) << 22) /* 4.2 mm/s: far beyond any use */
+
 /* Slew step per sample period for a rate in nm/s: rounded, at least 1 nm. */
 int32_t axis_output_step_nm(uint32_t slew_nm_per_s, uint32_t period_ms);
 

@@ -53,8 +53,15 @@
 #define BOX_TC_AVGSEL 2
 #endif
 
+/* Spindle-speed input: rpm at full scale of the analogue input (box: 3.3 V on PA0). */
+#ifndef BOX_AUX0_RPM_FULL_SCALE
+#define BOX_AUX0_RPM_FULL_SCALE 12000
+#endif
+
+_Static_assert(BOX_AUX0_RPM_FULL_SCALE > 0 && BOX_AUX0_RPM_FULL_SCALE <= 1000000, "aux scale");
 _Static_assert(BOX_MAX_CHANNELS >= 1 && BOX_MAX_CHANNELS <= 16, "1..16 chip selects");
-_Static_assert(BOX_SLEW_NM_PER_S > 0, "slew limit must be positive");
+_Static_assert(BOX_SLEW_NM_PER_S > 0 && BOX_SLEW_NM_PER_S <= 4194304,
+               "slew limit must be positive and at most 2^22 nm/s");
 _Static_assert(BOX_MAX_CORRECTION_NM > 0 && BOX_MAX_CORRECTION_NM < 2000000000,
                "clamp must be positive and fit int32");
 _Static_assert(BOX_WATCHDOG_MS >= 10 && BOX_WATCHDOG_MS <= 4000, "IWDG range at 1 kHz");

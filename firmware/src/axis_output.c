@@ -11,14 +11,20 @@ void axis_output_init(axis_output_t *a)
 
 int32_t axis_output_step_nm(uint32_t slew_nm_per_s, uint32_t period_ms)
 {
-    uint64_t step = ((uint64_t)slew_nm_per_s * period_ms + 500u) / 1000u;
-    if (step < 1u) {
-        step = 1u;
+    /* slew * period / 1000 rounded, in 32-bit pieces (no 64-bit division on the box):
+     * whole seconds exactly, then the millisecond remainder (< 1000 * 2^22 < 2^32). */
+    if (slew_nm_per_s > AXIS_OUTPUT_MAX_SLEW_NM_PER_S) {
+        slew_nm_per_s = AXIS_OUTPUT_MAX_SLEW_NM_PER_S;
     }
-    if (step > (uint64_t)INT32_MAX) {
-        step = (uint64_t)INT32_MAX;
+    uint32_t whole_s = period_ms / 1000u;
+    if (whole_s > (uint32_t)INT32_MAX / slew_nm_per_s) {
+        return INT32_MAX;
     }
-    return (int32_t)step;
+    uint32_t step = slew_nm_per_s * whole_s + (slew_nm_per_s * (period_ms % 1000u) + 500u) / 1000u;
+    if (step > (uint32_t)INT32_MAX) {
+        return INT32_MAX;
+    }
+    return step < 1u ? 1 : (int32_t)step;
 }
 
 uint16_t axis_output_update(axis_output_t *a, const axis_output_cfg_t *cfg, bool valid,
