@@ -20,7 +20,7 @@ from typing import TextIO
 
 import serial
 
-from host import monitor_wire as protocol
+from host import protocol
 
 RETRY_S = 1.0
 INFO_TIMEOUT_S = 1.0

@@ -6,8 +6,12 @@ from __future__ import annotations
 import binascii
 import csv
 import io
+import json
 import os
 import select
+import shutil
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -235,3 +239,91 @@ def test_cli_counts_samples_from_a_pty(tmp_path, capsys):
     assert "monitor: 2 samples, 0 bad lines" in capsys.readouterr().out
     assert len(Path(tmp_path / "l.csv").read_text().splitlines()) == 3
     box.unplug()
+
+
+# ---------------------------------------------------------------- the real native firmware
+
+ROOT = Path(__file__).resolve().parents[1]
+NATIVE_MODEL = {
+    "schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": 1.0,
+    "channels": [{"channel": 0, "sensor": "T05", "tc_type": "K", "min_c": -40.0, "max_c": 200.0},
+                 {"channel": 1, "sensor": "T12", "tc_type": "K", "min_c": -40.0, "max_c": 200.0}],
+    "aux": [], "time_max_s": 604800.0,
+    "axes": {"dx_um": {"unit": "um", "intercept": -12.5,
+                       "terms": [{"kind": "temp", "source": "T05", "coef": 0.75}]},
+             "dz_um": {"unit": "um", "intercept": 3.0,
+                       "terms": [{"kind": "temp", "source": "T05", "coef": -1.25},
+                                 {"kind": "temp", "source": "T12", "coef": 2.0}]}},
+    "training": {"runs": [], "targets": ["dx_um", "dz_um"], "sensors": "T*"},
+}
+
+
+@pytest.fixture(scope="module")
+def native_box(tmp_path_factory):
+    """The native firmware built for a small model (cold-start slew off, so every sample's
+    correction is the model's value) in a private build directory."""
+    if shutil.which("gcc") is None or shutil.which("make") is None:
+        pytest.skip("gcc/make not installed: cannot build the native firmware")
+    from codegen import write_header
+
+    tmp = tmp_path_factory.mktemp("native_monitor")
+    model_path = tmp / "model.json"
+    model_path.write_text(json.dumps(NATIVE_MODEL))
+    write_header(model_path, tmp / "model.h")
+    build = subprocess.run(["make", "-s", "-C", str(ROOT / "firmware"), "BOARD=native",
+                            f"MODEL={tmp / 'model.h'}", f"BUILD={tmp / 'fw'}",
+                            "BOX_CFLAGS=-DBOX_COLD_START_SLEW=0"],
+                           capture_output=True, text=True)
+    assert build.returncode == 0, build.stdout + build.stderr
+    return tmp / "fw" / "thermal_box", model_path
+
+
+def start_native(binary: Path):
+    proc = subprocess.Popen([str(binary)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, bufsize=0)
+    assert proc.stdout is not None
+    line = proc.stdout.readline().decode().strip()
+    assert line.startswith("PTY "), line
+    return proc, line[4:]
+
+
+def test_monitor_on_the_native_firmware_over_its_pty(native_box, tmp_path):
+    binary, model_path = native_box
+    box, pty = start_native(binary)
+    log = tmp_path / "native.csv"
+    monitor = subprocess.Popen([sys.executable, "-m", "host", "monitor", pty, "--model",
+                                str(model_path), "--count", "6", "--log", str(log)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               cwd=ROOT)
+    try:
+        assert monitor.stdout is not None
+        first = monitor.stdout.readline()
+        assert first.startswith("connected to"), first + (monitor.stderr.read() or "")
+        # the monitor has the port open (pyserial flushes input on open): feed six samples
+        temps = [(25.0, 22.0), (25.5, 22.25), (26.0, 22.5), (27.25, 23.0), (28.0, 23.5),
+                 (30.0, 24.0)]
+        feed = "".join(f"S 0 {round(a * 128)} {round(b * 128)}\n" for a, b in temps)
+        assert box.stdin is not None
+        box.stdin.write(feed.encode())
+        box.stdin.flush()
+        out, err = monitor.communicate(timeout=30)
+    finally:
+        if monitor.poll() is None:
+            monitor.kill()
+        box.stdin.write(b"Q\n")
+        box.stdin.close()
+        box.wait(10)
+    assert monitor.returncode == 0, first + out + err
+    assert "matches model.json" in out
+    with log.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 6
+    for row, (t05, t12) in zip(rows, temps, strict=True):
+        dx = -12.5 + 0.75 * t05  # the float model, written out here
+        dz = 3.0 - 1.25 * t05 + 2.0 * t12
+        assert float(row["corr_dx_um"]) == pytest.approx(dx, abs=0.0015)
+        assert float(row["corr_dz_um"]) == pytest.approx(dz, abs=0.0015)
+        assert (float(row["T05"]), float(row["T12"])) == (t05, t12)
+        assert int(row["status"], 16) == 0
+    assert [int(r["seq"]) for r in rows] == list(range(int(rows[0]["seq"]),
+                                                       int(rows[0]["seq"]) + 6))

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-from host.report import build_report
-
 NAME = "report"
 HELP = "write an HTML report (with PNG figures) of a model on runs, its peers and effects"
 
@@ -27,6 +25,8 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from host.report import build_report  # matplotlib: imported only when a report is made
+
     report = build_report(args.model, args.runs, args.out, protocols=args.protocols,
                           peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json)
     if args.json:
