@@ -40,6 +40,7 @@ FL_SPLIT_H = 24.0  # three 8 h heat/cool cycles for training, the fourth (5000 r
 FL_TARGETS = ["ch1_um", "ch2_um", "ch3_um", "ch4_um", "ch5_um"]
 FL_BUILD = BUILD / "fl"
 FL_REPORT = REPORT / "fl"
+HIL_RESULT = BUILD / f"hil_{SIM_TEST.stem}.json"
 STEP_TIMEOUT_S = 600
 
 
@@ -200,10 +201,22 @@ def step_hil(demo: Demo) -> dict:
         doc = json.loads(text)
     except json.JSONDecodeError:
         raise DemoFailed(f"HIL replay printed no valid JSON: {text[:300]!r}") from None
-    (ROOT / BUILD / "hil_replay.json").write_text(json.dumps(doc, indent=2))
-    for key, value in doc.items():
-        if isinstance(value, (int, float, str, bool)) or value is None:
-            demo.say(f"    {key}: {value}")
+    (ROOT / HIL_RESULT).write_text(json.dumps(doc, indent=2))
+    checks = doc.get("checks", {})
+    demo.say(f"    {doc.get('samples')} samples fed, {doc.get('received')} lines back, "
+             f"{doc.get('bad_lines')} bad, {doc.get('lost')} lost; box vs integer twin: "
+             f"{doc.get('mismatches')} mismatches (max {doc.get('max_abs_diff_nm')} nm); "
+             f"{doc.get('samples_per_s', 0):.0f} samples/s")
+    for axis, a in doc.get("axes", {}).items():
+        demo.say(f"    {axis}: box output leaves {fmt_um(a.get('compensated_rms_um'))} RMS of "
+                 f"{fmt_um(a.get('raw_rms_um'))} raw; |box − float model| ≤ "
+                 f"{a.get('float_max_diff_um', float('nan')) * 1000:.2f} nm "
+                 f"(bound {a.get('bound_um', float('nan')) * 1000:.2f} nm)")
+    failed = [name for name, ok in checks.items() if not ok]
+    if not doc.get("ok", False) or failed:
+        raise DemoFailed(f"HIL checks failed: {', '.join(failed) or 'not ok'}; problems: "
+                         f"{doc.get('problems')}")
+    demo.say(f"    checks: {', '.join(checks) or '—'}: all passed")
     demo.done()
     return doc
 
@@ -219,12 +232,14 @@ def step_protocols(demo: Demo) -> Path | None:
 
 
 def step_report(demo: Demo, model_dir: Path, runs: list[Path], out: Path,
-                protocols: Path | None = None) -> dict:
+                protocols: Path | None = None, hil: Path | None = None) -> dict:
     demo.step(f"Report for {model_dir / 'model.json'}")
     args: list[str | Path] = ["report", model_dir / "model.json", "--runs", *runs, "-o", out,
                               "--json"]
     if protocols is not None:
         args += ["--protocols", protocols]
+    if hil is not None:
+        args += ["--hil", hil]
     doc = demo.host_json(*args)
     demo.say(f"    {out / 'index.html'}: {len(doc['figures'])} figures")
     demo.done()
@@ -287,7 +302,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         step_firmware(demo, BUILD / "model.h")
         step_hil(demo)
         protocols = step_protocols(demo)
-        sim = step_report(demo, BUILD, [*SIM_TRAIN, SIM_TEST], REPORT, protocols)
+        sim = step_report(demo, BUILD, [*SIM_TRAIN, SIM_TEST], REPORT, protocols, HIL_RESULT)
         fl_parts, _ = step_fl(demo)
         fl = step_report(demo, FL_BUILD, fl_parts, FL_REPORT)
     except DemoFailed as exc:

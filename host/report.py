@@ -203,6 +203,20 @@ def _matrix_from_rows(path: Path, rows: list, metric: str | None) -> ProtocolMat
     return ProtocolMatrix(train, test, values, metric + unit)
 
 
+def load_hil(path: str | Path) -> dict:
+    """A `python -m hil replay --json` result: the box's own output on a replayed run."""
+    path = Path(path)
+    if not path.is_file():
+        raise ReportError(f"{path}: HIL result file not found")
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: not valid JSON (line {exc.lineno}): {exc.msg}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("axes"), dict):
+        raise ReportError(f"{path}: not a HIL replay result (no 'axes')")
+    return {"file": str(path), **doc}
+
+
 # ---------------------------------------------------------------- report
 
 @dataclass
@@ -277,11 +291,13 @@ def summary_rows(model: dict) -> list[dict]:
 
 def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: str | Path,
                  protocols: str | Path | None = None, peers: bool = True,
-                 fill_gaps: int = 0, quiet: bool = False) -> Report:
+                 fill_gaps: int = 0, quiet: bool = False,
+                 hil: list[str | Path] | None = None) -> Report:
     """Render every figure and write ``out_dir/index.html``; inputs are all checked first."""
     model = load_model(model_path)
     runs = load_report_runs(model, list(run_paths), fill_gaps)
     matrix = load_protocols(protocols) if protocols else None
+    hil_results = [load_hil(p) for p in hil or []]
     period = float(model["sample_period_s"])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -386,6 +402,8 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
         "runs": run_table,
         "figures": [f.file for f in report.figures],
     }
+    if hil_results:
+        report.summary["hil"] = hil_results
     if matrix is not None:
         report.summary["protocols"] = {"train": matrix.train, "test": matrix.test,
                                        "values": matrix.values.tolist(), "metric": matrix.metric}
@@ -598,6 +616,28 @@ def render_html(model: dict, report: Report) -> str:
                              + _cell(_fmt(row["raw_rms_um"]))
                              + "".join(_cell(_fmt(row["residual_rms_um"].get(m)))
                                        for m in models) + "</tr>")
+        parts.append("</table>")
+
+    for hil in summary.get("hil", []):
+        label = hil.get("data") or hil["file"]
+        checks = hil.get("checks", {})
+        parts.append(f"<h2>The box itself: HIL replay ({e(str(label))})</h2>"
+                     f'<p class="meta">The firmware built from this model ran on the native '
+                     f"board and was fed {hil.get('samples', '?')} samples; "
+                     f"{hil.get('mismatches', '?')} of its outputs differ from the integer twin, "
+                     f"{hil.get('lost', '?')} lines were lost, {hil.get('bad_lines', '?')} bad. "
+                     "Checks: " + e(", ".join(f"{k} {'passed' if v else 'FAILED'}"
+                                              for k, v in checks.items()) or "—") + ".</p>")
+        parts.append("<table><tr>" + "".join(_th(h, left=i == 0) for i, h in enumerate(
+            ["axis", "raw RMS (µm)", "box-compensated RMS (µm)", "max |box − float| (nm)",
+             "bound (nm)", "mismatches"])) + "</tr>")
+        for axis_name, a in hil["axes"].items():
+            diff, bound = a.get("float_max_diff_um"), a.get("bound_um")
+            parts.append("<tr>" + _cell(e(axis_name), True) + _cell(_fmt(a.get("raw_rms_um")))
+                         + _cell(_fmt(a.get("compensated_rms_um")))
+                         + _cell(_fmt(None if diff is None else diff * 1000, 3))
+                         + _cell(_fmt(None if bound is None else bound * 1000, 3))
+                         + _cell(a.get("mismatches", "—")) + "</tr>")
         parts.append("</table>")
 
     for key, heading in SECTIONS:

@@ -111,7 +111,14 @@ def example(tmp_path_factory):
         "metric": "validation RMSE (µm)", "train": ["constant", "step", "random"],
         "test": ["constant", "step", "random"],
         "matrix": [[1.1, 2.5, 2.9], [1.9, 1.2, 1.6], [2.2, 1.7, 1.3]]}))
+    hil = tmp / "hil_fl_second.json"
+    hil.write_text(json.dumps({
+        "samples": 960, "mismatches": 0, "lost": 0, "bad_lines": 0,
+        "checks": {"twin_bit_exact": True, "float_within_bound": True},
+        "axes": {"ch3_um": {"raw_rms_um": 37.3, "compensated_rms_um": 29.55, "mismatches": 0,
+                            "float_max_diff_um": 0.00041, "bound_um": 0.0042}}}))
     return {"model": model, "model_path": model_path, "runs": paths, "protocols": protocols,
+            "hil": hil,
             "alpha": alpha, "sensors_used": sensors_used}
 
 
@@ -119,7 +126,7 @@ def example(tmp_path_factory):
 def rendered(example, tmp_path_factory):
     out = tmp_path_factory.mktemp("report_out")
     report = build_report(example["model_path"], example["runs"], out,
-                          protocols=example["protocols"], quiet=True)
+                          protocols=example["protocols"], quiet=True, hil=[example["hil"]])
     return report
 
 
@@ -152,6 +159,8 @@ def test_html_embeds_every_figure_and_links_the_files(rendered):
     for name in expected_files():
         assert f'href="{name}"' in page
     assert "lag(T05, tau=1800s)</b>: validation RMSE 3.21 → 1.23 µm, 62 % better" in page
+    assert "HIL replay (" in page and "twin_bit_exact passed" in page
+    assert "<td>0.410</td><td>4.200</td>" in page  # box vs float and its bound, in nm
     assert "http://" not in page and "https://" not in page  # nothing to fetch
 
 

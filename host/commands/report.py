@@ -16,6 +16,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--out", default="report", help="output folder (default: report)")
     parser.add_argument("--protocols", metavar="FILE",
                         help="`host compare-protocols` results (JSON or CSV) for the heat map")
+    parser.add_argument("--hil", nargs="+", metavar="JSON", default=[],
+                        help="`python -m hil replay --json` results to show the box's own output")
     parser.add_argument("--no-peers", action="store_true",
                         help="do not fit the peer models of `host compare`")
     parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
@@ -28,7 +30,8 @@ def run(args: argparse.Namespace) -> int:
     from host.report import build_report  # matplotlib: imported only when a report is made
 
     report = build_report(args.model, args.runs, args.out, protocols=args.protocols,
-                          peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json)
+                          peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json,
+                          hil=args.hil)
     if args.json:
         print(json.dumps({"index": str(report.index), **report.summary}, indent=2))
         return 0
