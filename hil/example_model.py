@@ -68,6 +68,20 @@ def default_terms(sensors: list[str], period_s: float, aux: str | None = None) -
     return terms
 
 
+def fl_thermal_model(path: str | Path) -> dict:
+    """The HIL's model of the real FL_THERMAL run (examples/fl_thermal_steps.csv, 15 s).
+
+    Two axes, six channels, every temperature term kind plus the spindle speed, so a replay
+    exercises temp, lag, rate and speed features and an axis-selective hold.
+    """
+    p = 15.0
+    return fit_example_model(path, {
+        "ch1_um": [make_temp("T10"), make_temp("T07"), make_lag("T04", 1800, p),
+                   make_speed("spindle_rpm")],
+        "ch3_um": [make_temp("T11"), make_lag("T02", 3600, p), make_rate("T03", 600, p)],
+    }, aux_names=["spindle_rpm"])
+
+
 def write_model(model: dict, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

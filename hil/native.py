@@ -97,12 +97,13 @@ class NativeBox:
         self._close_link()
         return code
 
-    def kill(self) -> None:
-        """Power cut: the process dies without a chance to flush anything."""
+    def kill(self) -> int:
+        """Power cut: the process dies without a chance to flush anything; its exit code."""
         if self.alive():
             self.proc.kill()
-        self.proc.wait()
+        code = self.proc.wait()
         self._close_link()
+        return code
 
     def _close_link(self) -> None:
         link = getattr(self, "link", None)

@@ -28,7 +28,7 @@ class Box(Protocol):
 
     def feed(self, data: bytes) -> None: ...
     def stop(self, timeout: float = 5.0) -> int: ...
-    def kill(self) -> None: ...
+    def kill(self) -> int: ...
     def alive(self) -> bool: ...
 
 
@@ -132,7 +132,7 @@ def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), wind
 
     def finish(s: Session, b: Box, kill: bool) -> None:
         if kill:
-            b.kill()
+            s.exit_code = b.kill()
         else:
             s.exit_code = b.stop()
         s.lines = list(b.link.lines)
@@ -164,6 +164,7 @@ def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), wind
                                         f"{e.replies} replies to serial noise before sample "
                                         f"{point}")
                 elif isinstance(e, Restart):
+                    sync()  # the power cut falls between two samples, not inside one
                     finish(session, box, kill=True)
                     box = start_box(e.wdt_reset)
                     session = Session(point, e.wdt_reset)

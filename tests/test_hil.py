@@ -22,10 +22,9 @@ import pytest
 from hil import replay as hil_replay
 from hil.build import build_firmware
 from hil.checks import judge
-from hil.example_model import default_terms, fit_example_model, write_model
+from hil.example_model import default_terms, fit_example_model, fl_thermal_model, write_model
 from hil.runner import Capture
 from host.protocol import decode, encode_sample
-from host.terms import make_lag, make_rate, make_speed, make_temp
 
 REPO = Path(__file__).resolve().parents[1]
 FL = REPO / "examples" / "fl_thermal_steps.csv"
@@ -37,13 +36,7 @@ pytestmark = pytest.mark.skipif(
 
 
 def fl_model() -> dict:
-    """Two axes on the real run, with every temperature term kind and the spindle speed."""
-    p = 15.0
-    return fit_example_model(FL, {
-        "ch1_um": [make_temp("T10"), make_temp("T07"), make_lag("T04", 1800, p),
-                   make_speed("spindle_rpm")],
-        "ch3_um": [make_temp("T11"), make_lag("T02", 3600, p), make_rate("T03", 600, p)],
-    }, aux_names=["spindle_rpm"])
+    return fl_thermal_model(FL)
 
 
 @pytest.fixture(scope="module")
