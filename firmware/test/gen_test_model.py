@@ -1,0 +1,234 @@
+"""Writes the model header and the expected outputs the firmware's C application test checks.
+
+Usage: gen_test_model.py OUT_DIR --clamp-nm N --slew-nm-per-s N --cold-start-slew 0|1
+
+The expectations come from the host, never from the firmware: the model is built with
+host.terms and rendered by codegen; the per-sample model outputs come from ``codegen.fixed``
+(the integer twin of the runtime); channel validity, status bits and the hold / slew / clamp
+output stage are computed here from the rules in docs/firmware.md and docs/protocol.md.
+
+Files: model_test.h (the header), model_bad.h (the same header with one table value changed
+but its CRC macro kept: what a corrupted flash looks like to the box), vectors.h (inputs and
+expected lines of a seeded session of N_SAMPLES periods).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import codegen
+from codegen.fixed import FixedModel
+from host.terms import make_lag, make_rate, make_speed, make_square, make_temp, make_time
+
+N_SAMPLES = 400
+N_CHANNELS = 8
+SEED = 20240605
+
+# docs/protocol.md status bits
+MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA = (
+    1 << i for i in range(10))
+SR_OPEN = 0x01
+
+
+def term(t, coef: float) -> dict:
+    return {**t.to_json(), "coef": coef}
+
+
+def test_model() -> dict:
+    """8 channels (two type J, one narrow range), a spindle input, 3 axes using every kind."""
+    period = 1.0
+    channels = [{"channel": i, "sensor": f"T0{i + 1}", "tc_type": "J" if i in (2, 5) else "K",
+                 "min_c": 0.0 if i == 3 else -40.0, "max_c": 100.0 if i == 3 else 200.0}
+                for i in range(N_CHANNELS)]
+    m = {"schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": period,
+         "channels": channels,
+         "aux": [{"input": 0, "name": "spindle_rpm", "min": 0.0, "max": 12000.0}],
+         "time_max_s": 7200.0, "axes": {}, "training": {"runs": ["firmware-test"]}}
+    m["axes"]["dx_um"] = {"unit": "um", "intercept": -3.5, "terms": [
+        term(make_temp("T01"), 1.8), term(make_lag("T02", 600.0, period), -1.2),
+        term(make_rate("T03", 120.0, period), 3.0), term(make_square("T04", 25.0), 0.01),
+        term(make_time(), 1e-4)]}
+    m["axes"]["dy_um"] = {"unit": "um", "intercept": 2.0, "terms": [
+        term(make_speed("spindle_rpm"), 2e-3),
+        term(make_speed("spindle_rpm", squared=True), -1e-7),
+        term(make_temp("T05"), 0.9), term(make_lag("T06", 300.0, period), 0.6)]}
+    m["axes"]["dz_um"] = {"unit": "um", "intercept": -10.0, "terms": [
+        term(make_temp("T07"), 2.5), term(make_rate("T08", 60.0, period), -4.0),
+        term(make_lag("T01", 1800.0, period), 1.1)]}
+    return m
+
+
+def session(rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Chip readings, fault registers, presence and spindle speed for each sample."""
+    n = N_SAMPLES
+    temp = 20.0 + np.cumsum(rng.normal(0.0, 0.3, (n, N_CHANNELS)), axis=0)
+    temp[150:, 0] += 30.0  # a step: drives dx past the clamp
+    temp[200:205, 4] = 210.0  # above T05's valid range: RANGE, dy holds
+    temp[60:64, 3] = -3.0  # below T04's 0 degC minimum: RANGE, dx holds
+    temp[10:20, 6] -= 80.0  # negative codes, still inside T07's range
+    codes = np.round(temp * 128.0).astype(np.int64)
+    sr = np.zeros((n, N_CHANNELS), dtype=np.int64)
+    sr[100:120, 2] = SR_OPEN
+    sr[250:253, 5] = 0x40  # TC range
+    sr[300, 7] = 0x02  # over/under voltage
+    sr[310:312, 1] = 0x80 | SR_OPEN
+    present = np.ones((n, N_CHANNELS), dtype=bool)
+    present[320:325, 0] = False  # chip 0 stops answering (MISO reads 0xFF)
+    aux = rng.integers(0, 12001, n)
+    aux[0:3] = 13000  # spindle input out of range from power-up: dy has NO_DATA
+    aux[350:356] = 13000  # above the spindle range: AUX_FAULT, dy holds
+    aux_ok = np.ones(n, dtype=bool)
+    aux_ok[370:372] = False  # the ADC did not convert
+    return {"codes": codes, "sr": sr, "present": present, "aux": aux, "aux_ok": aux_ok}
+
+
+def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
+             cold_start_slew: bool) -> dict[str, np.ndarray]:
+    twin = FixedModel.from_model(model)
+    chans = twin.model.channels
+    aux_lo, aux_hi = twin.model.aux[0].min, twin.model.aux[0].max
+    n_axes = twin.n_axes
+    out = np.zeros((N_SAMPLES, n_axes), dtype=np.int64)
+    status = np.zeros(N_SAMPLES, dtype=np.int64)
+    shown = np.where(s["present"], s["codes"], 0)  # a silent chip reports code 0
+    value = [0] * n_axes
+    has = [False] * n_axes
+    walking = [False] * n_axes
+    for i in range(N_SAMPLES):
+        bits = 0
+        valid_mask = 0
+        for c, ch in enumerate(chans):
+            code, sr = int(s["codes"][i, c]), int(s["sr"][i, c])
+            if not s["present"][i, c]:
+                bits |= TC_FAULT
+            elif sr:
+                bits |= (OPEN if sr & SR_OPEN else 0) | (TC_FAULT if sr & ~SR_OPEN else 0)
+            elif not ch.min_code <= code <= ch.max_code:
+                bits |= RANGE
+            else:
+                valid_mask |= 1 << c
+        aux = int(s["aux"][i]) if s["aux_ok"][i] else aux_lo - 1
+        if not s["aux_ok"][i] or not aux_lo <= aux <= aux_hi:
+            bits |= AUX_FAULT
+        computed, ok_mask = twin.step([int(x) for x in shown[i]], valid_mask, [aux])
+        for a in range(n_axes):
+            if not (ok_mask >> a) & 1:
+                bits |= HOLD | (0 if has[a] else NO_DATA)
+                walking[a] = walking[a] or has[a]
+            else:
+                target = computed[a]
+                if abs(target) > clamp:
+                    target = clamp if target > 0 else -clamp
+                    bits |= CLAMP
+                if not has[a]:
+                    has[a], walking[a] = True, cold_start_slew
+                if not walking[a]:
+                    value[a] = target
+                elif abs(target - value[a]) <= step:
+                    value[a], walking[a] = target, False
+                else:
+                    value[a] += step if target > value[a] else -step
+                    bits |= SLEW
+            out[i, a] = value[a]
+        status[i] = bits
+    return {"out": out, "status": status, "shown": shown}
+
+
+def c_rows(a: np.ndarray) -> str:
+    return ",\n".join("    {" + ", ".join(str(int(v)) for v in row) + "}" for row in a)
+
+
+def c_list(a: np.ndarray) -> str:
+    return ", ".join(str(int(v)) for v in a)
+
+
+def corrupt(header: str) -> str:
+    """Move axis 0's intercept one LSB towards zero: the tables change, the CRC macro not."""
+    pat = re.compile(r"(#define TCM_AXIS0_INTERCEPT_Q INT64_C\()(-?\d+)(\))")
+    m = pat.search(header)
+    if m is None or int(m.group(2)) == 0:
+        raise SystemExit("gen_test_model: no non-zero TCM_AXIS0_INTERCEPT_Q to corrupt")
+    v = int(m.group(2))
+    return pat.sub(f"\\g<1>{v - 1 if v > 0 else v + 1}\\g<3>", header, count=1)
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out_dir", type=Path)
+    ap.add_argument("--clamp-nm", type=int, required=True)
+    ap.add_argument("--slew-nm-per-s", type=int, required=True)
+    ap.add_argument("--cold-start-slew", type=int, choices=(0, 1), required=True)
+    args = ap.parse_args(argv)
+
+    model = test_model()
+    gen = codegen.generate(model)
+    period_ms = gen.model.period_ms
+    step = max(1, (args.slew_nm_per_s * period_ms + 500) // 1000)
+    s = session(np.random.default_rng(SEED))
+    e = expected(model, s, args.clamp_nm, step, bool(args.cold_start_slew))
+
+    # The session must exercise what it claims to: every status bit it is built for.
+    seen = int(np.bitwise_or.reduce(e["status"]))
+    for bit, name in ((HOLD, "HOLD"), (SLEW, "SLEW"), (CLAMP, "CLAMP"), (RANGE, "RANGE"),
+                      (OPEN, "OPEN"), (TC_FAULT, "TC_FAULT"), (AUX_FAULT, "AUX_FAULT"),
+                      (NO_DATA, "NO_DATA")):
+        if not seen & bit:
+            raise SystemExit(f"gen_test_model: the test session never raises {name}")
+
+    axes = ";".join(gen.model.axes[a].name for a in range(len(gen.model.axes)))
+    chmap = ";".join(f"{c.index}:{c.sensor}:{c.tc_type}" for c in gen.model.channels)
+    out = args.out_dir
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "model_test.h").write_text(gen.text)
+    (out / "model_bad.h").write_text(corrupt(gen.text))
+    (out / "vectors.h").write_text(f"""/* Generated by firmware/test/gen_test_model.py -- DO NOT EDIT. Expectations from the host
+ * (codegen.fixed + the documented output rules), seed {SEED}. */
+#ifndef TEST_VECTORS_H
+#define TEST_VECTORS_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#define VEC_N {N_SAMPLES}
+#define VEC_N_CHANNELS {N_CHANNELS}
+#define VEC_N_AXES {len(gen.model.axes)}
+#define VEC_PERIOD_MS {period_ms}u
+#define VEC_MODEL_HASH "{gen.model.model_hash}"
+/* INFO fields after the crc flag: period, axes, channel map */
+#define VEC_INFO_TAIL "{period_ms},{axes},{chmap}"
+#define VEC_CLAMP_NM {args.clamp_nm}
+#define VEC_SLEW_NM_PER_S {args.slew_nm_per_s}
+#define VEC_COLD_START_SLEW {args.cold_start_slew}
+
+static const int32_t vec_codes[VEC_N][VEC_N_CHANNELS] = {{
+{c_rows(s["codes"])}
+}};
+static const uint8_t vec_sr[VEC_N][VEC_N_CHANNELS] = {{
+{c_rows(s["sr"])}
+}};
+static const bool vec_present[VEC_N][VEC_N_CHANNELS] = {{
+{c_rows(s["present"].astype(int))}
+}};
+static const int32_t vec_aux[VEC_N] = {{{c_list(s["aux"])}}};
+static const bool vec_aux_ok[VEC_N] = {{{c_list(s["aux_ok"].astype(int))}}};
+/* expected: the temperature codes each line shows, the corrections and the status word */
+static const int32_t vec_shown[VEC_N][VEC_N_CHANNELS] = {{
+{c_rows(e["shown"])}
+}};
+static const int32_t vec_out_nm[VEC_N][VEC_N_AXES] = {{
+{c_rows(e["out"])}
+}};
+static const uint16_t vec_status[VEC_N] = {{{c_list(e["status"])}}};
+
+#endif
+""")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,293 @@
+/* The application on a fake board: the whole sample path (MAX31856 models -> driver -> model
+ * runtime -> hold/slew/clamp -> protocol line) against host-generated expectations, bit for
+ * bit, plus scheduling, watchdog, commands. Expectations: build/test/model/vectors.h, written
+ * by test/gen_test_model.py from codegen.fixed and the documented rules. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "app.h"
+#include "box_config.h"
+#include "crc16.h"
+#include "fake_board.h"
+#include "vectors.h"
+
+_Static_assert(BOX_MAX_CORRECTION_NM == VEC_CLAMP_NM, "build and vectors disagree on the clamp");
+_Static_assert(BOX_SLEW_NM_PER_S == VEC_SLEW_NM_PER_S, "build and vectors disagree on the slew");
+_Static_assert(BOX_COLD_START_SLEW == VEC_COLD_START_SLEW, "build and vectors disagree");
+
+typedef struct {
+    long seq;
+    unsigned status;
+    int n_axes;
+    long corr[8];
+    int n_ch;
+    long codes[8];
+} sample_line_t;
+
+/* Split the first line of `text` off; checks framing and CRC; returns the payload (between
+ * '$' and '*') in `payload`. */
+static const char *next_line(const char *text, char *payload, size_t cap)
+{
+    const char *end = strstr(text, "\r\n");
+    assert_non_null(end);
+    assert_int_equal(text[0], '$');
+    const char *star = memchr(text, '*', (size_t)(end - text));
+    assert_non_null(star);
+    assert_int_equal(end - star, 5);
+    size_t n = (size_t)(star - text - 1);
+    assert_true(n < cap);
+    memcpy(payload, text + 1, n);
+    payload[n] = '\0';
+    unsigned crc = (unsigned)strtoul(star + 1, NULL, 16);
+    assert_int_equal(crc, crc16_update(CRC16_INIT, (const uint8_t *)payload, n));
+    return end + 2;
+}
+
+static void parse_sample(const char *payload, sample_line_t *s)
+{
+    char *p;
+    assert_memory_equal(payload, "C,", 2);
+    s->seq = strtol(payload + 2, &p, 10);
+    assert_int_equal(*p++, ',');
+    s->status = (unsigned)strtoul(p, &p, 16);
+    assert_int_equal(*p++, ',');
+    s->n_axes = (int)strtol(p, &p, 10);
+    assert_true(s->n_axes <= 8);
+    for (int a = 0; a < s->n_axes; a++) {
+        assert_int_equal(*p++, ',');
+        s->corr[a] = strtol(p, &p, 10);
+    }
+    assert_int_equal(*p++, ',');
+    s->n_ch = (int)strtol(p, &p, 10);
+    assert_true(s->n_ch <= 8);
+    for (int c = 0; c < s->n_ch; c++) {
+        assert_int_equal(*p++, ',');
+        s->codes[c] = strtol(p, &p, 10);
+    }
+    assert_int_equal(*p, '\0');
+}
+
+static void load_vector(int i)
+{
+    for (int c = 0; c < VEC_N_CHANNELS; c++) {
+        fake_chips[c].present = vec_present[i][c];
+        max31856_sim_set_temperature(&fake_chips[c], vec_codes[i][c]);
+        max31856_sim_set_fault(&fake_chips[c], vec_sr[i][c]);
+    }
+    fake_aux = vec_aux[i];
+    fake_aux_ok = vec_aux_ok[i];
+}
+
+static int boot(void **state)
+{
+    (void)state;
+    fake_board_reset();
+    fake_now_ms = 5000; /* not zero: the schedule must be relative to boot */
+    app_init();
+    (void)fake_uart_take();
+    return 0;
+}
+
+static void advance_and_poll(uint32_t ms)
+{
+    fake_now_ms += ms;
+    app_poll();
+}
+
+static void test_App_ShouldMatchHostVectorsBitForBit(void **state)
+{
+    (void)state;
+    char payload[300];
+    for (int i = 0; i < VEC_N; i++) {
+        load_vector(i);
+        advance_and_poll(VEC_PERIOD_MS);
+        const char *out = fake_uart_take();
+        const char *rest = next_line(out, payload, sizeof payload);
+        assert_string_equal(rest, ""); /* exactly one line per period */
+        sample_line_t s;
+        parse_sample(payload, &s);
+        if (s.status != vec_status[i]) {
+            fail_msg("sample %d: status %04X, expected %04X", i, s.status, vec_status[i]);
+        }
+        assert_int_equal(s.seq, i);
+        assert_int_equal(s.n_axes, VEC_N_AXES);
+        for (int a = 0; a < VEC_N_AXES; a++) {
+            if (s.corr[a] != vec_out_nm[i][a]) {
+                fail_msg("sample %d axis %d: %ld nm, expected %d nm", i, a, s.corr[a],
+                         vec_out_nm[i][a]);
+            }
+        }
+        assert_int_equal(s.n_ch, VEC_N_CHANNELS);
+        for (int c = 0; c < VEC_N_CHANNELS; c++) {
+            assert_int_equal(s.codes[c], vec_shown[i][c]);
+        }
+    }
+}
+
+static void test_App_ShouldConfigureEveryChipForItsThermocoupleType(void **state)
+{
+    (void)state;
+    /* vectors: channels 2 and 5 are type J (CR1 0x22), the others K (0x23); CR0 0x91. */
+    for (int c = 0; c < VEC_N_CHANNELS; c++) {
+        assert_int_equal(fake_chips[c].regs[0x00], 0x91);
+        assert_int_equal(fake_chips[c].regs[0x01], (c == 2 || c == 5) ? 0x22 : 0x23);
+    }
+}
+
+static void test_App_ShouldNotSampleBeforeThePeriodHasPassed(void **state)
+{
+    (void)state;
+    load_vector(0);
+    advance_and_poll(VEC_PERIOD_MS - 1u);
+    assert_string_equal(fake_uart_take(), "");
+    advance_and_poll(1);
+    assert_memory_equal(fake_uart_take(), "$C,0,", 5);
+    advance_and_poll(VEC_PERIOD_MS / 2u);
+    assert_string_equal(fake_uart_take(), "");
+    advance_and_poll(VEC_PERIOD_MS / 2u);
+    assert_memory_equal(fake_uart_take(), "$C,1,", 5);
+}
+
+static void test_App_ShouldShowMissedPeriodsAsAGapInSeq(void **state)
+{
+    (void)state;
+    load_vector(0);
+    advance_and_poll(VEC_PERIOD_MS);
+    (void)fake_uart_take();
+    advance_and_poll(VEC_PERIOD_MS * 3u + VEC_PERIOD_MS / 2u); /* a stalled loop */
+    assert_memory_equal(fake_uart_take(), "$C,3,", 5);
+    advance_and_poll(VEC_PERIOD_MS / 2u); /* back on the original grid */
+    assert_memory_equal(fake_uart_take(), "$C,4,", 5);
+}
+
+static void test_App_ShouldStartTheWatchdogAndKickItOnEveryPass(void **state)
+{
+    (void)state;
+    assert_int_equal(fake_watchdog_timeout_ms, BOX_WATCHDOG_MS);
+    uint32_t before = fake_watchdog_kicks;
+    for (int i = 0; i < 10; i++) {
+        advance_and_poll(1);
+    }
+    assert_int_equal(fake_watchdog_kicks - before, 10);
+}
+
+static void test_App_ShouldFlagEveryLineAfterAWatchdogReset(void **state)
+{
+    (void)state;
+    fake_board_reset();
+    fake_reset_by_watchdog = true;
+    app_init();
+    char payload[300];
+    for (int i = 0; i < 3; i++) {
+        load_vector(i);
+        advance_and_poll(VEC_PERIOD_MS);
+        next_line(fake_uart_take(), payload, sizeof payload);
+        sample_line_t s;
+        parse_sample(payload, &s);
+        assert_int_equal(s.status, vec_status[i] | 0x0100u);
+    }
+}
+
+static void test_App_ShouldAnswerInfoWithTheModelIdentity(void **state)
+{
+    (void)state;
+    fake_uart_send("INFO\r\n");
+    app_poll();
+    char payload[300];
+    assert_string_equal(next_line(fake_uart_take(), payload, sizeof payload), "");
+    assert_string_equal(payload, "I," BOX_FW_VERSION "," VEC_MODEL_HASH ",OK," VEC_INFO_TAIL);
+}
+
+static void test_App_ShouldAnswerStatusWithPerChannelFaults(void **state)
+{
+    (void)state;
+    fake_uart_send("STATUS\n");
+    app_poll();
+    char payload[300];
+    next_line(fake_uart_take(), payload, sizeof payload);
+    /* Before any sample: NO_DATA, seq 0, uptime 5 s, no channel faults yet. */
+    assert_string_equal(payload, "S,0200,0,5,0000;0000;0000;0000;0000;0000;0000;0000");
+
+    load_vector(0);
+    max31856_sim_set_fault(&fake_chips[1], 0x01); /* OPEN */
+    fake_chips[3].present = false;                /* no answer */
+    max31856_sim_set_temperature(&fake_chips[6], 201 * 128); /* above 200 degC: RANGE */
+    advance_and_poll(VEC_PERIOD_MS);
+    (void)fake_uart_take();
+    fake_uart_send("STATUS\n");
+    app_poll();
+    next_line(fake_uart_take(), payload, sizeof payload);
+    /* Every axis has a faulted input (dx: T02 open, T04 silent; dy: spindle out of range in
+     * vector 0; dz: T07 out of range) and none had data yet: HOLD 0x002 | RANGE 0x010 |
+     * OPEN 0x020 | TC_FAULT 0x040 | AUX_FAULT 0x080 | NO_DATA 0x200 = 0x02F2. Channel words:
+     * SR OPEN 0x0001, NO_RESPONSE 0x0200, RANGE 0x0100. */
+    assert_string_equal(payload, "S,02F2,0,6,0000;0001;0000;0200;0000;0000;0100;0000");
+}
+
+static void test_App_ShouldEmitEveryNthSampleAfterRate(void **state)
+{
+    (void)state;
+    fake_uart_send("RATE 3\r\n");
+    app_poll();
+    char payload[300];
+    next_line(fake_uart_take(), payload, sizeof payload);
+    assert_string_equal(payload, "OK,RATE,3");
+    int emitted[9] = {0};
+    for (int i = 0; i < 9; i++) {
+        load_vector(i);
+        advance_and_poll(VEC_PERIOD_MS);
+        const char *out = fake_uart_take();
+        if (*out != '\0') {
+            sample_line_t s;
+            next_line(out, payload, sizeof payload);
+            parse_sample(payload, &s);
+            assert_int_equal(s.seq, i);
+            emitted[i] = 1;
+        }
+    }
+    const int want[9] = {1, 0, 0, 1, 0, 0, 1, 0, 0};
+    assert_memory_equal(emitted, want, sizeof want);
+}
+
+static void test_App_ShouldAnswerErrorsAndKeepSampling(void **state)
+{
+    (void)state;
+    fake_uart_send("RATE 0\nhello\n\x01\x02\n");
+    app_poll();
+    char payload[300];
+    const char *rest = fake_uart_take();
+    rest = next_line(rest, payload, sizeof payload);
+    assert_string_equal(payload, "E,BAD_ARG");
+    rest = next_line(rest, payload, sizeof payload);
+    assert_string_equal(payload, "E,UNKNOWN");
+    rest = next_line(rest, payload, sizeof payload);
+    assert_string_equal(payload, "E,BINARY");
+    assert_string_equal(rest, "");
+    load_vector(0);
+    advance_and_poll(VEC_PERIOD_MS);
+    assert_memory_equal(fake_uart_take(), "$C,0,", 5);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup(test_App_ShouldMatchHostVectorsBitForBit, boot),
+        cmocka_unit_test_setup(test_App_ShouldConfigureEveryChipForItsThermocoupleType, boot),
+        cmocka_unit_test_setup(test_App_ShouldNotSampleBeforeThePeriodHasPassed, boot),
+        cmocka_unit_test_setup(test_App_ShouldShowMissedPeriodsAsAGapInSeq, boot),
+        cmocka_unit_test_setup(test_App_ShouldStartTheWatchdogAndKickItOnEveryPass, boot),
+        cmocka_unit_test_setup(test_App_ShouldFlagEveryLineAfterAWatchdogReset, boot),
+        cmocka_unit_test_setup(test_App_ShouldAnswerInfoWithTheModelIdentity, boot),
+        cmocka_unit_test_setup(test_App_ShouldAnswerStatusWithPerChannelFaults, boot),
+        cmocka_unit_test_setup(test_App_ShouldEmitEveryNthSampleAfterRate, boot),
+        cmocka_unit_test_setup(test_App_ShouldAnswerErrorsAndKeepSampling, boot),
+    };
+    return cmocka_run_group_tests_name("app", tests, NULL, NULL);
+}
