@@ -64,7 +64,7 @@ def _term_view(t: QTerm, ax_prefix: str, model: QModel) -> dict:
         what = f"aux {a.index} ({a.name})"
     else:
         lo = hi = ""
-        what = "samples since power-up"
+        what = "(samples since power-up)"
     param_macro = f"{prefix}_PARAM"
     if t.kind == "time":
         param_lit = "TCM_TIME_MAX_SAMPLES"
@@ -148,8 +148,8 @@ def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: st
             "min_macro": f"TCM_AUX{a.index}_MIN", "max_macro": f"TCM_AUX{a.index}_MAX",
             "min_lit": c_int32(a.min), "max_lit": c_int32(a.max),
         } for a in model.aux],
-        "time_max": None if model.time_max_samples is None else {
-            "seconds": _num(model.time_max_s), "lit": c_int32(model.time_max_samples)},
+        "time_max": {"seconds": _num(model.time_max_s), "lit": c_int32(model.time_max_samples)}
+        if any(t.kind == "time" for t in model.all_terms()) else None,
         "axes": axes,
         "term_count_sum": " + ".join(f"{a['prefix']}_N_TERMS" for a in axes),
         "tables": {

@@ -114,6 +114,9 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
 
 /* ---- Evaluation ---------------------------------------------------------------------- */
 
+/* Bit i of mask; an index past the mask (only a corrupted table has one) reads as "faulted". */
+static int bit_set(uint32_t mask, uint32_t i) { return i < 32u && ((mask >> i) & 1u) != 0u; }
+
 static int is_filter(uint8_t kind) { return kind == TCM_KIND_LAG || kind == TCM_KIND_RATE; }
 
 static int is_temperature(uint8_t kind)
@@ -154,29 +157,34 @@ uint32_t tcm_step(const tcm_model_t *m, tcm_state_t *st, const int32_t *temp_cod
 {
     /* 1. Which inputs are usable this sample: flagged valid and inside the declared range. */
     uint32_t ch_ok = 0u;
-    for (uint32_t c = 0; c < m->n_channels; ++c) {
+    for (uint32_t c = 0; c < m->n_channels && c < TCM_MAX_CHANNELS; ++c) {
         const int32_t code = temp_codes[c];
-        if (((valid_mask >> c) & 1u) != 0u && code >= m->channels[c].min_code &&
+        if (bit_set(valid_mask, c) && code >= m->channels[c].min_code &&
             code <= m->channels[c].max_code) {
             ch_ok |= UINT32_C(1) << c;
         }
     }
     uint32_t aux_ok = 0u;
-    for (uint32_t k = 0; k < m->n_aux; ++k) {
+    for (uint32_t k = 0; k < m->n_aux && k < TCM_MAX_AUX; ++k) {
         if (aux[k] >= m->aux[k].min && aux[k] <= m->aux[k].max) {
             aux_ok |= UINT32_C(1) << k;
         }
     }
 
-    /* 2. Filter states of valid channels: cold start, then one update (frozen if faulted). */
+    /* 2. Filter states of valid channels: cold start, then one update (frozen if faulted).
+     * The walk uses the axes' CRC-covered term counts, not the uncovered n_terms. */
+    uint32_t n_terms = 0u;
+    for (uint32_t a = 0; a < m->n_axes; ++a) {
+        n_terms += m->axes[a].n_terms;
+    }
     uint32_t state_index = 0u;
-    for (uint32_t t = 0; t < m->n_terms; ++t) {
+    for (uint32_t t = 0; t < n_terms && state_index < TCM_MAX_STATES; ++t) {
         const tcm_term_t *term = &m->terms[t];
         if (!is_filter(term->kind)) {
             continue;
         }
         const uint32_t bit = UINT32_C(1) << state_index;
-        if (((ch_ok >> term->input) & 1u) != 0u) {
+        if (bit_set(ch_ok, term->input)) {
             const int64_t target = (int64_t)temp_codes[term->input] * INT64_C(65536);
             if ((st->started & bit) == 0u) {
                 st->s[state_index] = target;
@@ -193,7 +201,7 @@ uint32_t tcm_step(const tcm_model_t *m, tcm_state_t *st, const int32_t *temp_cod
     uint32_t axes_ok = 0u;
     uint32_t t = 0u;
     state_index = 0u;
-    for (uint32_t a = 0; a < m->n_axes; ++a) {
+    for (uint32_t a = 0; a < m->n_axes && a < TCM_MAX_AXES; ++a) {
         const tcm_axis_t *ax = &m->axes[a];
         int64_t acc = ax->intercept_q;
         int valid = 1;
@@ -203,15 +211,16 @@ uint32_t tcm_step(const tcm_model_t *m, tcm_state_t *st, const int32_t *temp_cod
             if (is_filter(term->kind)) {
                 ++state_index;
             }
-            if ((is_temperature(term->kind) && ((ch_ok >> term->input) & 1u) == 0u) ||
-                (is_aux(term->kind) && ((aux_ok >> term->input) & 1u) == 0u)) {
+            if ((is_temperature(term->kind) && !bit_set(ch_ok, term->input)) ||
+                (is_aux(term->kind) && !bit_set(aux_ok, term->input)) ||
+                (is_filter(term->kind) && this_state >= TCM_MAX_STATES)) {
                 valid = 0;
             }
             if (valid) {
                 acc += term->coef_q * feature(term, st, this_state, temp_codes, aux);
             }
         }
-        if (valid) {
+        if (valid && ax->shift <= TCM_MAX_SHIFT) {
             out_nm[a] = (int32_t)tcm_rdiv(acc, ax->shift);
             axes_ok |= UINT32_C(1) << a;
         }

@@ -1,0 +1,563 @@
+"""codegen: quantisation, bound, hash, CRC, golden header, refusals, files and the twin.
+
+Expectations are worked out by hand (in the comments) or recomputed independently from the
+rules in docs/fixed-point.md (Fractions, hashlib, struct + zlib), never read back from the
+code under test.
+"""
+
+from __future__ import annotations
+
+import copy
+import decimal
+import hashlib
+import json
+import math
+import re
+import struct
+import zlib
+from decimal import Decimal
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from test_codegen_models import MODELS, base, channel, model, term
+
+import codegen
+from codegen.fixed import FixedModel, temp_to_code
+from codegen.quantise import rdiv
+from host.cli import main as host_main
+from host.terms import make_lag, make_temp
+
+# ---- the one-term model, by hand ------------------------------------------------------------
+# T01 valid -40..200 degC -> codes -5120..25600 (x128). dz = 0.75 um + 1.5 um/degC * T.
+# In nm per code: c0 = 750, c = 1500/128 = 375/32. Accumulator bound at shift F (F >= 5,
+# everything exact): 750*2^F + 375/32 * 2^F * 25600 = 300750 * 2^F <= 2^62
+# <=> F <= 62 - log2(300750) = 62 - 18.198 -> F = 43.
+# intercept_q = 750 * 2^43 = 6597069766656000; coef_q = 375 * 2^38 = 103079215104000.
+# Both exact, so the bound is the final rounding alone: 0.5 nm = 0.0005 um; input
+# quantisation 1.5 um/degC * 1/256 degC = 0.005859375 um.
+ONE_SHIFT = 43
+ONE_INTERCEPT_Q = 6597069766656000
+ONE_COEF_Q = 103079215104000
+
+
+def test_one_term_model_quantised_by_hand():
+    gen = codegen.generate(model("one_term"))
+    ax = gen.fixed_point["axes"]["dz_um"]
+    assert (ax["shift"], ax["intercept_q"], ax["terms"][0]["coef_q"]) == (
+        ONE_SHIFT, ONE_INTERCEPT_Q, ONE_COEF_Q)
+    assert 750 * 2**43 == ONE_INTERCEPT_Q and 375 * 2**38 == ONE_COEF_Q
+    assert ax["coef_quantisation_um"] == 0.0 and ax["state_quantisation_um"] == 0.0
+    assert ax["bound_um"] == pytest.approx(0.0005, abs=1e-18)
+    assert ax["input_quantisation_um"] == 0.005859375
+
+
+def test_rounding_half_away_from_zero_with_negative_accumulators():
+    # out = 750 + 375/32 * code nm. code 16 -> 937.5 -> 938; code -80 -> -187.5 -> -188;
+    # code -5120 -> 750 - 60000 = -59250 exactly; code 1 -> 761.71875 -> 762.
+    fm = FixedModel.from_model(model("one_term"))
+    for code, expected in [(16, 938), (-80, -188), (-5120, -59250), (1, 762), (-1, 738)]:
+        fm.reset()
+        assert fm.step([code], 1) == ([expected], 1)
+    # rdiv itself: ties away from zero, both signs, and F = 0 is the identity.
+    assert [rdiv(v, 1) for v in (5, -5, 3, -3, -4)] == [3, -3, 2, -2, -2]
+    assert [rdiv(v, 2) for v in (2, -2, 1, -1, 7)] == [1, -1, 0, 0, 2]
+    assert rdiv(-7, 0) == -7
+
+
+# ---- independent re-derivation of every shift and coefficient --------------------------------
+
+def _doc_units(m: dict) -> dict:
+    """docs/fixed-point.md's unit of x_j in the coefficient's unit, per kind."""
+    return {"temp": Fraction(1, 128), "lag": Fraction(1, 128 * 65536),
+            "rate": Fraction(1, 128 * 65536), "speed": Fraction(1), "speed2": Fraction(1),
+            "square": Fraction(1, 128 * 128), "time": Fraction(m["sample_period_s"])}
+
+
+def _doc_xmax(m: dict, t: dict) -> int:
+    """max |x_j| over the declared ranges, from the feature table of docs/fixed-point.md."""
+    k = t["kind"]
+    if k == "time":
+        return math.floor(Fraction(m["time_max_s"]) / Fraction(m["sample_period_s"]))
+    if k in ("speed", "speed2"):
+        a = next(a for a in m["aux"] if a["name"] == t["source"])
+        n = max(abs(math.ceil(a["min"])), abs(math.floor(a["max"])))
+        return n if k == "speed" else n * n
+    c = next(c for c in m["channels"] if c["sensor"] == t["source"])
+    lo, hi = math.ceil(c["min_c"] * 128), math.floor(c["max_c"] * 128)
+    if k == "temp":
+        return max(abs(lo), abs(hi))
+    if k == "lag":  # the state is a running mix of in-range codes, times 2^16
+        return max(abs(lo), abs(hi)) * 65536
+    if k == "rate":  # T*2^16 - s, both within [lo, hi]*2^16
+        return (hi - lo) * 65536
+    ref = round(t["ref_c"] * 128)
+    return max(abs(lo - ref), abs(hi - ref)) ** 2
+
+
+def _half_away(x: Fraction) -> int:
+    q = math.floor(abs(x) + Fraction(1, 2))
+    return q if x >= 0 else -q
+
+
+@pytest.mark.parametrize("name", sorted(MODELS))
+def test_shift_is_the_largest_that_cannot_overflow(name):
+    m = model(name)
+    fp = codegen.generate(m).fixed_point
+    units = _doc_units(m)
+    for axis, ax in m["axes"].items():
+        got = fp["axes"][axis]
+        xmax = [_doc_xmax(m, t) for t in ax["terms"]]
+        assert xmax == [t["max_abs_x"] for t in got["terms"]]
+
+        def acc(f, ax=ax, xmax=xmax):
+            iq = _half_away(Fraction(ax["intercept"]) * 1000 * 2**f)
+            cq = [_half_away(Fraction(t["coef"]) * 1000 * units[t["kind"]] * 2**f)
+                  for t in ax["terms"]]
+            return iq, cq, abs(iq) + sum(abs(q) * max(x, 1) for q, x in zip(cq, xmax, strict=True))
+
+        f = got["shift"]
+        iq, cq, total = acc(f)
+        assert (iq, cq) == (got["intercept_q"], [t["coef_q"] for t in got["terms"]])
+        assert total <= 2**62
+        assert f == 62 or acc(f + 1)[2] > 2**62, f"{axis}: shift {f} is not maximal"
+
+
+def test_max_abs_x_per_kind_by_hand():
+    fp = codegen.generate(model("all_kinds")).fixed_point["axes"]
+    # dx: temp T01 |x| <= 25600; lag T02 25600*65536; rate T03 (15360+2560)*65536;
+    # square T01 ref 25.015625 degC = 3202: max(|-5120-3202|, |25600-3202|)^2 = 22398^2;
+    # time: 3000 s / 1 s = 3000 samples.
+    assert [t["max_abs_x"] for t in fp["dx_um"]["terms"]] == [
+        25600, 25600 * 65536, 17920 * 65536, 22398**2, 3000]
+    # dy: speed 12000, speed2 12000^2, lag T01 25600*65536.
+    assert [t["max_abs_x"] for t in fp["dy_um"]["terms"]] == [12000, 12000**2, 25600 * 65536]
+
+
+# ---- model hash ---------------------------------------------------------------------------
+
+def test_model_hash_is_the_documented_canonical_sha256():
+    m = model("all_kinds")
+    core = {"sample_period_s": m["sample_period_s"], "channels": m["channels"],
+            "aux": m["aux"], "time_max_s": m["time_max_s"],
+            "axes": {k: {"unit": v["unit"], "intercept": v["intercept"], "terms": v["terms"]}
+                     for k, v in m["axes"].items()}}
+    expected = hashlib.sha256(json.dumps(core, sort_keys=True, separators=(",", ":"))
+                              .encode()).hexdigest()[:16]
+    assert codegen.model_hash(m) == expected
+
+
+def test_model_hash_ignores_traces_but_not_the_function():
+    m = model("all_kinds")
+    h = codegen.model_hash(m)
+    traced = copy.deepcopy(m)
+    traced["axes"]["dx_um"]["metrics"] = {"train_rmse_um": 0.8}
+    traced["axes"]["dx_um"]["selection"] = {"method": "x"}
+    traced["fixed_point"] = {"anything": 1}
+    traced["training"] = {"runs": ["other.csv"]}
+    assert codegen.model_hash(traced) == h
+    changed = copy.deepcopy(m)
+    changed["axes"]["dx_um"]["terms"][0]["coef"] += 1e-12
+    assert codegen.model_hash(changed) != h
+
+
+# ---- the golden header -----------------------------------------------------------------------
+
+def _one_term_crc() -> int:
+    data = struct.pack("<IIII", 1, 0, 1, 1000)  # channels, aux, axes, period ms
+    data += struct.pack("<iiB", -5120, 25600, 0)  # T01: -40..200 degC, type K
+    data += struct.pack("<BBq", ONE_SHIFT, 1, ONE_INTERCEPT_Q)
+    data += struct.pack("<BBiq", 0, 0, 0, ONE_COEF_Q)  # temp, channel 0, no param
+    return zlib.crc32(data)
+
+
+GOLDEN = """\
+/*
+ * Generated by codegen v{version} -- DO NOT EDIT.
+ * Regenerate with: host codegen <model.json> -o <model.h>
+ *
+ * Model {hash} (schema thermal-model/1), sample period 1000 ms.
+ * Output: per axis, int32_t nanometres. Inputs: int32_t temperature codes, LSB 1/128 degC
+ * (MAX31856 LTCB >> 5, sign-extended); a code outside its channel's range below is a fault.
+ * Arithmetic: docs/fixed-point.md (runtime format 1); bounds: docs/codegen.md.
+ * Include this file from exactly one firmware source file.
+ */
+#ifndef TCM_GENERATED_MODEL_H
+#define TCM_GENERATED_MODEL_H
+
+#include <stdint.h>
+
+#include "model_eval.h"
+
+#define TCM_HEADER_FORMAT 1
+#if TCM_HEADER_FORMAT != TCM_RUNTIME_FORMAT
+#error "model.h is header format 1 but model_eval.h is another runtime format: regenerate \
+model.h with the codegen matching this firmware (host codegen)"
+#endif
+
+#define TCM_SCHEMA "thermal-model/1"
+#define TCM_TOOL_VERSION "{version}"
+#define TCM_MODEL_HASH "{hash}"
+#define TCM_N_CHANNELS 1u
+#define TCM_N_AUX 0u
+#define TCM_N_AXES 1u
+#define TCM_N_TERMS 1u
+#define TCM_N_STATES 0u
+#define TCM_SAMPLE_PERIOD_MS 1000u
+#define TCM_MODEL_CRC32 UINT32_C({crc}) /* CRC-32 of the tables (docs/fixed-point.md) */
+
+/* ---- Input contract ------------------------------------------------------------------- */
+/* Temperature code LSB = 1/128 degC; valid range per channel (inclusive): */
+/* channel 0: T01, type K, -40.0 .. 200.0 degC */
+#define TCM_CH0_MIN_CODE INT32_C(-5120)
+#define TCM_CH0_MAX_CODE INT32_C(25600)
+
+/* ---- Axis 0: dz_um ----
+ * out_nm = rdiv(intercept_q + sum_j coef_q[j] * x_j, 2^43): each integer below is
+ * nanometres (per unit of x_j) times 2^43.
+ * intercept: 0.75 um
+ * term 0: temp channel 0 (T01)
+ *         coef 1.5 um/degC, x_j in 1/128 degC, |x_j| <= 25600
+ * Worst-case |error| against the real-valued model fed the same quantised inputs, over the
+ * whole declared input range, in um (rounded up; derivation in docs/codegen.md):
+ *   coefficient quantisation  0.0
+ *   filter state quantisation 0.0
+ *   final rounding            0.0005
+ *   bound (their sum)         0.0005
+ *   input quantisation        0.005859375 (+-1/256 degC per temperature, not in the bound)
+ */
+#define TCM_AXIS0_SHIFT 43u
+#define TCM_AXIS0_N_TERMS 1u
+#define TCM_AXIS0_INTERCEPT_Q INT64_C(6597069766656000)
+#define TCM_AXIS0_TERM0_COEF_Q INT64_C(103079215104000)
+#define TCM_AXIS0_TERM0_PARAM INT32_C(0)
+#define TCM_AXIS0_TERM0_XMAX TCM_XMAX_TEMP(TCM_CH0_MIN_CODE, TCM_CH0_MAX_CODE)
+#define TCM_AXIS0_ACC_MAX \\
+    (TCM_ABS64(TCM_AXIS0_INTERCEPT_Q) + \\
+     TCM_ACC_TERM(TCM_AXIS0_TERM0_COEF_Q, TCM_AXIS0_TERM0_XMAX))
+#define TCM_AXIS0_BOUND_PM 500u /* error bound, picometres (rounded up) */
+#define TCM_AXIS0_INPUT_QUANT_PM 5860u /* input quantisation, picometres */
+_Static_assert(TCM_AXIS0_SHIFT <= TCM_MAX_SHIFT, "axis 0 (dz_um): shift out of range");
+_Static_assert(TCM_AXIS0_ACC_MAX <= TCM_ACC_LIMIT,
+               "axis 0 (dz_um): the int64 accumulator could overflow");
+_Static_assert(TCM_RDIV_CONST(TCM_AXIS0_ACC_MAX, TCM_AXIS0_SHIFT) <= INT32_MAX,
+               "axis 0 (dz_um): the output could overflow int32_t");
+
+/* ---- Invariants of the tables --------------------------------------------------------- */
+_Static_assert(TCM_N_CHANNELS <= TCM_MAX_CHANNELS, "too many channels for the runtime");
+_Static_assert(TCM_N_AUX <= TCM_MAX_AUX, "too many aux inputs for the runtime");
+_Static_assert(TCM_N_AXES >= 1u && TCM_N_AXES <= TCM_MAX_AXES, "axis count out of range");
+_Static_assert(TCM_N_STATES <= TCM_MAX_STATES, "too many filter states for the runtime");
+_Static_assert(TCM_AXIS0_N_TERMS == TCM_N_TERMS, "axes' term counts do not add up");
+_Static_assert(TCM_CODE_MIN <= TCM_CH0_MIN_CODE && TCM_CH0_MIN_CODE <= TCM_CH0_MAX_CODE && \
+TCM_CH0_MAX_CODE <= TCM_CODE_MAX,
+               "channel 0 (T01): range outside the 19-bit code range");
+
+/* ---- Tables --------------------------------------------------------------------------- */
+static const tcm_channel_t tcm_channels[] = {{
+    {{.min_code = TCM_CH0_MIN_CODE, .max_code = TCM_CH0_MAX_CODE, .tc_type = TCM_TC_K, \
+.sensor = "T01"}},
+}};
+_Static_assert(sizeof tcm_channels / sizeof tcm_channels[0] == TCM_N_CHANNELS, \
+"channel table size");
+
+static const tcm_term_t tcm_terms[] = {{
+    /* axis 0 (dz_um) term 0: temp channel 0 (T01) */
+    {{.kind = TCM_KIND_TEMP, .input = 0u, .param = TCM_AXIS0_TERM0_PARAM, \
+.coef_q = TCM_AXIS0_TERM0_COEF_Q}},
+}};
+_Static_assert(sizeof tcm_terms / sizeof tcm_terms[0] == TCM_N_TERMS, "term table size");
+
+static const tcm_axis_t tcm_axes[] = {{
+    {{.shift = TCM_AXIS0_SHIFT, .n_terms = TCM_AXIS0_N_TERMS, \
+.intercept_q = TCM_AXIS0_INTERCEPT_Q, .name = "dz_um"}},
+}};
+_Static_assert(sizeof tcm_axes / sizeof tcm_axes[0] == TCM_N_AXES, "axis table size");
+
+static const tcm_model_t tcm_model = {{
+    .n_channels = TCM_N_CHANNELS,
+    .n_aux = TCM_N_AUX,
+    .n_axes = TCM_N_AXES,
+    .n_terms = TCM_N_TERMS,
+    .n_states = TCM_N_STATES,
+    .period_ms = TCM_SAMPLE_PERIOD_MS,
+    .channels = tcm_channels,
+    .aux = NULL,
+    .terms = tcm_terms,
+    .axes = tcm_axes,
+}};
+
+/* The model, for callers that prefer a function (also keeps tcm_model "used"). */
+static inline const tcm_model_t *tcm_model_get(void) {{ return &tcm_model; }}
+
+#endif /* TCM_GENERATED_MODEL_H */
+"""
+
+
+def test_golden_header_of_the_one_term_model():
+    m = model("one_term")
+    expected = GOLDEN.format(version=codegen.CODEGEN_VERSION, hash=codegen.model_hash(m),
+                             crc=f"0x{_one_term_crc():08X}")
+    assert codegen.generate(m).text == expected
+
+
+# ---- determinism ----------------------------------------------------------------------------
+
+def test_same_model_gives_identical_bytes_whatever_the_key_order(tmp_path):
+    m = model("all_kinds")
+    reordered = dict(reversed(list(copy.deepcopy(m).items())))
+    for ax in reordered["axes"].values():
+        for t in ax["terms"]:
+            t_items = list(t.items())
+            t.clear()
+            t.update(reversed(t_items))
+    a, b = codegen.generate(m).text, codegen.generate(reordered).text
+    assert a == b
+    assert not re.search(r"\d{4}-\d{2}-\d{2}|\d{2}:\d{2}:\d{2}", a)  # no timestamp
+    for i in range(2):
+        p = tmp_path / f"m{i}.json"
+        p.write_text(json.dumps(m))
+        codegen.write_header(p, tmp_path / f"m{i}.h")
+    assert (tmp_path / "m0.h").read_bytes() == (tmp_path / "m1.h").read_bytes()
+
+
+# ---- refusals: a clear message and nothing written ------------------------------------------
+
+def _single(terms: list[dict], lo: float = -40.0, hi: float = 200.0, **kw) -> dict:
+    m = base(channels=[channel(0, "T01", lo, hi)], **kw)
+    m["axes"]["dz_um"] = {"unit": "um", "intercept": 0.0, "terms": terms}
+    return m
+
+
+def _edit(m: dict, fn) -> dict:
+    m = copy.deepcopy(m)
+    fn(m)
+    return m
+
+
+GOOD = _single([term(make_temp("T01"), 1.0)])
+REFUSALS = [
+    # tau 1e5 s at 1 s: state error 5000 nm/degC * 2^-23 degC * 0.5/alpha(1e-5) ~ 0.03 um.
+    ("bound", _single([term(make_lag("T01", 1e5, 1.0), 5.0)]),
+     ["axis 'dz_um'", "lag(T01, tau=100000s)", "5.0 um/degC", "exceeds --max-error-um 0.01",
+      "state quantisation"]),
+    ("unrepresentable", _single([term(make_temp("T01"), 1e300)]),
+     ["axis 'dz_um'", "term 0 temp(T01)", "1e+300", "cannot be represented", "2^62"]),
+    ("output overflow", _single([term(make_temp("T01"), 1e5)]),
+     ["axis 'dz_um'", "2e+07 um", "int32", "term 0 temp(T01)", "100000.0 um/degC"]),
+    ("intercept", _edit(GOOD, lambda m: m["axes"]["dz_um"].update(intercept=1e300)),
+     ["axis 'dz_um'", "intercept", "cannot be represented"]),
+    ("alpha", _single([{"kind": "lag", "source": "T01", "tau_s": 1000.0, "alpha": 0.001,
+                        "coef": 1.0}]),
+     ["lag(T01, tau=1000s)", "alpha 0.001", "multiple of 2^-30"]),
+    ("square ref", _single([{"kind": "square", "source": "T01", "ref_c": 20.001,
+                             "coef": 1.0}]),
+     ["square(T01-20.001C)", "multiple of 1/128"]),
+    ("source", _single([term(make_temp("T99"), 1.0)]), ["'T99'", "not in channels"]),
+    ("kind", _single([{"kind": "cubic", "source": "T01", "coef": 1.0}]),
+     ["unknown term kind 'cubic'"]),
+    ("tc type", _edit(GOOD, lambda m: m["channels"][0].update(tc_type="T")),
+     ["channels[0] (T01)", "'T'", "not supported"]),
+    ("range", _single([term(make_temp("T01"), 1e-3)], hi=3000.0),
+     ["channels[0] (T01)", "384000", "19-bit", "262143"]),
+    ("channel index", _edit(GOOD, lambda m: m["channels"][0].update(channel=2)),
+     ["channels", "0..0", "[2]"]),
+    ("period", _edit(GOOD, lambda m: m.update(sample_period_s=0.0005)),
+     ["sample_period_s", "0.0005", "whole number of milliseconds"]),
+    ("states", _single([term(make_lag("T01", 10.0 + i, 1.0), 0.01) for i in range(33)]),
+     ["33 lag/rate terms", "32"]),
+    ("name", _edit(GOOD, lambda m: (m["channels"][0].update(sensor="T,1"),
+                                    m["axes"]["dz_um"]["terms"][0].update(source="T,1"))),
+     ["channels[0].sensor", "'T,1'"]),
+    # alpha = 1 (tau -> 0) over -200..1800 degC: |d*a| <= 256000*2^16*2^30 = 2^64.0 > 2^62.
+    ("filter product", _single([{"kind": "rate", "source": "T01", "tau_s": 0.01,
+                                 "alpha": 1.0, "coef": 1e-3}], lo=-200.0, hi=1800.0),
+     ["rate(T01, tau=0.01s)", "filter update", "> 2^62"]),
+    ("schema", _edit(GOOD, lambda m: m.update(schema="thermal-model/2")),
+     ["schema 'thermal-model/2'"]),
+    ("time without range", _edit(_single([{"kind": "time", "coef": 1e-4}]),
+                                 lambda m: m.pop("time_max_s")),
+     ["time", "time_max_s"]),
+    ("no axes", _edit(GOOD, lambda m: m.update(axes={})), ["no axes"]),
+]
+
+
+@pytest.mark.parametrize("label, bad, fragments", REFUSALS, ids=[r[0] for r in REFUSALS])
+def test_refusals_name_what_is_wrong_and_write_nothing(label, bad, fragments, tmp_path):
+    codegen.generate(GOOD)  # the unedited model is fine
+    with pytest.raises(codegen.CodegenError) as err:
+        codegen.generate(bad)
+    for frag in fragments:
+        assert frag in str(err.value), f"{label}: {frag!r} not in: {err.value}"
+    assert isinstance(err.value, ValueError)
+    path = tmp_path / "model.json"
+    path.write_text(json.dumps(bad))
+    before = path.read_bytes()
+    with pytest.raises(codegen.CodegenError, match=str(path)):
+        codegen.write_header(path, tmp_path / "model.h")
+    assert not (tmp_path / "model.h").exists()
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.json"]  # no temp files
+
+
+def test_a_looser_limit_accepts_the_refused_lag():
+    bad = REFUSALS[0][1]
+    gen = codegen.generate(bad, max_error_um=0.05)
+    assert 0.01 < gen.fixed_point["axes"]["dz_um"]["bound_um"] <= 0.05
+
+
+def test_invalid_json_is_reported_with_line_and_column(tmp_path):
+    p = tmp_path / "model.json"
+    p.write_text('{"schema": "thermal-model/1",\n  "axes": }\n')
+    with pytest.raises(codegen.CodegenError, match=r"model.json, line 2, column 11"):
+        codegen.write_header(p, tmp_path / "model.h")
+
+
+# ---- write_header / CLI -----------------------------------------------------------------
+
+def test_write_header_stores_the_fixed_point_block_and_keeps_the_rest(tmp_path):
+    m = model("all_kinds")
+    m["axes"]["dx_um"]["metrics"] = {"train_rmse_um": 0.8}
+    p = tmp_path / "model.json"
+    p.write_text(json.dumps(m))
+    out = codegen.write_header(p, tmp_path / "build" / "model.h")
+    assert out == tmp_path / "build" / "model.h"
+    gen = codegen.generate(m)
+    assert out.read_text() == gen.text
+    stored = json.loads(p.read_text())
+    fp = stored.pop("fixed_point")
+    assert stored == m  # nothing else touched
+    assert codegen.model_hash(stored) == fp["model_hash"] == codegen.model_hash(m)
+    assert fp["crc32"] == f"0x{gen.crc32:08X}"
+    for b in gen.bounds:
+        ax = fp["axes"][b.axis]
+        assert ax["bound_um"] == b.bound_um
+        assert ax["bound_um"] >= ax["coef_quantisation_um"] + ax["state_quantisation_um"] \
+            + ax["final_rounding_um"] - 1e-18
+        assert ax["final_rounding_um"] == 0.0005 and ax["bound_um"] <= 0.01
+    # Regenerating from the updated file gives the same header (the block is not an input).
+    codegen.write_header(p, tmp_path / "again.h")
+    assert (tmp_path / "again.h").read_text() == gen.text
+
+
+def test_cli_writes_the_header_and_maps_refusals_to_exit_2(tmp_path, capsys):
+    p = tmp_path / "model.json"
+    p.write_text(json.dumps(model("one_term")))
+    assert host_main(["codegen", str(p)]) == 0
+    assert (tmp_path / "model.h").read_text() == codegen.generate(model("one_term")).text
+    assert "error bound 0.000500 um" in capsys.readouterr().out
+    assert host_main(["codegen", str(p), "-o", str(tmp_path / "x.h"),
+                      "--max-error-um", "0.0004"]) == 2
+    err = capsys.readouterr().err
+    assert "axis 'dz_um'" in err and "0.0004" in err and "final rounding" in err
+    assert not (tmp_path / "x.h").exists()
+
+
+# ---- the twin: filter states, faults, every kind by hand ------------------------------------
+
+def test_twin_kinds_cold_start_and_frozen_state_by_hand():
+    # alpha = 1/2 (a = 2^29). lag coef 1.28 um/degC -> 10 nm per code of the lagged value;
+    # rate coef 2 um/degC; square 0.01 um/degC^2 about 20 degC; speed2 1e-6 um/rpm^2;
+    # time 0.5 um/s saturating after 3 samples. One axis per term so each can be read alone.
+    m = base(channels=[channel(0, "T01")],
+             aux=[{"input": 0, "name": "rpm", "min": 0.0, "max": 12000.0}], time_max_s=3.0)
+    lag = {"kind": "lag", "source": "T01", "tau_s": 1.4426950408889634, "alpha": 0.5}
+    rate = {"kind": "rate", "source": "T01", "tau_s": 1.4426950408889634, "alpha": 0.5}
+    for name, t in [("lag_um", {**lag, "coef": 1.28}), ("rate_um", {**rate, "coef": 2.0}),
+                    ("sq_um", {"kind": "square", "source": "T01", "ref_c": 20.0,
+                               "coef": 0.01}),
+                    ("s2_um", {"kind": "speed2", "source": "rpm", "coef": 1e-6}),
+                    ("time_um", {"kind": "time", "coef": 0.5})]:
+        m["axes"][name] = {"unit": "um", "intercept": 0.0, "terms": [t]}
+    fm = FixedModel.from_model(m)
+    steps = [  # (code, valid, rpm) -> expected outputs (held where masked) and mask
+        # 0: channel faulted from power-up: only speed2 and time computed.
+        ((7, 0, 1000), [0, 0, 0, 1000, 0], 0b11000),
+        # 1: first valid sample, 1000 codes: cold start s = 1000*2^16 -> lag 10000 nm,
+        #    rate 0; square (1000-2560)^2/16384 degC^2 * 10 nm = 1485.3515625 -> 1485.
+        #    rpm 12001 is out of range: speed2 held at 1000.
+        ((1000, 1, 12001), [10000, 0, 1485, 1000, 500], 0b10111),
+        # 2: 3000: s += (2000*2^16)/2 -> 2000 codes: lag 20000; rate (3000-2000)/128 degC
+        #    * 2000 nm = 15625; square (440/128)^2 * 10 = 118.164... -> 118.
+        ((3000, 1, 2000), [20000, 15625, 118, 4000, 1000], 0b11111),
+        # 3: faulted, absurd code: lag/rate/square held, state frozen at 2000 codes.
+        ((10**6, 1, 0), [20000, 15625, 118, 0, 1500], 0b11000),
+        # 4: valid at 0: s = 2000 - 2000/2 = 1000 codes -> lag 10000; rate -1000/128*2000
+        #    = -15625; square (2560/128)^2 * 10 = 4000. time saturates at 3 samples.
+        ((0, 1, 12000), [10000, -15625, 4000, 144000, 1500], 0b11111),
+    ]
+    for i, ((code, valid, rpm), outs, mask) in enumerate(steps):
+        assert fm.step([code], valid, [rpm]) == (outs, mask), f"step {i}"
+    # The vectorised run agrees with the stepped one.
+    codes = np.array([[s[0][0]] for s in steps])
+    valid = np.array([[bool(s[0][1])] for s in steps])
+    aux = np.array([[s[0][2]] for s in steps])
+    out, ok = fm.evaluate_run(codes, aux, valid, return_mask=True)
+    assert out.tolist() == [s[1] for s in steps]
+    assert [int((row * (1 << np.arange(5))).sum()) for row in ok] == [s[2] for s in steps]
+
+
+@pytest.mark.parametrize("a", [1, 3, 596523, 2**29, 2**30 - 1, 2**30])
+def test_filter_state_stays_within_half_over_alpha_of_the_real_recursion(a):
+    """The state quantisation claim, against the real-valued filter.
+
+    The reference runs in 80-digit decimal: alpha = a/2^30 is exact there, and the rounding
+    of 3000 steps on values below 2^35 stays under 1e-60 state units, far below the margin.
+    """
+    rng = np.random.default_rng(a)
+    m = _single([{"kind": "lag", "source": "T01", "tau_s": 1.0, "alpha": a / 2**30,
+                  "coef": 1e-6}])
+    codes = np.cumsum(rng.integers(-300, 301, size=3000)).clip(-5120, 25600)
+    codes[1000:1100] = 25600
+    codes[1100:1200] = -5120
+    fm = FixedModel.from_model(m)
+    s = fm._filter_run(codes.tolist(), [True] * len(codes), a)
+    assert s[0] == codes[0] * 65536  # cold start
+    with decimal.localcontext() as ctx:
+        ctx.prec = 80
+        alpha = Decimal(a) / Decimal(2**30)
+        y = Decimal(int(codes[0]) * 65536)
+        worst = Decimal(0)
+        for n in range(1, len(codes)):
+            y += alpha * (Decimal(int(codes[n]) * 65536) - y)
+            worst = max(worst, abs(Decimal(int(s[n])) - y))
+        assert worst <= Decimal("0.5") / alpha
+        if a == 2**30:
+            assert worst == 0  # alpha = 1 follows the input exactly
+
+
+def test_evaluate_run_equals_stepping_with_faults():
+    fm = FixedModel.from_model(model("all_kinds"))
+    rng = np.random.default_rng(7)
+    n = 600
+    codes = rng.integers(-6000, 26000, size=(n, 3))
+    aux = rng.integers(-100, 12100, size=(n, 1))
+    valid = rng.random((n, 3)) > 0.15
+    out, ok = fm.evaluate_run(codes, aux, valid, return_mask=True)
+    fm.reset()
+    masks = (valid * (1 << np.arange(3))).sum(axis=1)
+    stepped = [fm.step(codes[i].tolist(), int(masks[i]), aux[i].tolist()) for i in range(n)]
+    assert out.tolist() == [s[0] for s in stepped]
+    assert [int((r * (1 << np.arange(3))).sum()) for r in ok] == [s[1] for s in stepped]
+    assert 0 < ok.sum() < ok.size  # both computed and held rows were exercised
+
+
+def test_evaluate_run_rejects_non_integer_codes():
+    fm = FixedModel.from_model(model("one_term"))
+    with pytest.raises(ValueError, match="temp_to_code"):
+        fm.evaluate_run(np.array([[25.0]]))
+    with pytest.raises(ValueError, match="shape"):
+        fm.evaluate_run(np.array([[1, 2]]))
+
+
+def test_temp_to_code_rounds_to_nearest_lsb_like_the_chip():
+    # 1/128 degC steps; ties (odd multiples of 1/256) go away from zero; 19-bit clip.
+    assert temp_to_code(25.0) == 3200
+    assert temp_to_code(1 / 256) == 1 and temp_to_code(-1 / 256) == -1
+    assert temp_to_code(3 / 256) == 2 and temp_to_code(-3 / 256) == -2
+    assert temp_to_code(0.0039) == 0 and temp_to_code(-0.0039) == 0
+    assert temp_to_code(5000.0) == 2**18 - 1 and temp_to_code(-5000.0) == -(2**18)
+    got = temp_to_code(np.array([[20.0, -40.0], [199.99, 200.0]]))
+    assert got.dtype == np.int64 and got.tolist() == [[2560, -5120], [25599, 25600]]
+    with pytest.raises(ValueError, match="NaN"):
+        temp_to_code([1.0, float("nan")])
