@@ -88,7 +88,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         start_box = qemu.box_factory(setup, args.build_dir, args.box_cflags)
     report, _ = hil_replay.run(setup, quiet=args.json, window=args.window, start_box=start_box)
     if args.json:
-        print(json.dumps(report.to_json(), indent=2))
+        doc = {**report.to_json(), "data": args.data, "model": args.model,
+               "target": args.target}
+        print(json.dumps(doc, indent=2))
     else:
         print(format_table(report, args.data))
     return 0 if report.ok else 1

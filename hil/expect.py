@@ -43,6 +43,9 @@ class OutputConfig:
     slew_nm_per_s: int
     max_abs_nm: int
     cold_start_slew: bool
+    max_channels: int = 8
+    max_axes: int = 6
+    max_aux: int = 2
 
     def step_nm(self, period_ms: int) -> int:
         """Slew step per sample period, as axis_output_step_nm: rounded, at least 1 nm."""
@@ -53,7 +56,8 @@ class OutputConfig:
         """Defaults from box_config.h, overridden by ``-DNAME=value`` in the build's cflags."""
         text = config_h.read_text(encoding="utf-8")
         values: dict[str, int] = {}
-        for name in ("BOX_SLEW_NM_PER_S", "BOX_MAX_CORRECTION_NM", "BOX_COLD_START_SLEW"):
+        for name in ("BOX_SLEW_NM_PER_S", "BOX_MAX_CORRECTION_NM", "BOX_COLD_START_SLEW",
+                     "BOX_MAX_CHANNELS", "BOX_MAX_AXES", "BOX_MAX_AUX"):
             m = re.search(rf"^#define {name} (\d+)\s*$", text, re.M)
             if m is None:
                 raise ValueError(f"{config_h}: no '#define {name} <number>' default")
@@ -62,7 +66,17 @@ class OutputConfig:
             if m.group(1) in values:
                 values[m.group(1)] = int(m.group(2))
         return cls(values["BOX_SLEW_NM_PER_S"], values["BOX_MAX_CORRECTION_NM"],
-                   bool(values["BOX_COLD_START_SLEW"]))
+                   bool(values["BOX_COLD_START_SLEW"]), values["BOX_MAX_CHANNELS"],
+                   values["BOX_MAX_AXES"], values["BOX_MAX_AUX"])
+
+    def check_fits(self, n_channels: int, n_axes: int, n_aux: int, what: str) -> None:
+        """The firmware refuses (MODEL_BAD) a model larger than its build-time capacity."""
+        for count, limit, name in ((n_channels, self.max_channels, "channels"),
+                                   (n_axes, self.max_axes, "axes"), (n_aux, self.max_aux, "aux")):
+            if count > limit:
+                raise ValueError(f"{what}: {count} {name}, the firmware is built for at most "
+                                 f"{limit} (BOX_MAX_{name.upper()} in firmware/include/"
+                                 f"box_config.h); the box would report MODEL_BAD")
 
 
 @dataclass

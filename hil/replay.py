@@ -52,11 +52,13 @@ def prepare(model_json: str | Path, data: str | Path, build_dir: str | Path | No
     """Generate the header, build the native firmware (unless ``binary``) and load the run."""
     build_dir = Path(build_dir) if build_dir is not None else default_build_dir(model_json)
     mb = prepare_header(model_json, build_dir)
+    output = OutputConfig.from_build(cflags)
+    q = mb.generated.model
+    output.check_fits(len(q.channels), len(q.axes), len(q.aux), str(model_json))
     exe = Path(binary) if binary is not None else build_firmware(mb.header_path, build_dir,
                                                                  "native", cflags)
     feed = build_feed(mb.model, data)
-    return ReplaySetup(mb, feed, FixedModel(mb.generated.model), exe,
-                       OutputConfig.from_build(cflags))
+    return ReplaySetup(mb, feed, FixedModel(q), exe, output)
 
 
 def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],

@@ -221,3 +221,17 @@ def test_cli_exit_code_1_when_the_firmware_disagrees(fl_setup, tmp_path):
     assert res.returncode == 1, res.stderr
     out = json.loads(res.stdout)
     assert out["mismatches"] > 0 and out["ok"] is False
+
+
+def test_a_model_larger_than_the_firmware_capacity_is_refused_up_front(tmp_path):
+    from hil.example_model import fit_example_model as fit
+    from hil.expect import OutputConfig
+    from host.terms import make_temp
+
+    sensors = [f"T{i:02d}" for i in range(1, 10)]  # 9 channels; box_config.h allows 8
+    model = write_model(fit(FL, {"ch1_um": [make_temp(s) for s in sensors]}),
+                        tmp_path / "model.json")
+    with pytest.raises(ValueError, match="9 channels.*BOX_MAX_CHANNELS"):
+        hil_replay.prepare(model, FL, tmp_path / "hil")
+    # a firmware built for more channels accepts it
+    OutputConfig.from_build("-DBOX_MAX_CHANNELS=16").check_fits(9, 1, 0, "model")
