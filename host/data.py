@@ -93,6 +93,30 @@ class Run:
                    None if self.aux is None else self.aux[start:stop])
 
 
+def _read_plain_table(path: Path) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+    """Fast path for the common case (no quotes, no blank lines, every cell a finite number):
+    numpy's C parser, ~10x faster on day-long 1 s runs. None means "use the careful reader",
+    which also produces the exact error message for anything irregular."""
+    text = path.read_text(encoding="utf-8-sig")
+    if '"' in text:
+        return None
+    lines = text.splitlines()
+    if len(lines) < 2:
+        return None
+    header = [h.strip() for h in lines[0].split(",")]
+    body = lines[1:]
+    if (any(not h for h in header) or len(set(header)) != len(header)
+            or any(not line.strip() for line in body)):
+        return None
+    try:
+        data = np.loadtxt(body, delimiter=",", comments=None, ndmin=2, dtype=float)
+    except ValueError:
+        return None
+    if data.shape != (len(body), len(header)) or np.isinf(data).any():
+        return None
+    return header, data, np.arange(2, 2 + len(body))
+
+
 def read_table(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Read a CSV with a header into names, a float array and each row's file line number.
 
@@ -104,6 +128,9 @@ def read_table(path: str | Path) -> tuple[list[str], np.ndarray, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise RunFormatError(path, "file not found")
+    fast = _read_plain_table(path)
+    if fast is not None:
+        return fast
     with path.open(newline="", encoding="utf-8-sig") as fh:
         reader = csv.reader(fh)
         try:

@@ -9,12 +9,12 @@ import pytest
 
 from host.selection import (
     GramCache,
-    ThermalSensorSelector,
     ec_reduction,
     fold_labels,
     select_sensors,
     sequential_selection,
 )
+from host.sklearn_selector import ThermalSensorSelector
 from host.validation import validation_rmse
 
 

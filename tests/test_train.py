@@ -181,6 +181,21 @@ def test_cli_errors_are_clear(runs, tmp_path, capsys):
     assert "model file not found" in capsys.readouterr().err
 
 
+def test_fast_csv_path_reads_exactly_what_the_careful_reader_reads(tmp_path, monkeypatch):
+    import host.data
+
+    path = tmp_path / "r.csv"
+    rng = np.random.default_rng(9)
+    write_run(path, np.arange(50.0), {"T1": rng.normal(size=50) * 1e3, "T2": rng.normal(size=50),
+                                      "dz_um": np.linspace(-1, 1, 50)}, precision=17)
+    fast = host.data.read_table(path)
+    monkeypatch.setattr(host.data, "_read_plain_table", lambda p: None)
+    slow = host.data.read_table(path)
+    assert fast[0] == slow[0]
+    np.testing.assert_array_equal(fast[1], slow[1])
+    np.testing.assert_array_equal(fast[2], slow[2])
+
+
 def test_end_to_end_fl_thermal_split_train_evaluate(tmp_path, capsys):
     """Real data: train on the first three heat/cool cycles, judge on the fourth (5000 rpm)."""
     assert main(["split", str(FL), "--at-hours", "24", "-o", str(tmp_path), "--json"]) == 0

@@ -1,0 +1,102 @@
+"""`host train` speed and memory: 64 sensors x 86,400 rows (24 h at 1 s) and 600 rows.
+
+Targets (issue 2): the large run in under 10 s and 1 GB on a 2-core machine, the small one in
+under 1 s. The CLI is timed in a subprocess (CSV parsing included, codegen and effects off so
+the selection itself is measured; effects are timed separately by their own bench), and its
+peak resident memory is read from ``getrusage(RUSAGE_CHILDREN)``. The EC step is timed alone
+for c = 10 groups (1,023 subset fits, each from Gram matrices).
+"""
+
+from __future__ import annotations
+
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import lfilter
+
+from host.data import Run, write_run
+from host.selection import GramCache, ec_reduction, fold_labels
+from host.train import train_model
+
+SOURCES_TAU_S = (300.0, 1200.0, 4000.0, 9000.0)
+
+
+def synthetic_run(n_rows: int, n_sensors: int, period_s: float = 1.0, seed: int = 0
+                  ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Sensors driven by four heat paths of different time constants (seeded)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_rows) * period_s
+    power = (np.sin(2 * np.pi * t / 7200.0) > 0).astype(float)
+    srcs = []
+    for tau in SOURCES_TAU_S:
+        a = -np.expm1(-period_s / tau)
+        srcs.append(lfilter([a], [1.0, a - 1.0], power))
+    cols = {f"T{i + 1:02d}": 20 + 5 * srcs[i % 4] * (0.5 + rng.random())
+            + 0.05 * rng.normal(size=n_rows) for i in range(n_sensors)}
+    cols["dz_um"] = 3 * srcs[0] - 2 * srcs[2] + srcs[3] + 0.1 * rng.normal(size=n_rows)
+    return t, cols
+
+
+def _cli(csv: Path, out: Path) -> tuple[float, float]:
+    """Wall time and peak RSS (MB) of `host train` on one CSV in a fresh process."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    t0 = time.perf_counter()
+    cmd = [sys.executable, "-m", "host", "train", str(csv), "--target", "dz_um", "--out",
+           str(out), "--no-codegen", "--json"]
+    help_text = subprocess.run([sys.executable, "-m", "host", "train", "--help"],
+                               capture_output=True, text=True).stdout
+    if "--no-effects" in help_text:
+        cmd.append("--no-effects")
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, capture_output=True)
+    dt = time.perf_counter() - t0
+    peak_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return dt, max(peak_kb, before) / 1024.0
+
+
+def run() -> list[dict]:
+    rows: list[dict] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmpdir = Path(tmp)
+        for n_rows, target in ((600, 1.0), (86_400, 10.0)):
+            t, cols = synthetic_run(n_rows, 64)
+            csv = tmpdir / f"run_{n_rows}.csv"
+            write_run(csv, t, cols)
+            dt, peak = _cli(csv, tmpdir / f"out_{n_rows}")
+            rows.append({"name": f"host train CLI, 64 sensors x {n_rows} rows", "value": dt,
+                         "unit": "s", "target": f"< {target:g} s",
+                         "detail": "CSV parse + selection + fit + validation, no effects"})
+            if n_rows > 1000:
+                rows.append({"name": f"host train CLI peak RSS, {n_rows} rows", "value": peak,
+                             "unit": "MB", "target": "< 1024 MB"})
+            names = [c for c in cols if c.startswith("T")]
+            mem = Run(str(csv), t, names, np.column_stack([cols[c] for c in names]), ["dz_um"],
+                      cols["dz_um"][:, None])
+            t0 = time.perf_counter()
+            train_model([mem], ["dz_um"], effects=False)
+            rows.append({"name": f"train_model in memory, 64 x {n_rows}",
+                         "value": time.perf_counter() - t0, "unit": "s",
+                         "detail": "selection + fit + validation, data already loaded"})
+        # EC alone: c = 10 representatives, 1,023 subsets, out-of-fold error
+        t, cols = synthetic_run(86_400, 10)
+        X = np.column_stack([cols[f"T{i + 1:02d}"] for i in range(10)])
+        y = cols["dz_um"]
+        t0 = time.perf_counter()
+        cache = GramCache(X, y, fold_labels(np.zeros(len(y))))
+        t_gram = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        ec_reduction(cache, list(range(10)), "validation", 5)
+        rows.append({"name": "EC over 1,023 subsets (c=10), out-of-fold",
+                     "value": time.perf_counter() - t0, "unit": "s",
+                     "detail": f"Gram matrices built once in {t_gram:.3f} s"})
+    return rows
+
+
+if __name__ == "__main__":
+    for row in run():
+        print(row)
