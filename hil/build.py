@@ -21,6 +21,11 @@ REPO = Path(__file__).resolve().parent.parent
 FIRMWARE_DIR = REPO / "firmware"
 
 
+# What each board's build produces (firmware/Makefile, hal/qemu_uartfeed/board.mk).
+TARGETS = {"native": "thermal_box", "stm32f405": "thermal_box.elf",
+           "qemu_uartfeed": "qemu_uartfeed.elf"}
+
+
 class BuildError(RuntimeError):
     """The firmware did not build; the message carries the compiler's output."""
 
@@ -64,9 +69,8 @@ def build_firmware(header: str | Path, build_root: str | Path, board: str = "nat
     out_dir = Path(build_root).resolve() / f"{board}-{_key(header, cflags, board)}"
     cmd = ["make", "-s", "-C", str(FIRMWARE_DIR), f"BOARD={board}", f"MODEL={header}",
            f"BUILD={out_dir}", f"BOX_CFLAGS={cflags}"]
-    target = out_dir / ("thermal_box" if board == "native" else "thermal_box.elf")
-    if board != "native":
-        cmd.append(str(target))
+    target = out_dir / TARGETS.get(board, "thermal_box.elf")
+    cmd.append(str(target))
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0 or not target.is_file():
         raise BuildError(f"firmware build failed ({' '.join(cmd)}):\n"

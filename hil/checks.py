@@ -71,6 +71,7 @@ class ReplayReport:
     fw_status: np.ndarray | None = None  # (n,) status words; -1 where no line arrived
     elapsed_s: float | None = None
     problems_fatal: bool = False  # the replay itself broke (timeout, crash)
+    extra_checks: dict[str, bool] = field(default_factory=dict)  # e.g. qemu_equals_native
 
     @property
     def float_ok(self) -> bool:
@@ -85,6 +86,7 @@ class ReplayReport:
             "float_within_bound": self.float_ok,
             "no_lost_duplicated_reordered": self.lost == 0 and self.duplicated == 0
             and self.reordered == 0 and self.bad_lines == 0,
+            **self.extra_checks,
         }
 
     @property
@@ -270,3 +272,23 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
             ax.compensated_rms_um = float(np.sqrt(np.mean(comp ** 2)))
             ax.compensated_peak_um = float(np.max(np.abs(comp)))
     return rep
+
+
+def sample_lines(capture: Capture) -> list[bytes]:
+    """Every sample line of a capture, in order, as sent (all sessions)."""
+    return [raw for s in capture.sessions for raw in s.lines if raw.startswith(b"$C,")]
+
+
+def capture_differences(a: Capture, b: Capture) -> tuple[int, str]:
+    """(number of sample lines that differ byte for byte, first difference) of two replays."""
+    la, lb = sample_lines(a), sample_lines(b)
+    diff = sum(1 for x, y in zip(la, lb, strict=False) if x != y) + abs(len(la) - len(lb))
+    first = ""
+    for i, (x, y) in enumerate(zip(la, lb, strict=False)):
+        if x != y:
+            first = f"sample line {i}: {x!r} vs {y!r}"
+            break
+    else:
+        if len(la) != len(lb):
+            first = f"{len(la)} sample lines vs {len(lb)}"
+    return diff, first

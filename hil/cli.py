@@ -45,6 +45,9 @@ def format_table(report: ReplayReport, data: str) -> str:
                  f"  ({report.lost} lost, {report.duplicated} duplicated, {report.reordered} "
                  f"reordered, {report.bad_lines} bad lines)")
     lines.append("4. residuals                      reported above (measured - correction)")
+    if "qemu_equals_native" in checks:
+        lines.append(f"5. QEMU image = native build      {checks['qemu_equals_native']}"
+                     "  (every sample line byte for byte)")
     if report.problems:
         lines += ["", "problems:"] + [f"  {p}" for p in report.problems]
     lines += ["", "RESULT: " + ("PASS" if report.ok else "FAIL")]
@@ -81,12 +84,21 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     setup = hil_replay.prepare(args.model, args.data, args.build_dir, args.box_cflags,
                                args.firmware)
-    start_box = None
     if args.target == "qemu":
         from hil import qemu
+        from hil.checks import capture_differences
 
         start_box = qemu.box_factory(setup, args.build_dir, args.box_cflags)
-    report, _ = hil_replay.run(setup, quiet=args.json, window=args.window, start_box=start_box)
+        report, capture = hil_replay.run(setup, quiet=args.json, window=args.window,
+                                         start_box=start_box)
+        # The emulated STM32F405 must send exactly what the native build sends.
+        _, native = hil_replay.run(setup, quiet=True, window=args.window)
+        differing, first = capture_differences(capture, native)
+        report.extra_checks["qemu_equals_native"] = differing == 0
+        if differing:
+            report.note(f"QEMU vs native: {differing} sample lines differ; first: {first}")
+    else:
+        report, _ = hil_replay.run(setup, quiet=args.json, window=args.window)
     if args.json:
         doc = {**report.to_json(), "data": args.data, "model": args.model,
                "target": args.target}

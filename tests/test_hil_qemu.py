@@ -1,0 +1,58 @@
+"""HIL on the emulated STM32F405: the cross-compiled image under qemu-system-arm (netduinoplus2),
+samples fed over USART2 (board variant qemu_uartfeed), judged by the same runner on USART1.
+
+Its sample lines must equal the native build's byte for byte and the host expectation bit for
+bit. Kept short (the first 800 samples of the real run, with an open thermocouple in the
+middle, about 2 s of emulation); `python -m hil replay --target qemu` does whole runs.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hil import replay as hil_replay
+from hil.checks import capture_differences, sample_lines
+from hil.example_model import fl_thermal_model, write_model
+from hil.expect import HOLD, OPEN
+from hil.runner import ChipFault
+from host.data import load_run, write_run
+
+FL = Path(__file__).resolve().parents[1] / "examples" / "fl_thermal_steps.csv"
+N = 800
+
+pytestmark = [
+    pytest.mark.skipif(shutil.which("qemu-system-arm") is None,
+                       reason="qemu-system-arm not installed (apt-get install "
+                       "--no-install-recommends qemu-system-arm)"),
+    pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None,
+                       reason="arm-none-eabi-gcc not installed: no STM32F405 image to emulate"),
+    pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed"),
+]
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    d = tmp_path_factory.mktemp("hil_qemu")
+    run = load_run(FL, targets=["ch1_um", "ch3_um"], sensors="T*", aux=["spindle_rpm"])
+    cols = {k: v[:N] for k, v in run.columns().items() if k != "time_s"}
+    write_run(d / "fl_head.csv", run.time_s[:N], cols, precision=9)
+    model = write_model(fl_thermal_model(FL), d / "model.json")
+    return hil_replay.prepare(model, d / "fl_head.csv", d / "hil")
+
+
+def test_qemu_image_matches_native_build_and_twin(setup):
+    from hil import qemu
+
+    events = [ChipFault(300, 2, 0x01), ChipFault(340, 2, 0x00)]  # T04 open for 40 samples
+    report, capture = hil_replay.run(setup, events, start_box=qemu.box_factory(setup))
+    assert report.ok, report.problems
+    assert report.received == N and capture.sessions[0].exit_code == 0
+    assert b",OK," in capture.sessions[0].info
+    assert np.all(report.fw_status[300:340] & (OPEN | HOLD) == OPEN | HOLD)
+    _, native = hil_replay.run(setup, events)
+    assert capture_differences(capture, native) == (0, "")
+    assert len(sample_lines(capture)) == N
