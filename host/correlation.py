@@ -23,7 +23,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.fft import irfft, next_fast_len, rfft
 
 DEFAULT_MAX_LAG_FRACTION = 0.25
 
@@ -67,9 +66,10 @@ def cross_correlation(temperatures: np.ndarray, displacement: np.ndarray,
     Tc = T - T.mean(axis=0)
     dc = d - d.mean()
     scale = n * np.sqrt((Tc ** 2).mean(axis=0) * float(dc @ dc) / n)
-    nfft = next_fast_len(n + max_lag + 1, real=True)
+    nfft = 1 << int(n + max_lag).bit_length()  # power of two >= n + max_lag + 1: no wrap
     # sum_t d(t) T(t + tau) = irfft(conj(D) * T)[tau] (negative tau wraps to the end)
-    full = irfft(np.conj(rfft(dc, nfft))[:, None] * rfft(Tc, nfft, axis=0), nfft, axis=0)
+    full = np.fft.irfft(np.conj(np.fft.rfft(dc, nfft))[:, None] * np.fft.rfft(Tc, nfft, axis=0),
+                       nfft, axis=0)
     raw = np.concatenate([full[nfft - max_lag:], full[:max_lag + 1]], axis=0) if max_lag else \
         full[:1]
     with np.errstate(invalid="ignore", divide="ignore"):

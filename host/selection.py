@@ -96,14 +96,18 @@ class GramCache:
 
     @staticmethod
     def _solve(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Solve the normal equations, a batch of them if M is (F, m, m); a singular system
+        (duplicate or constant columns) falls back to minimum-norm least squares."""
         try:
-            beta = np.linalg.solve(M, v)
-            if np.all(np.isfinite(beta)) and np.allclose(M @ beta, v, rtol=1e-8,
-                                                         atol=1e-10 * max(1.0, abs(v).max())):
+            beta = np.linalg.solve(M, v[..., None])[..., 0]
+            resid = np.abs(np.einsum("...ij,...j->...i", M, beta) - v).max()
+            if np.isfinite(resid) and resid <= 1e-8 * max(1.0, float(np.abs(v).max())):
                 return beta
         except np.linalg.LinAlgError:
             pass
-        return np.linalg.lstsq(M, v, rcond=None)[0]  # rank deficient: minimum norm
+        if M.ndim == 2:
+            return np.linalg.lstsq(M, v, rcond=None)[0]
+        return np.array([np.linalg.lstsq(m, b, rcond=None)[0] for m, b in zip(M, v, strict=True)])
 
     def _idx(self, cols: Sequence[int]) -> np.ndarray:
         return np.array([0, *(int(c) + 1 for c in cols)], dtype=int)
@@ -111,20 +115,21 @@ class GramCache:
     def train_rmse(self, cols: Sequence[int]) -> float:
         """RMSE (= residual sd, the intercept centres it) of the fit on all rows."""
         idx = self._idx(cols)
-        beta = self._solve(self.M[np.ix_(idx, idx)], self.v[idx])
-        sse = self.s - 2 * beta @ self.v[idx] + beta @ self.M[np.ix_(idx, idx)] @ beta
+        M = self.M[np.ix_(idx, idx)]
+        v = self.v[idx]
+        beta = self._solve(M, v)
+        sse = self.s - 2 * beta @ v + beta @ M @ beta
         return math.sqrt(max(sse, 0.0) / self.n)
 
     def validation_rmse(self, cols: Sequence[int]) -> float:
         """RMSE of all out-of-fold predictions (each fold predicted by a fit without it)."""
         idx = self._idx(cols)
-        ix = np.ix_(idx, idx)
-        total = 0.0
-        for i in range(len(self.fold_ids)):
-            Mg, vg = self.M_f[i][ix], self.v_f[i][idx]
-            beta = self._solve(self.M[ix] - Mg, self.v[idx] - vg)
-            total += max(self.s_f[i] - 2 * beta @ vg + beta @ Mg @ beta, 0.0)
-        return math.sqrt(total / self.n)
+        Mg = self.M_f[:, idx][:, :, idx]  # (F, m, m) each fold's own Gram
+        vg = self.v_f[:, idx]
+        beta = self._solve(self.M[np.ix_(idx, idx)] - Mg, self.v[idx] - vg)  # fits without it
+        sse = (self.s_f - 2 * np.einsum("fi,fi->f", beta, vg)
+               + np.einsum("fi,fij,fj->f", beta, Mg, beta))
+        return math.sqrt(float(np.maximum(sse, 0.0).sum()) / self.n)
 
     def error(self, cols: Sequence[int], kind: str) -> float:
         """``kind`` is "validation" (out-of-fold RMSE) or "train" (training RMSE)."""

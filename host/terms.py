@@ -26,7 +26,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
 
 ALPHA_FRAC_BITS = 30
 TEMP_LSB_C = 1.0 / 128.0  # MAX31856 linearised temperature step
@@ -116,6 +115,8 @@ def make_time() -> Term:
 
 def first_order_lag(x: np.ndarray, alpha: float) -> np.ndarray:
     """y[n] = y[n-1] + alpha*(x[n]-y[n-1]) with y[0] = x[0] (cold start at the first sample)."""
+    from scipy.signal import lfilter  # imported here: scipy.signal costs ~1 s at CLI start
+
     x = np.asarray(x, dtype=float)
     if x.size == 0:
         return x.copy()
