@@ -184,7 +184,7 @@ def hysteresis(run: str, axis: str, sensor: str, temperature: np.ndarray, measur
     left.set_ylabel(f"{axis} displacement (µm)")
     right.plot([], [], color=HEATING_COLOUR, label="heating (temperature rising)")
     right.plot([], [], color=COOLING_COLOUR, label="cooling (temperature falling)")
-    right.legend(fontsize=8, loc="best")
+    fig.legend(loc="outside lower center", ncol=2, fontsize=9)
     fig.suptitle(f"{run}, {axis} against {sensor}: heating and cooling paths")
     return fig
 
