@@ -1,0 +1,110 @@
+"""compare-protocols: the train x test matrix on simulated and on given runs."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from host.cli import main
+from host.data import load_run
+from host.protocols import (
+    PRODUCTION,
+    ProtocolComparisonError,
+    combine,
+    compare_protocols,
+    parse_runs,
+    simulate_runs,
+    write_outputs,
+)
+
+AXES = ["dx_um", "dz_um"]
+
+
+@pytest.fixture(scope="module")
+def sim_runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs")
+    return simulate_runs(out, ["constant", "step"], hours=3.0, cool_hours=2.0, dt_s=120.0,
+                         n_sensors=8, seed=3)
+
+
+@pytest.fixture(scope="module")
+def comparison(sim_runs):
+    return compare_protocols(sim_runs, AXES, max_sensors=3, groups=4)
+
+
+def test_simulated_runs_are_one_machine_on_different_days(sim_runs):
+    assert list(sim_runs) == ["constant", "step", PRODUCTION]
+    assert [len(v) for v in sim_runs.values()] == [2, 2, 1]
+    a, b = (load_run(p, AXES) for p in sim_runs["constant"])
+    assert a.sensor_names == b.sensor_names
+    assert not np.array_equal(a.temperatures, b.temperatures)  # another day: other noise
+    truth = json.loads(open(sim_runs[PRODUCTION][0].replace(".csv", ".truth.json")).read())
+    assert truth["program"]["protocol"] == "random"
+
+
+def test_each_cell_is_the_rmse_of_that_model_on_that_run(comparison, sim_runs):
+    assert comparison.train == ["constant", "step"]
+    assert comparison.test == ["constant", "step", PRODUCTION]
+    assert not comparison.in_sample.any()  # every protocol has a second day to test on
+    # recompute one off-diagonal and one diagonal cell by hand from the stored terms
+    from host.train import train_model
+
+    model = train_model([sim_runs["constant"][0]], AXES, max_sensors=3, groups=4,
+                        effects=False)
+    for col, path in ((1, sim_runs["step"][1]), (0, sim_runs["constant"][1])):
+        run = load_run(path, AXES)
+        for k, axis in enumerate(AXES):
+            ax = model["axes"][axis]
+            pred = ax["intercept"] + sum(t["coef"] * run.column(t["source"])
+                                         for t in ax["terms"])  # static terms: coef * T
+            err = float(np.sqrt(np.mean((run.displacements[:, k] - pred) ** 2)))
+            assert comparison.rmse_um[axis][0, col] == pytest.approx(err, rel=1e-9)
+
+
+def test_outputs_hold_the_same_numbers(comparison, tmp_path):
+    csv_path, json_path = write_outputs(comparison, tmp_path)
+    rows = list(csv.DictReader(csv_path.open()))
+    assert len(rows) == 2 * 3 * len(AXES)
+    cell = next(r for r in rows if r["train"] == "step" and r["test"] == PRODUCTION
+                and r["axis"] == "dz_um")
+    assert float(cell["rmse_um"]) == pytest.approx(comparison.rmse_um["dz_um"][1, 2], abs=1e-4)
+    doc = json.loads(json_path.read_text())
+    assert doc["rmse_um"]["dx_um"][0][1] == pytest.approx(comparison.rmse_um["dx_um"][0, 1],
+                                                          abs=1e-4)
+    mean = np.mean([comparison.rmse_um[a] for a in AXES], axis=0)
+    assert doc["mean_rmse_um"][1][0] == pytest.approx(mean[1, 0], abs=1e-4)
+    assert [r["train"] for r in doc["ranking"]] == sorted(
+        ["constant", "step"], key=lambda n: np.mean(mean[comparison.train.index(n)][
+            [j for j, t in enumerate(comparison.test) if t != n]]))
+
+
+def test_combine_averages_repeats(comparison):
+    other = combine([comparison])
+    assert other is comparison
+    twice = combine([comparison, comparison])
+    np.testing.assert_allclose(twice.rmse_um["dz_um"], comparison.rmse_um["dz_um"])
+    assert twice.settings["repeats"] == 2
+
+
+def test_given_runs_with_one_run_per_protocol_are_marked_in_sample(sim_runs, tmp_path, capsys):
+    args = ["compare-protocols", "--runs", f"constant={sim_runs['constant'][0]}",
+            f"step={sim_runs['step'][0]}", "--target", "dz_um", "--max-sensors", "2",
+            "--groups", "3", "--json"]
+    assert main(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["in_sample"] == [[True, False], [False, True]]
+    assert doc["train"] == ["constant", "step"] and doc["targets"] == ["dz_um"]
+
+
+def test_bad_runs_are_refused(tmp_path):
+    with pytest.raises(ProtocolComparisonError, match="NAME=RUN.csv"):
+        parse_runs(["constant.csv", "step=b.csv"])
+    with pytest.raises(ProtocolComparisonError, match="at least two"):
+        parse_runs(["constant=a.csv"])
+    assert parse_runs(["a=1.csv", "b=2.csv", "a=3.csv"]) == {"a": ["1.csv", "3.csv"],
+                                                              "b": ["2.csv"]}
+    with pytest.raises(ProtocolComparisonError, match="unknown protocol"):
+        simulate_runs(tmp_path, ["constant", "ramp"])
