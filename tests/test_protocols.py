@@ -76,6 +76,7 @@ def test_outputs_hold_the_same_numbers(comparison, tmp_path):
                                                           abs=1e-4)
     mean = np.mean([comparison.rmse_um[a] for a in AXES], axis=0)
     assert doc["mean_rmse_um"][1][0] == pytest.approx(mean[1, 0], abs=1e-4)
+    assert doc["matrix"] == doc["mean_rmse_um"]  # what host report reads
     assert [r["train"] for r in doc["ranking"]] == sorted(
         ["constant", "step"], key=lambda n: np.mean(mean[comparison.train.index(n)][
             [j for j, t in enumerate(comparison.test) if t != n]]))
