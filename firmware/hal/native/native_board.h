@@ -12,6 +12,9 @@ max31856_sim_t *native_chip(uint8_t cs);
 /* From the first `S` feed line on, chips at or beyond `count` are absent (read 0xFF). */
 void native_set_chip_count(uint8_t count);
 
+/* The next SPI transfer never completes (a locked-up bus): for the watchdog test. */
+void native_spi_hang_once(void);
+
 /* Pseudo-terminal UART: open it and print "PTY <path>"; false with a message on failure. */
 bool native_uart_open(void);
 /* File descriptor of the pty master, for polling. */

@@ -2,6 +2,9 @@
  * MAX31856 chips, a pseudo-terminal UART. Everything above hal/ is the real firmware. */
 #define _POSIX_C_SOURCE 200809L
 #include <errno.h>
+#include <setjmp.h>
+#include <signal.h>
+#include <sys/time.h>
 #include <limits.h>
 #include <poll.h>
 #include <stdarg.h>
@@ -61,13 +64,40 @@ bool hal_reset_was_watchdog(void)
     return reset_by_watchdog;
 }
 
+/* ---- watchdog ----------------------------------------------------------------------------
+ * The box's IWDG runs on its own clock while the loop wakes every millisecond and kicks it.
+ * Here the loop sleeps in poll() between feed commands instead, so the simulated watchdog only
+ * runs while the firmware is busy (from a kick until the next wait): a pass that burns
+ * watchdog-timeout worth of CPU time (ITIMER_PROF, immune to a loaded host) is stuck. Expiry
+ * "resets the chip": the firmware restarts from app_main with the reset cause set to the
+ * watchdog and the tick back at 0, while the chips, the pty and the feed carry on. */
+
+static sigjmp_buf reset_vector;
+static uint32_t watchdog_timeout_ms;
+
+static void watchdog_arm(uint32_t ms)
+{
+    struct itimerval t = {{0, 0}, {(time_t)(ms / 1000u), (suseconds_t)(ms % 1000u) * 1000}};
+    (void)setitimer(ITIMER_PROF, &t, NULL);
+}
+
+static void watchdog_expired(int sig)
+{
+    (void)sig;
+    siglongjmp(reset_vector, 1);
+}
+
 void hal_watchdog_start(uint32_t timeout_ms)
 {
-    (void)timeout_ms;
+    watchdog_timeout_ms = timeout_ms;
+    watchdog_arm(timeout_ms);
 }
 
 void hal_watchdog_kick(void)
 {
+    if (watchdog_timeout_ms != 0u) {
+        watchdog_arm(watchdog_timeout_ms);
+    }
 }
 
 void hal_board_init(void)
@@ -89,6 +119,8 @@ static size_t feed_pos; /* start of the first unprocessed byte */
 static bool feed_eof;
 static unsigned long feed_line_no;
 static int chip_count = -1; /* fixed by the first S line */
+static long hang_after_samples = -1; /* --hang-after-samples */
+static long samples_fed;
 
 __attribute__((format(printf, 1, 2))) static bool feed_error(const char *fmt, ...)
 {
@@ -194,6 +226,9 @@ static bool feed_sample(char *rest, uint32_t wake_at_ms)
     }
     native_set_aux0((int32_t)aux);
     native_advance_time_to(wake_at_ms);
+    if (samples_fed++ == hang_after_samples) {
+        native_spi_hang_once();
+    }
     return true;
 }
 
@@ -246,6 +281,7 @@ static bool feed_command(char *line, uint32_t wake_at_ms)
 
 bool hal_wait_for_event(uint32_t wake_at_ms)
 {
+    watchdog_arm(0); /* idle: the box would be kicking from its WFI loop */
     int uart = native_uart_fd();
     for (;;) {
         /* Bytes from the pty are answered first, at the current virtual time. */
@@ -281,11 +317,13 @@ bool hal_wait_for_event(uint32_t wake_at_ms)
 
 static void usage(FILE *to)
 {
-    fputs("usage: thermal_box [--wdt-reset]\n"
+    fputs("usage: thermal_box [--wdt-reset] [--hang-after-samples N]\n"
           "Runs the box firmware on a pseudo-terminal (printed as 'PTY <path>') with a sample\n"
           "feed on stdin: 'S <aux0> <code0> ...', 'F <ch> <sr_hex>', 'Q'\n"
           "(docs/native-board.md).\n"
-          "  --wdt-reset  start as if the last reset came from the watchdog\n",
+          "  --wdt-reset  start as if the last reset came from the watchdog\n"
+          "  --hang-after-samples N  (test) the SPI bus locks up once, after N S lines: the\n"
+          "               watchdog must reset the firmware\n",
           to);
 }
 
@@ -294,6 +332,13 @@ int main(int argc, char **argv)
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--wdt-reset") == 0) {
             native_set_reset_cause_watchdog(true);
+        } else if (strcmp(argv[i], "--hang-after-samples") == 0 && i + 1 < argc) {
+            long n;
+            if (!parse_long(argv[++i], 10, 0, LONG_MAX, &n)) {
+                fprintf(stderr, "thermal_box: --hang-after-samples needs a count\n");
+                return 2;
+            }
+            hang_after_samples = n;
         } else if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) {
             usage(stdout);
             return 0;
@@ -305,6 +350,17 @@ int main(int argc, char **argv)
     }
     if (!native_uart_open()) {
         return 1;
+    }
+    struct sigaction sa;
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = watchdog_expired;
+    sigemptyset(&sa.sa_mask);
+    (void)sigaction(SIGPROF, &sa, NULL);
+    if (sigsetjmp(reset_vector, 1) != 0) {
+        fprintf(stderr, "thermal_box: watchdog reset (the loop stopped kicking)\n");
+        native_set_reset_cause_watchdog(true);
+        now_ms = 0;
+        watchdog_timeout_ms = 0;
     }
     int rc = app_main();
     return rc != 0 ? rc : exit_status;

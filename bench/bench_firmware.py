@@ -1,0 +1,85 @@
+"""Firmware footprint and native speed for the 8-channel, 3-axis test model.
+
+- flash / RAM of the STM32F405 image (arm-none-eabi-size; RAM includes the 1 KiB stack),
+  against the issue's budget of 16 KiB flash and 4 KiB RAM;
+- the native board fed 86,400 samples (24 h at 1 s) on stdin with every line read back from
+  its pty (the firmware alone; bench_hil measures the full HIL with its checks).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import serial
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from firmware_support import build, load_generator  # noqa: E402
+
+N_SAMPLES = 86_400
+
+
+def _sizes(tmp: Path, header: Path) -> tuple[int, int]:
+    proc = build(header, tmp / "stm32", board="stm32f405")
+    text, data, bss = (int(v) for v in proc.stdout.splitlines()[-1].split()[:3])
+    return text + data, data + bss
+
+
+def _replay_seconds(binary: Path) -> float:
+    proc = subprocess.Popen([str(binary)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            bufsize=0)
+    assert proc.stdin is not None and proc.stdout is not None
+    port = serial.Serial(proc.stdout.readline().decode().split()[1], timeout=10)
+    feed = "".join(f"S {i % 12000} " + " ".join(str(2560 + (i // 60 + c) % 2000)
+                                                for c in range(8)) + "\n"
+                   for i in range(N_SAMPLES)).encode()
+    seen = 0
+
+    def read() -> None:
+        nonlocal seen
+        while seen < N_SAMPLES:
+            chunk = port.read(max(1, port.in_waiting))
+            if not chunk:
+                return
+            seen += chunk.count(b"\n")
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    t0 = time.perf_counter()
+    proc.stdin.write(feed)
+    reader.join()
+    dt = time.perf_counter() - t0
+    proc.stdin.write(b"Q\n")
+    proc.wait(10)
+    port.close()
+    if seen != N_SAMPLES:
+        raise RuntimeError(f"native board sent {seen} of {N_SAMPLES} lines")
+    return dt
+
+
+def run() -> list[dict]:
+    import codegen
+
+    gen = load_generator()
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        header = tmp / "model.h"
+        header.write_text(codegen.generate(gen.test_model()).text)
+        flash, ram = _sizes(tmp, header)
+        build(header, tmp / "native", sanitize=False)
+        seconds = _replay_seconds(tmp / "native" / "thermal_box")
+    detail = "8 channels, 1 aux, 3 axes, 12 terms (firmware/test/gen_test_model.py)"
+    return [
+        {"name": "stm32f405 flash (text+data)", "value": flash, "unit": "bytes",
+         "target": "< 16384", "detail": detail},
+        {"name": "stm32f405 RAM (data+bss+1 KiB stack)", "value": ram, "unit": "bytes",
+         "target": "< 4096", "detail": detail},
+        {"name": "native board: 86,400 samples fed and read back", "value": seconds,
+         "unit": "s", "target": "< 30 s", "detail": f"{N_SAMPLES / seconds:.0f} lines/s"},
+    ]

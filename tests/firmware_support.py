@@ -1,0 +1,106 @@
+"""Helpers for the firmware tests: build the firmware against a codegen header, run the native
+board (docs/native-board.md) and talk to it over its pty.
+
+The test model and its host-side expectations live in firmware/test/gen_test_model.py (also
+used by `make -C firmware test`), loaded here by path.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import select
+import subprocess
+from pathlib import Path
+
+import serial
+
+ROOT = Path(__file__).resolve().parents[1]
+FIRMWARE = ROOT / "firmware"
+
+
+def load_generator():
+    """firmware/test/gen_test_model.py as a module."""
+    path = FIRMWARE / "test" / "gen_test_model.py"
+    spec = importlib.util.spec_from_file_location("gen_test_model", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def build(header: Path, out_dir: Path, board: str = "native", sanitize: bool = True,
+          cflags: str = "") -> subprocess.CompletedProcess:
+    """make -C firmware for ``board`` into ``out_dir``; raises with the compiler's output."""
+    cmd = ["make", "-s", "-C", str(FIRMWARE), f"BOARD={board}", f"MODEL={header}",
+           f"BUILD={out_dir}", f"SANITIZE={1 if sanitize else 0}", f"BOX_CFLAGS={cflags}"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stdout}{proc.stderr}")
+    return proc
+
+
+class Box:
+    """One native firmware process: ``feed`` writes stdin, ``lines`` reads the pty."""
+
+    def __init__(self, binary: Path, *args: str) -> None:
+        self.proc = subprocess.Popen([str(binary), *args], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0)
+        assert self.proc.stdout is not None
+        ready, _, _ = select.select([self.proc.stdout], [], [], 30.0)
+        first = self.proc.stdout.readline().decode() if ready else ""
+        if not first.startswith("PTY "):
+            self.proc.kill()
+            raise RuntimeError(f"no 'PTY <path>' line, got {first!r}")
+        self.port = serial.Serial(first.split()[1], 115200, timeout=20.0)
+
+    def feed(self, text: str) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(text.encode())
+
+    def send(self, raw: bytes) -> None:
+        self.port.write(raw)
+
+    def lines(self, n: int) -> list[bytes]:
+        """The next n lines from the box (with their CRLF); fails after 20 s of silence."""
+        out = []
+        for _ in range(n):
+            line = self.port.readline()
+            if not line.endswith(b"\n"):
+                raise AssertionError(f"box sent {len(out)} of {n} lines, then {line!r}")
+            out.append(line)
+        return out
+
+    def silent(self, seconds: float = 0.3) -> bool:
+        """True if nothing arrives on the pty within ``seconds``."""
+        self.port.timeout = seconds
+        data = self.port.read(1)
+        self.port.timeout = 20.0
+        return data == b""
+
+    def finish(self, timeout: float = 10.0) -> tuple[int, str]:
+        """Send Q (if stdin is open), wait; returns (exit status, stderr)."""
+        try:
+            self.feed("Q\n")
+        except (BrokenPipeError, OSError):
+            pass
+        try:
+            rc = self.proc.wait(timeout)
+        finally:
+            self.port.close()
+            if self.proc.poll() is None:
+                self.proc.kill()
+        assert self.proc.stderr is not None
+        return rc, self.proc.stderr.read().decode()
+
+    def close_feed(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.close()
+
+
+
+def box_defaults() -> dict[str, int]:
+    """The build-time defaults of firmware/include/box_config.h (BOX_* integer macros)."""
+    text = (FIRMWARE / "include" / "box_config.h").read_text()
+    return {m.group(1): int(m.group(2))
+            for m in re.finditer(r"^#define (BOX_[A-Z0-9_]+) (-?\d+)$", text, re.M)}
