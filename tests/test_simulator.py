@@ -220,3 +220,20 @@ def test_without_effects_a_static_model_is_at_the_noise_floor():
     for axis in AXES:
         err = _heldout_rmse(train, test, axis, [])
         assert err < 0.03 * np.ptp(test.displacement_true[axis]), axis
+
+
+def test_every_node_link_and_effect_is_documented():
+    from pathlib import Path
+
+    from host.machine_model import LINKS, NODES, SOURCES
+
+    doc = (Path(__file__).parents[1] / "docs" / "simulator.md").read_text()
+    for node in NODES:
+        assert f"`{node.name}`" in doc, node.name
+        assert f"| {node.capacity_j_per_k / 1e3:g} |" in doc, node.name  # its capacity
+    for a, b, _g, _ in LINKS:
+        assert f"`{a}` – `{b}`" in doc or f"`{a}` – `tank`" in doc, (a, b)
+    for src in SOURCES:
+        assert f"{src.watts_at_max:g} s" in doc, src
+    for effect in EFFECTS:
+        assert f"| `{effect}` |" in doc, effect
