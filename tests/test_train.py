@@ -242,3 +242,22 @@ def test_end_to_end_simulated_machine_other_speed_profile(tmp_path, capsys):
         m = result[axis]
         assert m["raw_rms_um"] > 3.0
         assert m["reduction_pct"] > 95.0, (axis, m)
+
+
+@pytest.mark.parametrize("selection", ["validated", "paper"])
+def test_example_simulations_train_on_two_protocols_judge_on_random(selection):
+    """The demo's setup with the committed example runs (lag, ambient... effects included):
+    the static baseline alone already removes most of the drift of the unseen random run."""
+    paths = [ROOT / "examples" / f"sim_{p}.csv" for p in ("constant", "step", "random")]
+    if not all(p.is_file() for p in paths):
+        pytest.skip("example simulations not generated (make examples)")
+    axes = ["dx_um", "dy_um", "dz_um"]
+    model = train_model(paths[:2], axes, effects=False, selection=selection)
+    test = load_run(paths[2], axes, model["training"]["sensors"])
+    result = evaluate_model(model, test)["axes"]
+    for axis in axes:
+        y = test.target(axis)
+        pred = predict(model, test)[axis]
+        assert result[axis]["rmse_um"] == pytest.approx(np.sqrt(np.mean((y - pred) ** 2)))
+        assert result[axis]["reduction_pct"] > 90.0, (axis, result[axis])
+        assert 1 <= len(model["axes"][axis]["selection"]["sensors"]) <= 5
