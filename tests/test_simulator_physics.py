@@ -115,3 +115,17 @@ def test_network_rejects_bad_parameters():
     net = ThermalNetwork(["a"], np.array([1.0]), np.zeros((1, 1)))
     with pytest.raises(ValueError, match="no path to ambient"):
         net.step(OperatingPoint(np.zeros(1), np.zeros(1)), 1.0)
+
+
+def test_result_does_not_depend_on_the_step_when_inputs_change_between_samples():
+    # segment and pump switchings fall between samples of the coarse grid: the interval is
+    # split at them, so 7 s and 1 s sampling agree at common times (constant air: exact)
+    m = Machine()
+    prog = build_program("random", 8000.0, hours=1.5, cool_hours=0.5, seed=2)
+    pump = [(100.5, 1000.25), (2000.0, 2333.3)]
+    fine_t = np.arange(0, 7 * 1000 + 1, 1.0)
+    coarse_t = np.arange(0, 7 * 1000 + 1, 7.0)
+    fine = simulate_nodes(m, prog, fine_t, constant_air, pump)
+    coarse = simulate_nodes(m, prog, coarse_t, constant_air, pump)
+    np.testing.assert_allclose(coarse, fine[::7], atol=1e-9)
+    assert np.ptp(fine[:, m.names.index("table")]) > 0.3  # the pump did something
