@@ -106,22 +106,17 @@ def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
 
 # --- issue 7 hook -------------------------------------------------------------------------
 def _add_effects(axis: dict, *, runs: list[Run], target: str, period_s: float, n_blocks: int,
-                 enabled: bool) -> dict:
-    """EFFECTS HOOK (issue 7 replaces this): add dynamic/aux effects to a fitted baseline axis.
-
-    Receives the baseline axis dict from ``fit_axis`` and returns the final axis dict. Until
-    host.effects provides ``add_effects`` this returns the baseline unchanged.
-    """
+                 enabled: bool, ambient: str | None = None) -> dict:
+    """EFFECTS HOOK (issue 7, host/effects.py): add validated dynamic/aux effects to the
+    fitted baseline axis and return the final axis dict (terms refitted, metrics on the final
+    model, plus ``effects``, ``unexplained``, ``baseline``, ``effects_search`` and
+    ``sensor_reference`` for ``host diagnose``)."""
     if not enabled:
         return axis
-    try:
-        from host import effects  # type: ignore[attr-defined]
-    except ImportError:
-        return axis
-    add = getattr(effects, "add_effects", None)
-    if add is None:
-        return axis
-    return add(axis, runs=runs, target=target, period_s=period_s, n_blocks=n_blocks)
+    from host.effects import add_effects
+
+    return add_effects(axis, runs=runs, target=target, period_s=period_s, n_blocks=n_blocks,
+                       ambient=ambient)
 # ------------------------------------------------------------------------------------------
 
 
@@ -163,7 +158,8 @@ def _aux(axes: Mapping[str, dict], runs: list[Run]) -> list[dict]:
 def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 sensors: str | list[str] = "T*", aux: Sequence[str] | None = None,
                 max_sensors: int = DEFAULT_MAX_SENSORS, groups: int = DEFAULT_GROUPS,
-                effects: bool = True, channels: Mapping[str, int] | None = None,
+                effects: bool = True, ambient: str | None = None,
+                channels: Mapping[str, int] | None = None,
                 selection: str = "validated", max_delay_s: float | None = None,
                 n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
                 tc_type: str = DEFAULT_TC_TYPE, quiet: bool = True) -> dict:
@@ -209,7 +205,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         axis["baseline_validation_rmse_um"] = axis["metrics"]["validation_rmse_um"]
         axis["effects"] = []
         axis = _add_effects(axis, runs=runs, target=target, period_s=period_s,
-                            n_blocks=n_blocks, enabled=effects)
+                            n_blocks=n_blocks, enabled=effects, ambient=ambient)
         final_terms = [Term.from_json(t) for t in axis["terms"]]
         if final_terms != terms:  # effects changed the terms: refit, metrics on the final model
             axis.update(fit_axis(runs, target, final_terms, period_s, n_blocks))
@@ -234,6 +230,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "max_delay_s": max_delay_s,
             "validation": scheme,
             "seed": int(seed),
+            "effects": bool(effects),
+            "ambient": ambient,
         },
     }
 
@@ -261,5 +259,11 @@ def summary(model: dict, model_path: str) -> dict:
             "max_abs_um": m.get("max_abs_um"),
             "condition_number": m.get("condition_number"),
             "validation": m.get("validation"),
+            # issue 7: before/after the effects, what was added and what is still unexplained
+            "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
+            "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
+                                               "rmse_after_um")}
+                        for e in axis.get("effects", [])],
+            "unexplained": axis.get("unexplained"),
         }
     return {"model": model_path, "axes": axes}

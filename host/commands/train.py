@@ -65,6 +65,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="output directory (default %(default)s)")
     parser.add_argument("--no-codegen", action="store_true",
                         help="only write model.json (skip DIR/model.h)")
+    parser.add_argument("--no-effects", action="store_true",
+                        help="the baseline alone: do not search the residual for effects "
+                        "(lag, rate, ambient, speed, drift, nonlinear; docs/effects.md)")
+    parser.add_argument("--ambient", metavar="COL", default=None,
+                        help="ambient temperature column for the ambient effect (one of the "
+                        "--sensors; default: a sensor named like *amb*, if any)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -81,8 +87,25 @@ def print_table(doc: dict, model: dict) -> None:
         print(f"{name:<10} {','.join(a['sensors']):<34} {_fmt(a['train_rmse_um']):>9} "
               f"{_fmt(a['validation_rmse_um']):>9} {_fmt(a['raw_rms_um']):>9} "
               f"{_fmt(a['r2'], 4):>7} {_fmt(a['condition_number']):>7}")
+    print_effects(doc)
     if "header" in doc:
         print(f"header: {doc['header']}")
+
+
+def print_effects(doc: dict) -> None:
+    """Issue 7: each axis's validation RMSE before/after effects, what was added and why."""
+    for name, a in doc["axes"].items():
+        before, after = a.get("baseline_validation_rmse_um"), a.get("validation_rmse_um")
+        effects = a.get("effects") or []
+        if effects:
+            print(f"{name}: effects lower the validation RMSE {_fmt(before)} -> {_fmt(after)} um")
+        for e in effects:
+            ev = e.get("evidence") or {}
+            print(f"  + {e['kind']:<9} {e['feature']}: {_fmt(e.get('rmse_before_um'))} -> "
+                  f"{_fmt(e.get('rmse_after_um'))} um, {ev.get('folds_improved', '?')} folds "
+                  f"better, residual correlation {_fmt(ev.get('residual_corr'), 2)}")
+        if a.get("unexplained"):
+            print(f"  {name} unexplained: {a['unexplained']['message']}")
 
 
 def run_codegen(model_path: Path, header_path: Path) -> str | None:
@@ -98,7 +121,7 @@ def run_codegen(model_path: Path, header_path: Path) -> str | None:
 def run(args: argparse.Namespace) -> int:
     model = train_model(args.runs, args.target, sensors=args.sensors, aux=args.aux,
                         max_sensors=args.max_sensors, groups=args.groups,
-                        effects=not getattr(args, "no_effects", False),
+                        effects=not args.no_effects, ambient=args.ambient,
                         channels=dict(args.channel), selection=args.selection,
                         max_delay_s=None if args.max_delay_h is None else args.max_delay_h * 3600,
                         n_blocks=args.blocks, seed=args.seed, fill_gaps=args.fill_gaps,

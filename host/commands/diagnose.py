@@ -1,0 +1,44 @@
+"""`host diagnose MODEL.json RUN.csv [--json]`: a model on a new run -- its error, which effect
+explains what remains, and which sensors look faulty. Nothing is refitted."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from host.diagnose import diagnose, load_for_model, summary_lines
+from host.model_io import jsonable, read_model
+from host.validation import DEFAULT_BLOCKS
+
+NAME = "diagnose"
+HELP = ("a model on a new run: its error, the candidate effect that explains what remains, and "
+        "sensors that drift from their cluster-mates, stick or are noisy")
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("model", metavar="MODEL.json", help="model.json written by host train")
+    parser.add_argument("run", metavar="RUN.csv", help="a run with the model's sensors (all "
+                        "sensors of the training glob are used as cluster-mates)")
+    parser.add_argument("--ambient", metavar="COL", default=None,
+                        help="ambient temperature column (default: a sensor named like *amb*)")
+    parser.add_argument("--blocks", type=int, default=DEFAULT_BLOCKS, metavar="N",
+                        help="time blocks of the run that validate an effect (default "
+                        "%(default)s)")
+    parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
+                        help="interpolate interior gaps of at most N samples (default: reject)")
+    parser.add_argument("--json", action="store_true", help="print JSON on stdout")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.blocks < 2:
+        raise ValueError(f"--blocks must be >= 2 (got {args.blocks})")
+    model = read_model(args.model)
+    data = load_for_model(model, args.run, args.fill_gaps)
+    doc = {"model": args.model, **diagnose(model, data, ambient=args.ambient,
+                                           n_blocks=args.blocks)}
+    if args.json:
+        print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
+    else:
+        print(f"model: {args.model}")
+        print("\n".join(summary_lines(doc)))
+    return 0
