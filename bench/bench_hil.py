@@ -1,9 +1,10 @@
 """HIL throughput: replay 24 h of 1 s data (86,400 samples, 5 sensors, 3 axes) through the
 native firmware over its pty and check every line (target: under 30 s).
 
-The run comes from ``host simulate`` when that command exists, otherwise it is synthesised
-here (seeded smooth temperature walks and a spindle program; the displacements are a linear
-response plus noise) — the HIL's speed does not depend on how realistic the physics is.
+The run comes from ``host simulate`` (random spindle program) when that command exists,
+otherwise it is synthesised here (seeded smooth temperature walks and a spindle program; the
+displacements are a linear response plus noise): the HIL's speed does not depend on how
+realistic the physics is.
 """
 
 from __future__ import annotations
@@ -46,16 +47,18 @@ def synthesise(path: Path, n: int = N_SAMPLES, seed: int = 24) -> Path:
 
 
 def simulated_run(path: Path) -> tuple[Path, str]:
-    """A 24 h 1 s run: ``host simulate`` if available, else synthesised."""
+    """A 24 h 1 s run: ``host simulate`` (16 h running + 8 h cooling) if available, else
+    synthesised."""
     try:
         import host.commands.simulate  # noqa: F401
     except ImportError:
         return synthesise(path), "synthesised"
-    proc = subprocess.run([sys.executable, "-m", "host", "simulate", "--hours", "24",
-                           "--period", "1", "--out", str(path)], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "host", "simulate", "--protocol", "random",
+                           "--hours", "16", "--cool-hours", "8", "--dt", "1", "--sensors", "5",
+                           "--seed", "24", "-o", str(path)], capture_output=True, text=True)
     if proc.returncode != 0 or not path.is_file():
-        return synthesise(path), "synthesised (host simulate failed)"
-    return path, "host simulate"
+        return synthesise(path), f"synthesised (host simulate failed: {proc.stderr.strip()})"
+    return path, "host simulate --protocol random"
 
 
 def run() -> list[dict]:

@@ -191,6 +191,10 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
         if session.error:
             rep.problems_fatal = True
             rep.note(f"session {s_index} (from sample {session.first_sample}): {session.error}")
+        elif not session.power_cut and session.exit_code != 0:
+            rep.problems_fatal = True
+            rep.note(f"session {s_index} (from sample {session.first_sample}): the firmware "
+                     f"exited with code {session.exit_code} (crash or feed error)")
         lines = decode_session(session)
         rep.bad_lines += len(lines.bad)
         for b in lines.bad:
@@ -255,6 +259,10 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
                 float_diff = np.maximum(float_diff, d.max(axis=0))
                 float_count += int(direct.sum())
 
+    never_fed = n - sum(s.n_fed for s in capture.sessions)
+    if never_fed > 0:  # the replay stopped early: those samples got no line either
+        rep.lost += never_fed
+        rep.note(f"{never_fed} samples were never fed (the replay stopped early)")
     rep.received = int(got.sum())
     rep.fw_out_nm, rep.fw_status = fw_out, fw_status
     for a, name in enumerate(feed.axes):

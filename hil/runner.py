@@ -18,6 +18,7 @@ from typing import Protocol
 
 from hil.feed import Feed
 from hil.link import LinkTimeout, SerialLink
+from hil.native import BoxStartError
 from host.progress import progress
 
 
@@ -87,6 +88,7 @@ class Session:
     info: bytes = b""
     error: str = ""  # why the session ended early (timeout, crash), empty if it did not
     exit_code: int | None = None
+    power_cut: bool = False  # ended by the runner (Restart, or after a timeout), not by Q
 
 
 @dataclass
@@ -96,10 +98,6 @@ class Capture:
     sessions: list[Session]
     codes_fed: list[list[int]]  # the channel codes actually fed per sample (after overrides)
     n_samples: int
-
-
-class ReplayError(RuntimeError):
-    """The replay itself could not be carried out (box did not start, stopped answering)."""
 
 
 BoxFactory = Callable[[bool], Box]  # wdt_reset -> a started box
@@ -132,7 +130,7 @@ def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), wind
 
     def finish(s: Session, b: Box, kill: bool) -> None:
         if kill:
-            s.exit_code = b.kill()
+            s.exit_code, s.power_cut = b.kill(), True
         else:
             s.exit_code = b.stop()
         s.lines = list(b.link.lines)
@@ -173,9 +171,13 @@ def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), wind
                     for ch, value in sorted(sr_now.items()):
                         if value:
                             box.feed(f"F {ch} {value:02x}\n".encode("ascii"))
+        for _ in bar:  # exhaust: closes the progress bar
+            pass
         sync()
         finish(session, box, kill=False)
-    except LinkTimeout as exc:
+    except (LinkTimeout, BoxStartError) as exc:
+        # The box stopped answering, died while being fed, or did not boot again: the replay
+        # ends here and the checks report it (with everything received so far).
         session.error = str(exc)
         finish(session, box, kill=True)
     except BaseException:

@@ -235,3 +235,16 @@ def test_a_model_larger_than_the_firmware_capacity_is_refused_up_front(tmp_path)
         hil_replay.prepare(model, FL, tmp_path / "hil")
     # a firmware built for more channels accepts it
     OutputConfig.from_build("-DBOX_MAX_CHANNELS=16").check_fits(9, 1, 0, "model")
+
+
+def test_a_box_that_stops_answering_fails_the_replay_and_says_where(fl_setup):
+    from hil.runner import CodeOverride
+
+    # A code outside the chip's 19-bit range is a feed error: the native board exits (code 2)
+    # at sample 500, as a crashed box would stop talking.
+    report, capture = hil_replay.run(fl_setup, [CodeOverride(500, 501, 0, 1 << 20)])
+    assert not report.ok and report.problems_fatal
+    # (lines still in the pty when the process died may be gone with it)
+    assert 0 < report.received <= 500 and report.lost == report.samples - report.received
+    assert capture.sessions[0].exit_code == 2
+    assert any("sample 500" in p or "closed" in p for p in report.problems), report.problems
