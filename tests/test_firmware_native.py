@@ -213,3 +213,27 @@ def test_help_names_the_options(fw):
     assert r.returncode == 0 and "--wdt-reset" in r.stdout
     r = subprocess.run([str(fw["binary"]), "--bogus"], capture_output=True, text=True)
     assert r.returncode == 2 and re.search(r"unknown option '--bogus'", r.stderr)
+
+
+def test_info_with_longest_names_fits_one_line(tmp_path):
+    import codegen
+
+    model = gen.test_model()
+    long = {c["sensor"]: f"{c['sensor']}_" + "x" * (31 - len(c["sensor"]))
+            for c in model["channels"]}
+    for c in model["channels"]:
+        c["sensor"] = long[c["sensor"]]
+    for axis in list(model["axes"]):
+        ax = model["axes"].pop(axis)
+        for t in ax["terms"]:
+            t["source"] = long.get(t.get("source"), t.get("source"))
+        model["axes"][axis + "_" + "y" * (31 - len(axis))] = ax
+    header = codegen.generate(model)
+    (tmp_path / "model.h").write_text(header.text)
+    build(tmp_path / "model.h", tmp_path / "native")
+    box = Box(tmp_path / "native" / "thermal_box")
+    box.send(b"INFO\n")
+    info = p.decode(box.lines(1)[0])
+    assert all(len(name) == 32 for name in info.axes) and len(info.axes) == 3
+    assert [c.sensor for c in info.channels] == [c["sensor"] for c in model["channels"]]
+    assert box.finish()[0] == 0

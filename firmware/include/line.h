@@ -8,7 +8,11 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define LINE_MAX 256
+/* Sized for the longest INFO line: 6 axes and 8 channels with 32-character names (app.c
+ * asserts the bound for the configured capacities). */
+#define LINE_MAX 640
+/* Longest name line_put_name writes (codegen's limit for sensor and axis names). */
+#define LINE_NAME_MAX 32u
 /* "*XXXX\r\n" */
 #define LINE_TRAILER_LEN 7
 
@@ -25,7 +29,7 @@ void line_sep(line_t *l);
 void line_put_char(line_t *l, char c);
 void line_put_str(line_t *l, const char *s);
 /* A name from the model: characters outside [A-Za-z0-9_.+-] become '_' so a name can never
- * break the line's syntax (',', ';', ':', '*', '$'). */
+ * break the line's syntax (',', ';', ':', '*', '$'); at most LINE_NAME_MAX characters. */
 void line_put_name(line_t *l, const char *s);
 void line_put_u32(line_t *l, uint32_t v);
 void line_put_i32(line_t *l, int32_t v);

@@ -24,6 +24,13 @@
     (3 + 10 + 1 + 4 + 1 + 1 + BOX_MAX_AXES * (1 + 11) + 1 + 2 + BOX_MAX_CHANNELS * (1 + 7) + \
      LINE_TRAILER_LEN)
 _Static_assert(SAMPLE_LINE_MAX <= LINE_MAX, "a full sample line must fit the line buffer");
+/* Longest INFO line: "$I," fw "," hash ",BAD," period "," axis names ";" ... "," then
+ * "ch:sensor:T;" per channel, names at most LINE_NAME_MAX characters. */
+#define INFO_LINE_MAX                                                                        \
+    (3 + (sizeof BOX_FW_VERSION - 1) + 1 + LINE_NAME_MAX + 5 + 10 + 1 +                     \
+     BOX_MAX_AXES * (LINE_NAME_MAX + 1) + 1 + BOX_MAX_CHANNELS * (2 + 1 + LINE_NAME_MAX + 3) + \
+     LINE_TRAILER_LEN)
+_Static_assert(INFO_LINE_MAX <= LINE_MAX, "the longest INFO line must fit the line buffer");
 _Static_assert(BOX_MAX_CHANNELS <= 32 && BOX_MAX_AXES <= 32, "masks are uint32_t");
 
 #define DEFAULT_PERIOD_MS 1000u

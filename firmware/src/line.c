@@ -42,9 +42,8 @@ static bool is_name_char(char c)
 
 void line_put_name(line_t *l, const char *s)
 {
-    while (*s != '\0') {
+    for (unsigned n = 0; *s != '\0' && n < LINE_NAME_MAX; n++, s++) {
         line_put_char(l, is_name_char(*s) ? *s : '_');
-        s++;
     }
 }
 

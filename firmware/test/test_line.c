@@ -92,12 +92,23 @@ static void test_Line_ShouldReplaceSyntaxCharactersInNames(void **state)
     assert_memory_equal(l.buf, "$T,T1_2_3_4_5_6_7_ok-8.9+*", 26);
 }
 
+static void test_Line_ShouldCutNamesAt32Characters(void **state)
+{
+    (void)state;
+    line_t l;
+    line_begin(&l, "T");
+    line_sep(&l);
+    line_put_name(&l, "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789");
+    finish(&l);
+    assert_memory_equal(l.buf, "$T,ABCDEFGHIJKLMNOPQRSTUVWXYZ012345*", 36);
+}
+
 static void test_Line_ShouldRefuseALineThatDoesNotFit(void **state)
 {
     (void)state;
     line_t l;
     line_begin(&l, "C");
-    for (int i = 0; i < 100; i++) {
+    for (int i = 0; i < 200; i++) {
         line_sep(&l);
         line_put_i32(&l, -123456);
     }
@@ -127,6 +138,7 @@ int main(void)
         cmocka_unit_test(test_Line_ShouldFormatSignedAndUnsignedDecimalsAtTheirLimits),
         cmocka_unit_test(test_Line_ShouldWriteFixedWidthUpperCaseHex),
         cmocka_unit_test(test_Line_ShouldReplaceSyntaxCharactersInNames),
+        cmocka_unit_test(test_Line_ShouldCutNamesAt32Characters),
         cmocka_unit_test(test_Line_ShouldRefuseALineThatDoesNotFit),
         cmocka_unit_test(test_Line_ShouldFillTheBufferExactly),
     };
