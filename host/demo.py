@@ -222,19 +222,26 @@ def step_hil(demo: Demo) -> dict:
 
 
 def step_protocols(demo: Demo) -> Path | None:
-    demo.step("Which test protocol to run: train on one, judge on the others")
-    out = BUILD / "protocols.json"
+    demo.step("Which test protocol to run: train on one, judge on the others (simulated days)")
+    out_dir = BUILD / "protocols"
     probe = subprocess.run([sys.executable, "-m", "host", "compare-protocols", "--help"],
                            cwd=ROOT, capture_output=True, text=True)
     if probe.returncode != 0 and "invalid choice" in probe.stderr:
         demo.say("    skipped: this tree has no `host compare-protocols` yet")
         demo.done()
         return None
-    doc = demo.host_json("compare-protocols", "--json")
-    (ROOT / out).write_text(json.dumps(doc, indent=2))
-    demo.say(f"    written to {out}")
+    doc = demo.host_json("compare-protocols", "--out", out_dir, "--json")
+    matrix, train, test = doc.get("matrix"), doc.get("train", []), doc.get("test", [])
+    if matrix and train and test:
+        means = [sum(row) / len(row) for row in matrix]
+        best = min(range(len(train)), key=lambda i: means[i])
+        demo.say(f"    {doc.get('metric', 'RMSE')}, averaged over the judged protocols "
+                 f"({', '.join(test)}):")
+        demo.say("    " + ", ".join(f"trained on {name}: {m:.2f} µm" for name, m in
+                                     zip(train, means, strict=True)))
+        demo.say(f"    → the {train[best]} protocol builds the model that holds best")
     demo.done()
-    return out
+    return out_dir / "protocols.json"
 
 
 def step_report(demo: Demo, model_dir: Path, runs: list[Path], out: Path,
