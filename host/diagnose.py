@@ -10,9 +10,12 @@ is the offset alone (a constant error is not an effect), the acceptance rule the
 Per sensor the model reads: compared with its cluster-mates (the c-means group of the
 selection trace, the redundant neighbours). Training stored, in ``sensor_reference``, a line
 ``s = a + b*m`` per mate; on the new run the gap ``s - (a + b*m)`` is watched for
-- drift: a steady trend over the run (median over the mates, so one faulty mate cannot accuse
-  a healthy sensor), larger than both ``DRIFT_MIN_C`` and ``DRIFT_SIGMAS`` times the gap's
-  training scatter;
+- drift: a steady trend of the gap over the run, larger than both ``DRIFT_MIN_C`` and
+  ``DRIFT_SIGMAS`` times the gap's training scatter, and seen alike against every mate (same
+  sign, within a factor 2 of the median). A sensor's own drift shifts all its gaps by the same
+  amount; a change of the machine's thermal state between runs (another day's shop air) moves
+  the gaps to different mates differently, and a faulty mate moves only its own gap, so
+  neither accuses a healthy sensor;
 - stuck: the same reading for a long stretch while the mates move;
 - noisy: sample-to-sample noise many times its training noise (or its mates').
 Without a stored reference (a model trained with --no-effects) the lines are fitted on the
@@ -51,6 +54,7 @@ from host.validation import DEFAULT_BLOCKS, fold_groups
 
 DRIFT_MIN_C = 0.5  # a drift smaller than this over the run is not worth a technician's visit
 DRIFT_SIGMAS = 5.0  # ... and it must stand out of the pair's training scatter this much
+DRIFT_AGREEMENT = 0.5  # ... and every mate must see it: same sign, within a factor 2
 STUCK_MIN_FRACTION = 0.2  # identical readings over at least 20 % of the run ...
 STUCK_MIN_SAMPLES = 10
 STUCK_MATES_MOVE_C = 0.5  # ... while the mates moved at least this much
@@ -197,10 +201,10 @@ def _own_reference(run: Run, sensor: str, mates: Sequence[str]) -> dict:
     return {"mates": list(mates), "pairs": pairs, "noise_c": None, "source": "first third of run"}
 
 
-def _trend(t: np.ndarray, d: np.ndarray) -> float:
-    """Change of d over the run along its least-squares line."""
+def _trend(t: np.ndarray, gap: np.ndarray) -> float:
+    """Change of the gap over the run along its least-squares line in time."""
     A = np.column_stack([np.ones_like(t), t - t[0]])
-    coef, *_ = np.linalg.lstsq(A, d, rcond=None)
+    coef, *_ = np.linalg.lstsq(A, gap, rcond=None)
     return float(coef[1] * (t[-1] - t[0]))
 
 
@@ -235,14 +239,19 @@ def check_sensor(run: Run, sensor: str, ref: Mapping | None, fallback_mates: Seq
             drifts.append(_trend(t, gap))
             scatter.append(max(float(p["rmse_c"]), 1e-3))
         drift = float(np.median(drifts))
-        sigma = float(np.median(scatter))
+        sigma = float(np.max(scatter))  # the least redundant mate sets the bar
+        d = np.array(drifts)
+        consistent = bool(np.all(np.sign(d) == np.sign(drift))
+                          and np.all(np.abs(d) >= DRIFT_AGREEMENT * abs(drift))
+                          and np.all(np.abs(d) <= abs(drift) / DRIFT_AGREEMENT))
         evidence.update({"drift_c": drift, "drift_per_mate_c": dict(zip(mates, drifts,
                                                                         strict=True)),
+                         "drift_consistent": consistent,
                          "training_scatter_c": sigma, "drift_sigmas": abs(drift) / sigma})
-        if abs(drift) >= DRIFT_MIN_C and abs(drift) >= DRIFT_SIGMAS * sigma:
+        if (consistent and abs(drift) >= DRIFT_MIN_C and abs(drift) >= DRIFT_SIGMAS * sigma):
             hours = (t[-1] - t[0]) / 3600.0
             faults.append({"fault": "drifting", "message": (
-                f"{sensor} drifts {drift:+.2f} degC from its cluster-mates "
+                f"{sensor} drifts {drift:+.2f} degC from its mates "
                 f"({', '.join(mates)}) over {hours:.1f} h ({abs(drift) / sigma:.0f}x their "
                 "training scatter)")})
 
@@ -276,23 +285,10 @@ def check_sensor(run: Run, sensor: str, ref: Mapping | None, fallback_mates: Seq
 
 
 def check_sensors(model: Mapping, run: Run) -> dict[str, dict]:
-    """Checks of every sensor the model reads. A drift between two sensors that are each
-    other's only evidence is attributed to the one that drifts more."""
+    """Checks of every sensor the model reads."""
     refs = _references(model)
-    out = {s: check_sensor(run, s, refs.get(s), _mates_from_trace(model, s))
-           for s in model_sensors(dict(model)) if s in run.sensor_names}
-    drifting = {s for s, c in out.items() if c["status"] == "drifting"}
-    for s in sorted(drifting):
-        for other in out[s]["evidence"]["mates"]:
-            if other in drifting and other != s:
-                ds = abs(out[s]["evidence"]["drift_sigmas"])
-                do = abs(out[other]["evidence"]["drift_sigmas"])
-                if ds < do:  # s is accused only through its drifting mate
-                    c = out[s]
-                    c["faults"] = [f for f in c["faults"] if f["fault"] != "drifting"]
-                    c["status"] = c["faults"][0]["fault"] if c["faults"] else "ok"
-                    c["evidence"]["drift_explained_by"] = other
-    return out
+    return {s: check_sensor(run, s, refs.get(s), _mates_from_trace(model, s))
+            for s in model_sensors(dict(model)) if s in run.sensor_names}
 
 
 # ------------------------------------------------------------------ the whole report

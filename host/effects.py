@@ -57,7 +57,7 @@ MIN_GAIN = 0.10  # an effect must lower the validation RMSE by at least 10 %
 MIN_FOLD_GAIN = 0.0  # ... and every fold's held-out RMSE lower
 ACTIVE_SHARE = 0.1  # a fold exercises an effect if its contribution varies there (SD >= 10 %)
 MAX_IDLE_LOSS = 0.05  # a fold that does not exercise it may get at most 5 % worse
-MAX_FOLD_SPREAD = 0.5  # the effect fitted without any one fold stays within 50 % (RMS)
+MAX_FOLD_SPREAD = 1.0  # the effect fitted without a fold keeps its shape (RMS change < size)
 PARSIMONY = 0.01  # a candidate with fewer terms within 1 % of the best is preferred
 MAX_EFFECTS = 3
 MAX_ERROR_UM = 0.01  # codegen's default --max-error-um
@@ -721,15 +721,20 @@ def cluster_mates(selection: Mapping | None, sensor: str) -> list[str]:
     return []
 
 
-MIN_MATES = 2  # fewer cluster-mates than this: add the most correlated other sensors
+MAX_MATES = 4  # mates kept per sensor, the most redundant first
+MATE_POOL = 6  # cluster-mates plus the most correlated sensors, up to this many, are tried
+MATE_MAX_SCATTER = 0.1  # a redundant mate predicts the sensor within 10 % of its range (RMS)
 
 
 def sensor_reference(runs: Sequence[Run], sensors: Sequence[str],
                      selection: Mapping | None) -> dict:
-    """How each model sensor relates to its cluster-mates in training (for host diagnose).
+    """How each model sensor relates to its neighbours in training (for host diagnose).
 
-    Per sensor: mates (cluster-mates, topped up with the most correlated sensors to at least
-    ``MIN_MATES``), per mate a line s = a + b*m with its training RMSE, and the sensor's noise.
+    The pool is the sensor's cluster-mates (the c-means group of the selection trace), topped
+    up with the sensors most correlated with it to ``MATE_POOL``; per pool member a line
+    s = a + b*m is fitted. Mates are the members whose line predicts the sensor within
+    ``MATE_MAX_SCATTER`` of its range, the best ``MAX_MATES`` (if none does, the best two,
+    whose scatter then makes any drift hard to prove). Also stored: the sensor's noise.
     """
     names = list(runs[0].sensor_names)
     T = np.vstack([r.temperatures for r in runs])
@@ -741,22 +746,24 @@ def sensor_reference(runs: Sequence[Run], sensors: Sequence[str],
         if s not in names:
             continue
         i = names.index(s)
-        mates = [m for m in cluster_mates(selection, s) if m in names]
-        source = "cluster"
-        if len(mates) < MIN_MATES:
-            order = [int(j) for j in np.argsort(-np.abs(corr[i])) if j != i]
-            extra = [names[j] for j in order if names[j] not in mates][:MIN_MATES - len(mates)]
-            mates += extra
-            source = "cluster+correlation" if len(mates) > len(extra) else "correlation"
+        v = T[:, i]
+        cluster = [m for m in cluster_mates(selection, s) if m in names]
+        order = [names[int(j)] for j in np.argsort(-np.abs(corr[i])) if int(j) != i]
+        pool = (cluster + [m for m in order if m not in cluster])[:max(MATE_POOL, len(cluster))]
         pairs = {}
-        for m in mates:
-            x, v = T[:, names.index(m)], T[:, i]
+        for m in pool:
+            x = T[:, names.index(m)]
             fit = fit_linear(x[:, None], v)
             pairs[m] = {"intercept": float(fit.intercept), "slope": float(fit.coef[0]),
-                        "rmse_c": rmse(v - fit.predict(x[:, None]))}
-        out[s] = {"mates": mates, "mates_from": source, "pairs": pairs,
-                  "noise_c": noise_floor(T[:, i], seg),
-                  "range_c": [float(T[:, i].min()), float(T[:, i].max())]}
+                        "rmse_c": rmse(v - fit.predict(x[:, None])),
+                        "from": "cluster" if m in cluster else "correlation"}
+        span = max(float(np.ptp(v)), 1e-6)
+        ranked = sorted(pairs, key=lambda m: pairs[m]["rmse_c"])
+        good = [m for m in ranked if pairs[m]["rmse_c"] <= MATE_MAX_SCATTER * span]
+        mates = good[:MAX_MATES] if good else ranked[:2]
+        out[s] = {"mates": mates, "pairs": {m: pairs[m] for m in mates},
+                  "noise_c": noise_floor(v, seg),
+                  "range_c": [float(v.min()), float(v.max())]}
     return out
 
 

@@ -1,0 +1,187 @@
+"""Issue 7 on simulated data: `host simulate` injects one effect, nothing tells `host train`
+which, and the model is judged on another run with a different speed profile.
+
+Train: the ``step`` protocol (6 h running, 4 h cooling, 60 s); judge: the ``random`` protocol
+of another seed (another day: other shop air, other noise). The baseline is the same
+`host train` with ``--no-effects``. Expectations come from the simulator's truth sidecar
+(which effect, which sensor drifts, which sensor sits on the table) and from numpy.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from host.cli import main
+from host.data import load_run
+from host.effects import state_quantisation_um
+from host.simulator import load_truth
+from host.terms import Term, design_matrix
+
+TRAIN = ["--protocol", "step", "--hours", "6", "--cool-hours", "4", "--dt", "60"]
+TEST = ["--protocol", "random", "--hours", "6", "--cool-hours", "4", "--dt", "60"]
+TARGETS = ["--target", "dy_um", "--target", "dz_um", "--aux", "spindle_rpm"]
+
+
+def host(*args: str) -> str:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = main([*args])
+    assert code == 0, out.getvalue()
+    return out.getvalue()
+
+
+class Scenario:
+    """One simulated effect: the training and the judging run, both models, the truth."""
+
+    def __init__(self, root: Path, effect: str, seed: int, small: bool = False) -> None:
+        d = root / f"{effect}_{seed}{'_small' if small else ''}"
+        d.mkdir()
+        train_effects = "" if effect in ("none", "drift") else effect  # drift: test run only
+        test_effects = "" if effect == "none" else effect
+        size = ["--hours", "3", "--cool-hours", "2"] if small else []
+        self.train_csv, self.test_csv = d / "train.csv", d / "test.csv"
+        host("simulate", *TRAIN, *size, "--seed", str(seed), "--effects", train_effects,
+             "-o", str(self.train_csv))
+        host("simulate", *TEST, *size, "--seed", str(seed + 100), "--effects", test_effects,
+             "-o", str(self.test_csv))
+        self.truth = load_truth(self.test_csv)
+        host("train", str(self.train_csv), *TARGETS, "--no-effects", "--no-codegen",
+             "--out", str(d / "baseline"))
+        # with effects, codegen runs too: train fails if the box could not run the model
+        self.summary = json.loads(host("train", str(self.train_csv), *TARGETS, "--json",
+                                       "--out", str(d / "effects")))
+        self.baseline = json.loads((d / "baseline" / "model.json").read_text())
+        self.model = json.loads((d / "effects" / "model.json").read_text())
+        self.header = d / "effects" / "model.h"
+        self.test = load_run(self.test_csv, ["dy_um", "dz_um"], "T*", ["spindle_rpm"])
+
+    def held_out(self, model: dict, axis: str) -> float:
+        spec = model["axes"][axis]
+        terms = [Term.from_json(t) for t in spec["terms"]]
+        coefs = np.array([t["coef"] for t in spec["terms"]])
+        pred = design_matrix(terms, self.test.columns(), model["sample_period_s"]) @ coefs
+        return float(np.sqrt(np.mean((self.test.target(axis) - pred - spec["intercept"]) ** 2)))
+
+    def kinds(self, axis: str) -> list[str]:
+        return [e["kind"] for e in self.model["axes"][axis]["effects"]]
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory):
+    root = tmp_path_factory.mktemp("effects_sim")
+    made: dict = {}
+
+    def get(effect: str, seed: int = 0, small: bool = False) -> Scenario:
+        key = (effect, seed, small)
+        if key not in made:
+            made[key] = Scenario(root, effect, seed, small)
+        return made[key]
+
+    return get
+
+
+# The axis each effect moves most (simulator defaults, docs/simulator.md).
+@pytest.mark.parametrize("effect,axis,kinds", [
+    ("lag", "dz_um", {"lag", "rate"}),
+    ("speed", "dz_um", {"speed"}),
+    ("nonlinear", "dy_um", {"nonlinear"}),
+])
+def test_injected_effect_is_named_and_held_out_error_drops(scenario, effect, axis, kinds):
+    s = scenario(effect)
+    assert set(s.kinds(axis)) & kinds, s.model["axes"][axis]["effects"]
+    before, after = s.held_out(s.baseline, axis), s.held_out(s.model, axis)
+    assert after <= 0.6 * before, (before, after)
+    # the --json summary carries the issue's shape
+    doc = s.summary["axes"][axis]
+    assert doc["baseline_validation_rmse_um"] > doc["validation_rmse_um"]
+    first = doc["effects"][0]
+    assert {"kind", "feature", "evidence", "rmse_before_um", "rmse_after_um"} <= set(first)
+    assert first["evidence"]["folds_improved"].endswith("/3")
+    assert s.header.is_file()  # codegen accepted the model with its effects
+
+
+def test_speed_effect_wires_the_aux_input(scenario):
+    s = scenario("speed")
+    used = {t["source"] for a in s.model["axes"].values() for t in a["terms"]
+            if t["kind"] in ("speed", "speed2")}
+    assert used == {"spindle_rpm"}
+    assert [a["name"] for a in s.model["aux"]] == ["spindle_rpm"]
+    assert "#define TCM_N_AUX 1u" in s.header.read_text()
+
+
+@pytest.mark.parametrize("effect", ["lag", "speed", "nonlinear"])
+def test_codegen_bound_holds_and_matches_the_filter_state_estimate(scenario, effect):
+    s = scenario(effect)
+    for axis, spec in s.model["axes"].items():
+        fp = s.model["fixed_point"]["axes"][axis]
+        assert fp["bound_um"] <= 0.01
+        terms = [Term.from_json(t) for t in spec["terms"]]
+        mine = state_quantisation_um(terms, [t["coef"] for t in spec["terms"]])
+        assert fp["state_quantisation_um"] == pytest.approx(mine, rel=1e-9, abs=1e-15)
+
+
+def test_ambient_effect_is_never_a_false_claim(scenario):
+    """The issue asks for `ambient` to be named; on this simulator it is not (the table and
+    tank thermocouples follow shop air and the selection takes them as proxies inside one run;
+    docs/effects.md). What must hold: no effect worsens the other day, and what the training
+    run cannot explain is said plainly."""
+    s = scenario("ambient")
+    for axis in ("dy_um", "dz_um"):
+        spec = s.model["axes"][axis]
+        assert s.held_out(s.model, axis) <= 1.1 * s.held_out(s.baseline, axis)
+        assert spec["effects"] or spec["unexplained"] is not None or (
+            spec["effects_search"]["residual"]["above_noise"] is False)
+
+
+def test_no_effect_nothing_added_on_eight_of_ten_seeds(scenario):
+    added = []
+    for seed in range(10):
+        s = scenario("none", seed, small=True)
+        added.append(bool(s.model["axes"]["dz_um"]["effects"]))
+    assert sum(added) <= 2, added
+
+
+def test_coolant_is_unexplained_or_names_the_table_and_claims_no_large_gain(scenario):
+    s = scenario("coolant")
+    axis = "dz_um"
+    spec = s.model["axes"][axis]
+    table = {t["source"] for t in s.truth["effects"]["coolant"]["matching_terms"]}
+    named = {t.get("source") for e in spec["effects"] for t in e["added"]}
+    assert spec["unexplained"] is not None or named & table
+    claimed = 1 - spec["validation_rmse_um"] / spec["baseline_validation_rmse_um"]
+    assert claimed < 0.4
+    assert s.held_out(s.model, axis) <= 1.1 * s.held_out(s.baseline, axis)
+
+
+def test_diagnose_names_the_drifting_sensor(scenario):
+    s = scenario("drift")
+    sensor = s.truth["effects"]["drift"]["sensor"]
+    assert sensor in [c["sensor"] for c in s.model["channels"]]
+    doc = json.loads(host("diagnose", str(s.header.parent / "model.json"), str(s.test_csv),
+                          "--json"))
+    assert [(f["sensor"], f["fault"]) for f in doc["faulty"]] == [(sensor, "drifting")]
+    hours = (s.test.time_s[-1] - s.test.time_s[0]) / 3600
+    rate = s.truth["effects"]["drift"]["rate_c_per_h"]
+    assert doc["sensors"][sensor]["evidence"]["drift_c"] == pytest.approx(rate * hours, rel=0.3)
+    # the model's error on the drifting run is explained by a slow trend, not by the machine
+    assert doc["axes"]["dz_um"]["explained_by"][0]["kind"] == "drift"
+    assert doc["axes"]["dz_um"]["rmse_um"] > 5 * s.model["axes"]["dz_um"]["metrics"][
+        "validation_rmse_um"]
+
+
+@pytest.mark.parametrize("effect", ["lag", "speed", "nonlinear", "coolant"])
+def test_diagnose_accuses_no_healthy_sensor(scenario, effect):
+    """Not with ``ambient``: there the other day's shop air moves the slow tank sensor (T11)
+    away from the column sensors it tracked in training, by as much as a drift (a known
+    limit of a one-run reference, docs/effects.md)."""
+    s = scenario(effect)
+    doc = json.loads(host("diagnose", str(s.header.parent / "model.json"), str(s.test_csv),
+                          "--json"))
+    assert doc["faulty"] == []
+    assert set(doc["axes"]) == {"dy_um", "dz_um"}
