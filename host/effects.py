@@ -586,7 +586,7 @@ def _unexplained_message(structure: dict, n_added: int, best: dict | None,
     return (msg + "; no candidate effect explains it: the best, "
             f"{best['kind']} {best['feature']}, lowers the validation RMSE by "
             f"{best['improvement_pct']:.1f} % with {best['folds_improved']} folds improved "
-            f"(the rule: {rule.describe()})")
+            f"(needs >= {rule.min_gain:.0%} and every fold that exercises it better)")
 
 
 def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], period_s: float,

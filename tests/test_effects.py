@@ -334,3 +334,35 @@ def test_add_effects_hook_keeps_the_axis_contract():
     pair = ref["pairs"]["T2"]
     slope = np.polyfit(run.column("T2"), run.column("T1"), 1)[0]
     assert pair["slope"] == pytest.approx(slope, rel=1e-6)
+
+
+def test_cli_no_effects_and_ambient_option(tmp_path):
+    import contextlib
+    import io
+    import json
+
+    from host.cli import main
+    from host.data import write_run
+
+    run = synth_run("speed", 9, hours=8.0)
+    path = tmp_path / "run.csv"
+    write_run(path, run.time_s, {n: run.column(n) for n in [*run.sensor_names, "spindle_rpm",
+                                                             "dz_um"]})
+    common = [str(path), "--target", "dz_um", "--aux", "spindle_rpm", "--no-codegen", "--json"]
+    docs = {}
+    for flag in ("--no-effects", "--ambient=T_amb"):
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            assert main(["train", *common, flag, "--out", str(tmp_path / flag[2:6])]) == 0
+        docs[flag] = json.loads(out.getvalue())["axes"]["dz_um"]
+    bare, full = docs["--no-effects"], docs["--ambient=T_amb"]
+    assert bare["effects"] == [] and bare["unexplained"] is None
+    assert bare["baseline_validation_rmse_um"] == bare["validation_rmse_um"]
+    assert full["effects"] and full["validation_rmse_um"] < 0.9 * bare["validation_rmse_um"]
+    assert full["baseline_validation_rmse_um"] == pytest.approx(bare["validation_rmse_um"])
+    model = json.loads((tmp_path / "ambi" / "model.json").read_text())
+    assert model["axes"]["dz_um"]["effects_search"]["ambient"] == "T_amb"
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["train", *common, "--ambient", "air_c", "--out", str(tmp_path / "x")]) == 2
+    assert "--ambient air_c" in err.getvalue()
