@@ -32,6 +32,8 @@ from host.terms import Term, make_temp
 from host.validation import common_period, fold_groups, stack, validation_rmse
 
 TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
+MAX_CHANNELS = 8  # MAX31856 chip selects on the box (firmware BOX_MAX_CHANNELS, PC0..PC7)
+MAX_EFFECTS_PER_AXIS = 3  # host.effects adds at most this many effects, each <= 1 new sensor
 DEFAULT_TC_TYPE = "K"
 CHANNEL_MIN_C = -40.0
 CHANNEL_MAX_C = 200.0
@@ -141,6 +143,47 @@ def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapp
              "max_c": CHANNEL_MAX_C} for s in sorted(ordered, key=lambda s: mapping[s])]
 
 
+def _fit_channel_budget(selected: dict[str, tuple[list[Term], dict]], runs: list[Run],
+                        period_s: float, n_blocks: int, max_channels: int) -> list[str]:
+    """Drop sensors until all axes together fit the box's channels; the dropped sensors.
+
+    Each axis keeps paper 000's selection; when their union is larger than ``max_channels``,
+    the sensor whose removal costs the least is dropped from every axis that uses it, and
+    this repeats. Cost = the sum over those axes of the relative rise of the out-of-fold
+    (validation) RMSE, so the budget is spent where it buys the most accuracy on unseen data.
+    An axis never loses its last sensor.
+    """
+    def vrmse(target: str, terms: list[Term]) -> float:
+        st = stack(runs, terms, target, period_s, n_blocks)
+        return validation_rmse(st.X, st.y, st.groups)
+
+    current = {t: list(terms) for t, (terms, _) in selected.items()}
+    score = {t: vrmse(t, terms) for t, terms in current.items()}
+    dropped: list[str] = []
+    while len(union := {term.source for terms in current.values() for term in terms}) \
+            > max_channels:
+        costs: dict[str, tuple[float, dict]] = {}
+        for sensor in sorted(union):
+            cost, trial = 0.0, {}
+            for target, terms in current.items():
+                if all(term.source != sensor for term in terms):
+                    continue
+                rest = [term for term in terms if term.source != sensor]
+                if not rest:
+                    cost = math.inf
+                    break
+                trial[target] = (rest, vrmse(target, rest))
+                cost += (trial[target][1] - score[target]) / max(score[target], 1e-12)
+            costs[sensor] = (cost, trial)
+        sensor = min(costs, key=lambda s: costs[s][0])
+        for target, (rest, err) in costs[sensor][1].items():
+            current[target], score[target] = rest, err
+        dropped.append(sensor)
+    for target, (_terms, trace) in selected.items():
+        selected[target] = (current[target], trace)
+    return dropped
+
+
 def _aux(axes: Mapping[str, dict], runs: list[Run]) -> list[dict]:
     """Aux inputs any term uses; declared range = observed range widened to include 0, +25 %."""
     used = [n for n in runs[0].aux_names
@@ -162,13 +205,16 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 channels: Mapping[str, int] | None = None,
                 selection: str = "validated", max_delay_s: float | None = None,
                 n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
-                tc_type: str = DEFAULT_TC_TYPE, quiet: bool = True) -> dict:
+                tc_type: str = DEFAULT_TC_TYPE, max_channels: int = MAX_CHANNELS,
+                quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
     (representatives and EC subset by out-of-fold error, default) or ``"paper"`` (paper 000
     exactly: by training error). ``channels`` maps sensor -> box channel (others get the
     free indices in data-column order). ``max_delay_s`` limits the delay search.
+    ``max_channels`` is the box's thermocouple budget shared by all axes
+    (see _fit_channel_budget).
     """
     targets = list(targets)
     if not targets:
@@ -179,6 +225,11 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         raise TrainingError(f"unknown --selection '{selection}' (known: {', '.join(METHODS)})")
     if n_blocks < 2:
         raise TrainingError(f"need at least 2 validation blocks (got {n_blocks})")
+    if not 1 <= max_channels <= MAX_CHANNELS:
+        raise TrainingError(f"--max-channels must be 1..{MAX_CHANNELS} (the box has "
+                            f"{MAX_CHANNELS} thermocouple inputs), got {max_channels}")
+    if max_sensors > max_channels:
+        raise TrainingError(f"--max-sensors {max_sensors} exceeds --max-channels {max_channels}")
     if tc_type not in ("K", "J"):
         raise TrainingError(f"thermocouple type must be K or J (got {tc_type!r})")
     aux = list(aux or [])
@@ -193,23 +244,44 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
     folds, scheme = fold_groups(runs, n_blocks)
 
-    axes: dict[str, dict] = {}
-    for target in progress(targets, "training axes", quiet=quiet):
-        y = np.concatenate([r.target(target) for r in runs])
-        result = select_sensors(X, y, run_ids, folds, period_s, n_groups=groups,
-                                max_sensors=max_sensors, method=selection,
+    ys = {t: np.concatenate([r.target(t) for r in runs]) for t in targets}
+
+    def select(target: str) -> tuple[list[Term], dict]:
+        result = select_sensors(X, ys[target], run_ids, folds, period_s,
+                                n_groups=groups, max_sensors=max_sensors, method=selection,
                                 max_delay_s=max_delay_s, seed=seed, scheme=scheme)
-        terms = [make_temp(names[i]) for i in result.sensors]
+        return [make_temp(names[i]) for i in result.sensors], result.trace(names)
+
+    selected = {t: select(t) for t in progress(targets, "selecting sensors", quiet=quiet)}
+    dropped = _fit_channel_budget(selected, runs, period_s, n_blocks, max_channels)
+    for _terms, trace in selected.values():
+        if dropped:  # the axes together wanted more channels than the box has
+            trace["channel_budget"] = {"max_channels": max_channels, "dropped": dropped}
+
+    axes: dict[str, dict] = {}
+    used: set[str] = {t.source for terms, _ in selected.values() for t in terms}
+    for target in progress(targets, "fitting axes and effects", quiet=quiet):
+        terms, trace = selected[target]
         axis = fit_axis(runs, target, terms, period_s, n_blocks)
-        axis["selection"] = result.trace(names)
+        axis["selection"] = trace
         axis["baseline_validation_rmse_um"] = axis["metrics"]["validation_rmse_um"]
         axis["effects"] = []
-        axis = _add_effects(axis, runs=runs, target=target, period_s=period_s,
-                            n_blocks=n_blocks, enabled=effects, ambient=ambient)
+        # Effects may bring in new sensors (at most one per effect): when the box's channel
+        # budget could not take that, they may only use sensors that already have a channel.
+        room = len(used) + MAX_EFFECTS_PER_AXIS <= max_channels
+        effect_runs = runs if room else _as_runs(runs, targets, sorted(used, key=names.index),
+                                                 aux, 0)
+        axis = _add_effects(axis, runs=effect_runs, target=target, period_s=period_s,
+                            n_blocks=n_blocks, enabled=effects,
+                            ambient=ambient if room or ambient in used else None)
         final_terms = [Term.from_json(t) for t in axis["terms"]]
         if final_terms != terms:  # effects changed the terms: refit, metrics on the final model
             axis.update(fit_axis(runs, target, final_terms, period_s, n_blocks))
+        used |= {t.source for t in final_terms if t.kind in TEMPERATURE_KINDS}
         axes[target] = axis
+    if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
+        raise TrainingError(f"model needs {len(used)} thermocouple channels, the box has "
+                            f"{max_channels}")
 
     return {
         "schema": SCHEMA,
@@ -232,6 +304,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "seed": int(seed),
             "effects": bool(effects),
             "ambient": ambient,
+            "max_channels": int(max_channels),
         },
     }
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from host.model_io import jsonable, write_model
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
-from host.train import summary, train_model
+from host.train import MAX_CHANNELS, summary, train_model
 
 NAME = "train"
 HELP = "select sensors (paper 000), fit and validate the thermal model; write model.json"
@@ -59,6 +59,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channel", action="append", type=parse_channel, default=[],
                         metavar="SENSOR=INDEX", help="wire a sensor to a box channel "
                         "(default 0..k-1 in column order)")
+    parser.add_argument("--max-channels", type=int, default=MAX_CHANNELS, metavar="N",
+                        help="thermocouple channels the box has, shared by all axes (default "
+                        "%(default)s); when the axes' choices exceed it, every axis is "
+                        "re-selected from the sensors most axes chose")
     parser.add_argument("--tc-type", choices=("K", "J"), default="K",
                         help="thermocouple type of every channel (default K)")
     parser.add_argument("--out", default="build", metavar="DIR",
@@ -125,7 +129,8 @@ def run(args: argparse.Namespace) -> int:
                         channels=dict(args.channel), selection=args.selection,
                         max_delay_s=None if args.max_delay_h is None else args.max_delay_h * 3600,
                         n_blocks=args.blocks, seed=args.seed, fill_gaps=args.fill_gaps,
-                        tc_type=args.tc_type, quiet=args.json)
+                        tc_type=args.tc_type, max_channels=args.max_channels,
+                        quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"
     write_model(model, model_path)

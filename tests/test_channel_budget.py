@@ -1,0 +1,53 @@
+"""All axes together never ask the box for more thermocouple channels than it has."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from host.data import Run
+from host.train import TrainingError, train_model
+
+
+def _run(seed: int, n: int = 400) -> Run:
+    """12 independent heating curves; each axis is driven by its own disjoint set of 4."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n, dtype=float) * 60.0
+    taus = rng.uniform(1800, 20000, size=12)
+    amps = rng.uniform(3, 12, size=12)
+    T = 20 + amps * (1 - np.exp(-t[:, None] / taus)) + rng.normal(0, 0.02, size=(n, 12))
+    w = np.zeros((12, 3))
+    for axis in range(3):
+        w[axis * 4:(axis + 1) * 4, axis] = rng.uniform(1, 3, size=4)
+    d = (T - 20) @ w + rng.normal(0, 0.05, size=(n, 3))
+    names = [f"T{i:02d}" for i in range(1, 13)]
+    return Run(f"budget{seed}.csv", t, names, T, ["dx_um", "dy_um", "dz_um"], d)
+
+
+def test_union_of_axes_is_capped_at_the_box_channel_count():
+    runs = [_run(1), _run(2)]
+    wide = train_model(runs, ["dx_um", "dy_um", "dz_um"], max_sensors=4, effects=False)
+    wanted = {t["source"] for a in wide["axes"].values() for t in a["terms"]}
+    assert len(wanted) > 5  # the axes alone want more than the budget below
+    free = train_model(runs, ["dx_um", "dy_um", "dz_um"], max_sensors=4, effects=False,
+                       max_channels=5)
+    assert len(free["channels"]) == 5
+    used = {t["source"] for a in free["axes"].values() for t in a["terms"]}
+    assert used == {c["sensor"] for c in free["channels"]}
+    # the trace says which sensors were given up, and they are exactly the missing ones
+    dropped = set(free["axes"]["dx_um"]["selection"]["channel_budget"]["dropped"])
+    assert dropped == wanted - used
+    for axis in free["axes"].values():  # every axis kept at least one sensor
+        assert any(t["kind"] == "temp" for t in axis["terms"])
+
+
+def test_budget_leaves_axes_alone_when_it_fits():
+    model = train_model([_run(1), _run(2)], ["dx_um"], max_sensors=4, effects=False)
+    assert "channel_budget" not in model["axes"]["dx_um"]["selection"]
+
+
+def test_impossible_budgets_are_refused():
+    with pytest.raises(TrainingError, match="--max-sensors 5 exceeds --max-channels 4"):
+        train_model([_run(1)], ["dx_um"], max_sensors=5, max_channels=4)
+    with pytest.raises(TrainingError, match="--max-channels must be 1..8"):
+        train_model([_run(1)], ["dx_um"], max_channels=9)
