@@ -282,26 +282,30 @@ def step_fl(demo: Demo) -> tuple[list[Path], dict]:
     runs = result.get("runs", [result]) if isinstance(result, dict) else result
     for entry in runs:
         for axis, m in entry.get("axes", {}).items():
+            change = m["reduction_pct"]
+            verdict = f"{change:.0f} % less" if change >= 0 else f"{-change:.0f} % WORSE"
             demo.say(f"    {axis}: RMS {fmt_um(m['raw_rms_um'])} raw → {fmt_um(m['rmse_um'])} "
-                     f"compensated ({m['reduction_pct']:.0f} % less), worst "
-                     f"{fmt_um(m['max_abs_um'])}")
+                     f"compensated ({verdict}), worst {fmt_um(m['max_abs_um'])}")
     demo.done()
     return parts, model
 
 
 def print_error_table(demo: Demo, reports: list[tuple[str, dict]]) -> None:
-    demo.say("\nError before and after compensation (RMS over each run; 'seen' = training run):")
-    demo.say(f"    {'data':<10} {'run':<28} {'axis':<8} {'seen':<5} {'raw':>10} "
-             f"{'compensated':>12} {'reduction':>10}")
+    demo.say("\nError before and after compensation (RMS over each run; 'seen' = a training run;"
+             "\n'temps only' = the model before the close-the-loop effects were added):")
+    demo.say(f"    {'data':<10} {'run':<26} {'axis':<7} {'seen':<4} {'raw':>9} "
+             f"{'temps only':>11} {'compensated':>12} {'reduction':>9}")
     for label, summary in reports:
         for run_name, per_axis in summary["runs"].items():
             for axis, row in per_axis.items():
                 raw = row["raw_rms_um"]
                 ours = row["residual_rms_um"]["our model"]
+                stages = row.get("stages_rms_um") or []
+                base = f"{stages[0]['rms_um']:>8.2f} µm" if stages else f"{'—':>11}"
                 red = 100.0 * (1.0 - ours / raw) if raw else float("nan")
-                demo.say(f"    {label:<10} {run_name[:28]:<28} {axis:<8} "
-                         f"{'yes' if row['in_training'] else 'no':<5} {raw:>7.2f} µm "
-                         f"{ours:>9.2f} µm {red:>9.0f} %")
+                demo.say(f"    {label:<10} {run_name[:26]:<26} {axis:<7} "
+                         f"{'yes' if row['in_training'] else 'no':<4} {raw:>6.2f} µm {base} "
+                         f"{ours:>9.2f} µm {red:>7.0f} %")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -37,5 +37,11 @@ def test_error_table_shows_raw_compensated_and_reduction():
         "residual_rms_um": {"our model": 1.4, "OLS, all sensors": 3.0}}}}}
     print_error_table(Demo(out=out), [("simulated", summary)])
     row = [ln for ln in out.getvalue().splitlines() if "unseen_run" in ln][0]
-    assert row.split() == ["simulated", "unseen_run", "dz_um", "no", "20.00", "µm", "1.40",
+    assert row.split() == ["simulated", "unseen_run", "dz_um", "no", "20.00", "µm", "—", "1.40",
                            "µm", "93", "%"]  # 100 * (1 - 1.4 / 20) = 93
+    summary["runs"]["unseen_run"]["dz_um"]["stages_rms_um"] = [
+        {"stage": "baseline", "rms_um": 2.5}, {"stage": "+ lag", "rms_um": 1.4}]
+    out.truncate(0)
+    print_error_table(Demo(out=out), [("simulated", summary)])
+    row = [ln for ln in out.getvalue().splitlines() if "unseen_run" in ln][0]
+    assert row.split()[4:9] == ["20.00", "µm", "2.50", "µm", "1.40"]
