@@ -31,7 +31,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     expected = None
     if args.model:
-        from codegen.hashing import model_hash
+        from codegen import model_hash
         from host.model_io import read_model
 
         expected = model_hash(read_model(args.model))
