@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import fnmatch
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -143,25 +143,38 @@ def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapp
              "max_c": CHANNEL_MAX_C} for s in sorted(ordered, key=lambda s: mapping[s])]
 
 
-def _fit_channel_budget(selected: dict[str, tuple[list[Term], dict]], runs: list[Run],
-                        period_s: float, n_blocks: int, max_channels: int) -> list[str]:
-    """Drop sensors until all axes together fit the box's channels; the dropped sensors.
+Selected = dict[str, tuple[list[Term], dict]]  # per axis: terms and selection trace
 
-    Each axis keeps paper 000's selection; when their union is larger than ``max_channels``,
-    the sensor whose removal costs the least is dropped from every axis that uses it, and
-    this repeats. Cost = the sum over those axes of the relative rise of the out-of-fold
-    (validation) RMSE, so the budget is spent where it buys the most accuracy on unseen data.
+
+def _fit_channel_budget(selected: Selected, runs: list[Run], period_s: float, n_blocks: int,
+                        max_channels: int, reselect: Callable[[list[str]], Selected],
+                        ) -> tuple[Selected, dict | None]:
+    """Make all axes together fit the box's thermocouple channels.
+
+    Returns the per-axis selection that fits and a note for the trace (None when the axes'
+    own choices already fit). Two ways are tried and the one whose out-of-fold (validation)
+    RMSE rises least, summed over axes relative to each axis's unconstrained error, is kept:
+    - ``drop``: drop the sensor whose removal costs the least from every axis using it, repeat;
+    - ``shared-pool``: keep the ``max_channels`` sensors most axes chose (ties: larger |r|)
+      and run each axis's selection again on that pool only (lets an axis substitute).
     An axis never loses its last sensor.
     """
     def vrmse(target: str, terms: list[Term]) -> float:
         st = stack(runs, terms, target, period_s, n_blocks)
         return validation_rmse(st.X, st.y, st.groups)
 
+    def union_of(sel: Mapping[str, list[Term]]) -> set[str]:
+        return {term.source for terms in sel.values() for term in terms}
+
+    union = union_of({t: terms for t, (terms, _) in selected.items()})
+    if len(union) <= max_channels:
+        return selected, None
+    base = {t: vrmse(t, terms) for t, (terms, _) in selected.items()}
+
     current = {t: list(terms) for t, (terms, _) in selected.items()}
-    score = {t: vrmse(t, terms) for t, terms in current.items()}
+    score = dict(base)
     dropped: list[str] = []
-    while len(union := {term.source for terms in current.values() for term in terms}) \
-            > max_channels:
+    while len(union := union_of(current)) > max_channels:
         costs: dict[str, tuple[float, dict]] = {}
         for sensor in sorted(union):
             cost, trial = 0.0, {}
@@ -179,9 +192,29 @@ def _fit_channel_budget(selected: dict[str, tuple[list[Term], dict]], runs: list
         for target, (rest, err) in costs[sensor][1].items():
             current[target], score[target] = rest, err
         dropped.append(sensor)
-    for target, (_terms, trace) in selected.items():
-        selected[target] = (current[target], trace)
-    return dropped
+    by_drop = {t: (current[t], trace) for t, (_, trace) in selected.items()}
+
+    def rank(name: str) -> tuple[int, float]:
+        votes = sum(any(t.source == name for t in terms) for terms, _ in selected.values())
+        corr = max(abs(trace["correlations"].get(name, 0.0)) for _, trace in selected.values())
+        return votes, corr
+
+    pool = sorted(union_of({t: terms for t, (terms, _) in selected.items()}), key=rank,
+                  reverse=True)[:max_channels]
+    by_pool = reselect(pool)
+
+    def cost_of(sel: Selected) -> float:
+        return sum(vrmse(t, terms) / max(base[t], 1e-12) - 1.0 for t, (terms, _) in sel.items())
+
+    costs = {"drop": cost_of(by_drop), "shared-pool": cost_of(by_pool)}
+    strategy = min(costs, key=costs.get)
+    note = {"max_channels": max_channels, "strategy": strategy,
+            "dropped": dropped, "pool": pool,
+            "relative_validation_cost": {k: round(v, 4) for k, v in costs.items()}}
+    chosen = by_drop if strategy == "drop" else by_pool
+    if len(union_of({t: terms for t, (terms, _) in chosen.items()})) > max_channels:
+        raise AssertionError("channel budget not met")  # both strategies guarantee it
+    return chosen, note
 
 
 def _aux(axes: Mapping[str, dict], runs: list[Run]) -> list[dict]:
@@ -246,17 +279,21 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
 
     ys = {t: np.concatenate([r.target(t) for r in runs]) for t in targets}
 
-    def select(target: str) -> tuple[list[Term], dict]:
-        result = select_sensors(X, ys[target], run_ids, folds, period_s,
+    def select(target: str, pool: list[str] | None = None) -> tuple[list[Term], dict]:
+        cols = list(range(len(names))) if pool is None else [names.index(n) for n in pool]
+        result = select_sensors(X[:, cols], ys[target], run_ids, folds, period_s,
                                 n_groups=groups, max_sensors=max_sensors, method=selection,
                                 max_delay_s=max_delay_s, seed=seed, scheme=scheme)
-        return [make_temp(names[i]) for i in result.sensors], result.trace(names)
+        pool_names = [names[i] for i in cols]
+        return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
 
     selected = {t: select(t) for t in progress(targets, "selecting sensors", quiet=quiet)}
-    dropped = _fit_channel_budget(selected, runs, period_s, n_blocks, max_channels)
+    selected, budget = _fit_channel_budget(
+        selected, runs, period_s, n_blocks, max_channels,
+        reselect=lambda pool: {t: select(t, pool) for t in targets})
     for _terms, trace in selected.values():
-        if dropped:  # the axes together wanted more channels than the box has
-            trace["channel_budget"] = {"max_channels": max_channels, "dropped": dropped}
+        if budget:  # the axes together wanted more channels than the box has
+            trace["channel_budget"] = budget
 
     axes: dict[str, dict] = {}
     used: set[str] = {t.source for terms, _ in selected.values() for t in terms}
