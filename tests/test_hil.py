@@ -244,7 +244,8 @@ def test_a_box_that_stops_answering_fails_the_replay_and_says_where(fl_setup):
     # at sample 500, as a crashed box would stop talking.
     report, capture = hil_replay.run(fl_setup, [CodeOverride(500, 501, 0, 1 << 20)])
     assert not report.ok and report.problems_fatal
-    # (lines still in the pty when the process died may be gone with it)
-    assert 0 < report.received <= 500 and report.lost == report.samples - report.received
+    # (lines still in the pty when the process died may be gone with it: Linux discards a
+    # pty's buffer when the slave side closes, so under load even all 500 can be lost)
+    assert report.received <= 500 and report.lost == report.samples - report.received
     assert capture.sessions[0].exit_code == 2
     assert any("sample 500" in p or "closed" in p for p in report.problems), report.problems
