@@ -33,6 +33,7 @@ import numpy as np
 
 from host.data import Run
 from host.fit import fit_linear, rmse
+from host.selection import DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, select_sensors
 from host.terms import (
     ALPHA_FRAC_BITS,
     Term,
@@ -60,6 +61,9 @@ MAX_IDLE_LOSS = 0.05  # a fold that does not exercise it may get at most 5 % wor
 MAX_FOLD_SPREAD = 1.0  # the effect fitted without a fold keeps its shape (RMS change < size)
 PARSIMONY = 0.01  # a candidate with fewer terms within 1 % of the best is preferred
 MAX_EFFECTS = 3
+# Families of a measured input (shop air, spindle speed): the static selection may have picked
+# stand-ins for them, so they are also tried with the sensors re-selected (docs/effects.md).
+INPUT_KINDS = ("ambient", "speed")
 MAX_ERROR_UM = 0.01  # codegen's default --max-error-um
 STATE_SHARE = 0.75  # share of the codegen bound the filter states may use
 FINAL_ROUNDING_UM = 0.0005
@@ -78,21 +82,43 @@ class EffectsError(ValueError):
 
 @dataclass(frozen=True)
 class Candidate:
-    """One effect family: terms to add (and, for a swap, a term to remove)."""
+    """One effect family: terms to add (and, for a swap, terms to remove).
+
+    ``family`` is set when the candidate also re-selects the temperature sensors (an input's
+    family, see ``reselected_candidates``): ``add`` then holds the family *and* the newly
+    selected sensors, ``remove`` the sensors the re-selection gave up, and the effect itself
+    (its evidence, its contribution) is ``family`` alone.
+    """
 
     kind: str
     add: tuple[Term, ...]
     remove: tuple[Term, ...] = ()
+    family: tuple[Term, ...] = ()
+
+    @property
+    def effect_terms(self) -> tuple[Term, ...]:
+        return self.family or self.add
+
+    @property
+    def n_terms(self) -> int:
+        """Terms the model gains (a re-selection may also give some up)."""
+        return len(self.add) - len(self.remove)
 
     @property
     def feature(self) -> str:
+        if self.family:
+            moved = ([f"+{t.source}" for t in self.add if t not in self.family]
+                     + [f"-{t.source}" for t in self.remove])
+            return (f"{' + '.join(t.name for t in self.family)} "
+                    f"(sensors re-selected: {', '.join(moved)})")
         text = " + ".join(t.name for t in self.add)
         if self.remove:
             text = f"{text} instead of {' + '.join(t.name for t in self.remove)}"
         return text
 
     def apply(self, terms: Sequence[Term]) -> list[Term]:
-        return [t for t in terms if t not in self.remove] + list(self.add)
+        return [t for t in terms if t not in self.remove] + [t for t in self.add
+                                                              if t not in terms]
 
 
 def find_ambient(sensor_names: Sequence[str], ambient: str | None = None) -> str | None:
@@ -129,7 +155,8 @@ def generate_candidates(current: Sequence[Term], sensors: Sequence[str], aux: Se
       hysteresis; another sensor's lag stands in for an unmeasured part);
     - rate: rate(s, tau) of sensors whose temperature is not a term (for those that are,
       rate = T - lag spans the same model as lag and is reported as lag);
-    - ambient: the ambient sensor, and it with its lag;
+    - ambient: the ambient sensor, its lag (the frame follows the air through a first-order
+      lag), and both (a part that follows the air at once plus one that lags);
     - speed: n, and n with n^2, of every aux input (no lag: immediate growth);
     - drift: a slow trend (``time``);
     - nonlinear: (T - T_start)^2 of a sensor that is a term, or T and (T - T_start)^2 of one
@@ -236,6 +263,9 @@ class Scored:
     fold_spread: float = 0.0  # RMS change of the effect's contribution without a fold
     fold_active: np.ndarray | None = None  # folds in which the effect varies at all
     codegen: str | None = None  # why the box cannot run it, if it cannot
+    # a re-selected input family: the same re-selected sensors without the family, which it
+    # must beat by the same rule (so a better sensor choice is never credited to the input)
+    sensors_only: Scored | None = None
 
     def gain_over(self, ref: Scored) -> float:
         """Relative validation RMSE reduction against ``ref`` (0.1 = 10 % lower)."""
@@ -255,8 +285,14 @@ class Scored:
         return np.ones(n, dtype=bool) if self.fold_active is None else self.fold_active
 
     def passes(self, ref: Scored, rule: Rule | None = None) -> bool:
-        """The acceptance rule (see ``Rule``)."""
+        """The acceptance rule (see ``Rule``); a re-selected input family must pass it both
+        against the current model and against its re-selected sensors alone."""
         rule = rule or Rule()
+        if self.sensors_only is not None and not self._passes(self.sensors_only, rule):
+            return False
+        return self._passes(ref, rule)
+
+    def _passes(self, ref: Scored, rule: Rule) -> bool:
         gains, active = self.fold_gains(ref), self.active()
         return (self.gain_over(ref) >= rule.min_gain
                 and int(active.sum()) >= min(2, active.size)
@@ -265,6 +301,13 @@ class Scored:
                 and self.fold_spread <= rule.max_fold_spread)
 
     def evidence(self, ref: Scored) -> dict:
+        more = {}
+        if self.sensors_only is not None:
+            more = {"sensors_only_rmse_um": _round(self.sensors_only.validation_rmse_um, 4),
+                    "improvement_over_sensors_only_pct":
+                        _round(100.0 * self.gain_over(self.sensors_only), 2),
+                    "folds_improved_over_sensors_only":
+                        f"{self.folds_improved(self.sensors_only)}/{len(ref.fold_rmse_um)}"}
         return {
             "residual_corr": _round(self.residual_corr, 4),
             "folds_improved": f"{self.folds_improved(ref)}/{len(ref.fold_rmse_um)}",
@@ -273,6 +316,7 @@ class Scored:
             "fold_rmse_before_um": [_round(v, 4) for v in ref.fold_rmse_um],
             "fold_rmse_after_um": [_round(v, 4) for v in self.fold_rmse_um],
             "fold_spread": _round(self.fold_spread, 4),
+            **more,
         }
 
 
@@ -450,8 +494,10 @@ def score_candidates(cache: FeatureCache, y: np.ndarray, groups: np.ndarray,
     scored = []
     for cand in candidates:
         cols = [index[t] for t in cand.apply(current)]
-        new = [index[t] for t in cand.add]
+        new = [index[t] for t in cand.effect_terms]
         s = gram.score(cols, new, cand)
+        if cand.family:
+            s.sensors_only = gram.score([c for c in cols if c not in new], [])
         s.residual_corr = gram.partial_correlation(residual, q, base, new)
         scored.append(s)
     scored.sort(key=lambda s: s.validation_rmse_um)
@@ -467,9 +513,126 @@ def preferred(passing: Sequence[Scored]) -> list[Scored]:
     def key(s: Scored) -> tuple:
         assert s.candidate is not None
         near = s.validation_rmse_um <= best * (1.0 + PARSIMONY)
-        return (not near, len(s.candidate.add) if near else 0, s.validation_rmse_um)
+        return (not near, s.candidate.n_terms if near else 0, s.validation_rmse_um)
 
     return sorted(passing, key=key)
+
+
+# ------------------------------------------------------------------ inputs: re-selection
+
+
+@dataclass(frozen=True)
+class Reselection:
+    """How the baseline's sensors were selected, so an input's family can redo it.
+
+    Same method and group count as host.train's selection (from its trace); ``max_sensors``
+    is the most sensors a re-selection may keep.
+    """
+
+    method: str = "validated"
+    n_groups: int = DEFAULT_GROUPS
+    max_sensors: int = DEFAULT_MAX_SENSORS
+    seed: int = 0
+
+    @classmethod
+    def from_trace(cls, trace: Mapping | None, max_sensors: int = DEFAULT_MAX_SENSORS
+                   ) -> Reselection:
+        trace = trace or {}
+        groups = trace.get("groups") or []
+        return cls(method=str(trace.get("method", "validated")),
+                   n_groups=len(groups) or DEFAULT_GROUPS, max_sensors=int(max_sensors))
+
+
+def input_source(cand: Candidate) -> str | None:
+    """The measured input an input family is built on (the ambient sensor, an aux column)."""
+    if cand.kind not in INPUT_KINDS or cand.remove or cand.family:
+        return None
+    return str(cand.add[0].source)
+
+
+def reselected_candidates(cands: Sequence[Candidate], cache: FeatureCache, y: np.ndarray,
+                          groups: np.ndarray, run_ids: np.ndarray, current: Sequence[Term],
+                          sensors: Sequence[str], ambient: str | None, period_s: float,
+                          scheme: str, how: Reselection, allowed_new: int,
+                          baseline_sources: set[str]) -> list[Candidate]:
+    """An input's family with the temperature sensors selected again, given that input.
+
+    The air and the spindle speed reach the whole machine. A static selection, which sees
+    only temperatures, therefore picks thermocouples that stand in for them (the table and
+    the tank for the air's slow pull on the frame, a fast gearbox sensor for the spindle's
+    speed), and adding the input's own terms to that model leaves the stand-ins in it: they
+    are fitted to this run's coincidences and cost accuracy on another day. Per input
+    (the ambient sensor, every aux column) this takes the variant of its family that best
+    explains the target together with *every* thermocouple (no stand-in is needed there),
+    removes it and the model's other effect terms from the target and the temperatures
+    (Frisch-Waugh-Lovell), and runs host.selection again on what remains (same method, group
+    count and sensor limit). The candidate is that family plus the re-selected sensors
+    instead of the old ones; it is judged by the same rule as every other candidate. At most
+    ``allowed_new`` sensors outside ``baseline_sources`` may come in (host.train's channel
+    budget); the least useful newcomers are dropped until it fits.
+    """
+    pool = [s for s in sensors if s != ambient]
+    if not pool:
+        return []
+    by_source: dict[str, list[Candidate]] = {}
+    for c in cands:
+        src = input_source(c)
+        if src is not None:
+            by_source.setdefault(src, []).append(c)
+    temps = [make_temp(s) for s in pool]
+    fixed = [t for t in current if t.kind != "temp" or t.source == ambient]
+    out: list[Candidate] = []
+    for src, variants in by_source.items():
+        if any(t.source == src and t.kind != "temp" for t in current):
+            continue  # this input already has its family in the model
+        fam_terms = list(dict.fromkeys(t for c in variants for t in c.add))
+        allcols = temps + [t for t in fixed if t not in temps] + fam_terms
+        index = {t: i for i, t in enumerate(allcols)}
+        gram = GramScorer(cache.matrix(allcols), y, groups)
+        every = [index[t] for t in temps + fixed if t in index]
+        best = min(variants, key=lambda c: gram.score(
+            list(dict.fromkeys(every + [index[t] for t in c.add])), []).validation_rmse_um)
+        Z = np.column_stack([np.ones(y.size), *(cache.column(t) for t in fixed),
+                             *(cache.column(t) for t in best.add)])
+        YX = np.column_stack([y, cache.matrix(temps)])
+        coef, *_ = np.linalg.lstsq(Z, YX, rcond=None)
+        R = YX - Z @ coef
+        result = select_sensors(R[:, 1:], R[:, 0], run_ids, groups, period_s,
+                                n_groups=how.n_groups, max_sensors=how.max_sensors,
+                                method=how.method, seed=how.seed, scheme=scheme)
+        chosen = [temps[i] for i in result.sensors]
+        chosen = _within_budget(chosen, best.add, fixed, gram, index, allowed_new,
+                                baseline_sources)
+        if chosen is None:
+            continue
+        add = tuple(best.add) + tuple(t for t in chosen if t not in current)
+        remove = tuple(t for t in current if t.kind == "temp" and t.source != ambient
+                       and t not in chosen)
+        if not remove and add == tuple(best.add):
+            continue  # the selection keeps its sensors: the plain family is already a candidate
+        out.append(Candidate(best.kind, add, remove, family=tuple(best.add)))
+    return out
+
+
+def _within_budget(chosen: list[Term], family: Sequence[Term], fixed: Sequence[Term],
+                   gram: GramScorer, index: Mapping[Term, int], allowed_new: int,
+                   baseline_sources: set[str]) -> list[Term] | None:
+    """Drop the newcomers whose loss raises the validation RMSE least until the new sensors
+    (outside the baseline's) fit ``allowed_new``; None if the family alone does not fit."""
+    chosen = list(chosen)
+
+    def new_sources(ts: Sequence[Term]) -> set[str]:
+        return set(axis_sensors([*ts, *family, *fixed])) - baseline_sources
+
+    while len(new_sources(chosen)) > allowed_new:
+        newcomers = [t for t in chosen if t.source not in baseline_sources]
+        if not newcomers:
+            return None
+        def cost(t: Term) -> float:
+            keep = [index[u] for u in [*chosen, *fixed, *family] if u != t]
+            return gram.score(list(dict.fromkeys(keep)), []).validation_rmse_um
+        chosen.remove(min(newcomers, key=cost))
+    return chosen
 
 
 # ------------------------------------------------------------------ the box's limits
@@ -593,12 +756,16 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
                    *, ambient: str | None = None, aux: Sequence[str] | None = None,
                    max_effects: int = MAX_EFFECTS, n_blocks: int = DEFAULT_BLOCKS,
                    rule: Rule | None = None, max_error_um: float = MAX_ERROR_UM,
-                   taus: Iterable[float] = TAU_GRID_S, kinds: Iterable[str] = EFFECT_KINDS
-                   ) -> EffectsResult:
+                   taus: Iterable[float] = TAU_GRID_S, kinds: Iterable[str] = EFFECT_KINDS,
+                   selection: Mapping | None = None, max_sensors: int = DEFAULT_MAX_SENSORS,
+                   max_new_sensors: int | None = None) -> EffectsResult:
     """Add up to ``max_effects`` validated effects to the ``baseline`` terms of one axis.
 
     ``ambient`` is the ambient sensor (default: a sensor named like *amb*, if any); ``aux`` the
-    aux columns speed terms may use (default: every aux column of the runs).
+    aux columns speed terms may use (default: every aux column of the runs). ``selection``
+    (the baseline's selection trace) and ``max_sensors`` say how an input's family re-selects
+    the sensors; ``max_new_sensors`` (default ``max_effects``: host.train's channel budget
+    counts on at most one new sensor per effect) caps the sensors outside the baseline's.
     """
     runs = list(runs)
     rule = rule or Rule()
@@ -622,6 +789,14 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
     cache = FeatureCache(runs, period_s)
     refs = {s: start_reference(runs, s) for s in sensors}
 
+    run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
+    how = Reselection.from_trace(selection, max_sensors)
+    allowed_new = max_effects if max_new_sensors is None else int(max_new_sensors)
+    baseline_sources = set(axis_sensors(baseline))
+
+    def fits_budget(c: Candidate) -> bool:
+        return len(set(axis_sensors(c.apply(terms))) - baseline_sources) <= allowed_new
+
     terms = list(baseline)
     base_fit = fit_linear(cache.matrix(terms), y)
     added: list[dict] = []
@@ -634,6 +809,10 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
     while True:
         cands = [c for c in generate_candidates(terms, sensors, aux_names, ambient, period_s,
                                                 taus, refs) if c.kind in kinds]
+        cands += reselected_candidates(cands, cache, y, groups, run_ids, terms, sensors,
+                                       ambient, period_s, scheme, how, allowed_new,
+                                       baseline_sources)
+        cands = [c for c in cands if fits_budget(c)]
         ref, residual, scored = score_candidates(cache, y, groups, terms, cands)
         if baseline_score is None:
             baseline_score = ref
@@ -668,6 +847,7 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
             "feature": chosen.candidate.feature,
             "name": chosen.candidate.feature,
             "added": [t.to_json() for t in chosen.candidate.add],
+            **({"reselected": True} if chosen.candidate.family else {}),
             **({"removed": [t.to_json() for t in chosen.candidate.remove]}
                if chosen.candidate.remove else {}),
             "evidence": chosen.evidence(ref),
@@ -781,7 +961,7 @@ def axis_sensors(terms: Iterable[Term]) -> list[str]:
 def add_effects(axis: dict, *, runs: Sequence[Run], target: str, period_s: float,
                 n_blocks: int = DEFAULT_BLOCKS, ambient: str | None = None,
                 aux: Sequence[str] | None = None, max_error_um: float = MAX_ERROR_UM,
-                max_effects: int = MAX_EFFECTS) -> dict:
+                max_effects: int = MAX_EFFECTS, max_sensors: int = DEFAULT_MAX_SENSORS) -> dict:
     """host.train's effects hook: the baseline axis dict in, the final axis dict out.
 
     The final terms are refitted with host.train.fit_axis (same metrics as the baseline);
@@ -793,7 +973,8 @@ def add_effects(axis: dict, *, runs: Sequence[Run], target: str, period_s: float
     baseline = [Term.from_json(t) for t in axis["terms"]]
     result = search_effects(runs, target, baseline, period_s, ambient=ambient, aux=aux,
                             n_blocks=n_blocks, max_error_um=max_error_um,
-                            max_effects=max_effects)
+                            max_effects=max_effects, selection=axis.get("selection"),
+                            max_sensors=max_sensors)
     out = dict(axis)
     out.update(fit_axis(list(runs), target, result.terms, period_s, n_blocks))
     out.update(result.report)

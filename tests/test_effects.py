@@ -10,6 +10,7 @@ construction and from numpy, never from the code under test.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -175,6 +176,80 @@ def test_leave_one_run_out_with_two_runs():
     assert res.report["effects"][0]["kind"] == "speed"
     assert res.report["effects"][0]["evidence"]["folds_improved"] == "2/2"
     assert "leave-one-run-out" in res.report["effects_search"]["validation"]
+
+
+# ------------------------------------------------------------------ inputs: re-selection
+
+
+def with_stand_in(run: Run, seed: int) -> Run:
+    """``run`` plus T5, a small part next to the spindle motor (180 s time constant) that
+    follows the spindle speed: a static selection takes it as a stand-in for speed growth."""
+    rng = np.random.default_rng(seed + 100)
+    t5 = (lowpass(run.column("T_amb") + 15.0 * run.aux[:, 0] / 6000.0, 180.0)
+          + rng.normal(0.0, 0.02, run.n_samples))
+    return Run(run.path, run.time_s, [*run.sensor_names, "T5"],
+               np.column_stack([run.temperatures, t5]), run.target_names, run.displacements,
+               run.aux_names, run.aux)
+
+
+def numpy_fit(run: Run, columns: list[np.ndarray]) -> np.ndarray:
+    A = np.column_stack([np.ones(run.n_samples), *columns])
+    return np.linalg.lstsq(A, run.target("dz_um"), rcond=None)[0]
+
+
+def test_input_family_reselects_the_sensors_and_drops_the_stand_in():
+    train, test = with_stand_in(synth_run("speed", 1), 1), with_stand_in(synth_run("speed", 2), 2)
+    stand_in = [make_temp("T1"), make_temp("T5")]  # what a static selection could pick
+    res = search_effects([train], "dz_um", stand_in, DT)
+    first = res.report["effects"][0]
+    assert first["kind"] == "speed" and first["reselected"] is True
+    sources = {t.source for t in res.terms if t.kind == "temp"}
+    assert "T5" not in sources and "T3" in sources  # the column is in the truth, T5 is not
+    # independent check: speed added to the stand-in model (numpy) does far worse on another day
+    cols = lambda r: [r.column("T1"), r.column("T5"), r.aux[:, 0]]  # noqa: E731
+    beta = numpy_fit(train, cols(train))
+    plain = np.sqrt(np.mean((test.target("dz_um") - np.column_stack(
+        [np.ones(test.n_samples), *cols(test)]) @ beta) ** 2))
+    assert held_out_rmse(test, res.terms, res.coefs, res.intercept) < 0.5 * plain
+
+
+def _out_of_fold_rmse(run: Run, columns: list[np.ndarray]) -> float:
+    """Three contiguous blocks, each predicted by a numpy fit on the other two."""
+    n = run.n_samples
+    blocks = np.minimum(np.arange(n) * 3 // n, 2)
+    A = np.column_stack([np.ones(n), *columns])
+    y = run.target("dz_um")
+    err = np.empty(n)
+    for b in range(3):
+        out = blocks == b
+        beta = np.linalg.lstsq(A[~out], y[~out], rcond=None)[0]
+        err[out] = y[out] - A[out] @ beta
+    return float(np.sqrt(np.mean(err ** 2)))
+
+
+def test_reselected_input_is_not_credited_with_a_better_sensor_choice():
+    """No speed effect, and a baseline missing the column sensor: the re-selection given the
+    speed finds the column, which cuts the error by far more than 10 %; that gain belongs to
+    the sensors, so the speed family must also beat the re-selected sensors alone."""
+    run = with_stand_in(synth_run("none", 1), 1)
+    res = search_effects([run], "dz_um", [make_temp("T1")], DT)
+    assert "speed" not in {e["kind"] for e in res.report["effects"]}
+    row = next(r for r in res.report["effects_search"]["steps"][0]["best"]
+               if r["kind"] == "speed" and "re-selected" in r["feature"])
+    assert row["improvement_pct"] > 50 and row["passes"] is False
+    sensors = ["T1", *(m.group(1) for m in re.finditer(r"\+(\w+)", row["feature"]))]
+    alone = _out_of_fold_rmse(run, [run.column(s) for s in sensors])
+    assert row["sensors_only_rmse_um"] == pytest.approx(alone, abs=6e-5)  # rounded to 4 digits
+    assert row["improvement_over_sensors_only_pct"] < 10
+
+
+def test_reselection_keeps_to_the_new_sensor_budget():
+    run = with_stand_in(synth_run("speed", 3), 3)
+    base = [make_temp("T1"), make_temp("T5")]
+    for budget in (0, 1):
+        res = search_effects([run], "dz_um", base, DT, max_new_sensors=budget)
+        new = {t.source for t in res.terms if t.source in run.sensor_names} - {"T1", "T5"}
+        assert len(new) <= budget, res.report["effects"]
 
 
 # ------------------------------------------------------------------ the box's error bound

@@ -5,6 +5,12 @@ Train: the ``step`` protocol (6 h running, 4 h cooling, 60 s); judge: the ``rand
 of another seed (another day: other shop air, other noise). The baseline is the same
 `host train` with ``--no-effects``. Expectations come from the simulator's truth sidecar
 (which effect, which sensor drifts, which sensor sits on the table) and from numpy.
+
+Most scenarios train dy and dz together. The ``ambient`` and ``coolant`` scenarios train dz
+alone, the only axis those effects move (docs/simulator.md): two axes of five sensors each
+fill the box's eight thermocouple channels, and host.train then keeps the effect search to
+sensors that already have a channel, which shuts out the air sensor T_amb. That would test
+the channel budget, not the effect search (docs/effects.md, "Results").
 """
 
 from __future__ import annotations
@@ -12,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +33,8 @@ from host.terms import Term, design_matrix
 TRAIN = ["--protocol", "step", "--hours", "6", "--cool-hours", "4", "--dt", "60"]
 TEST = ["--protocol", "random", "--hours", "6", "--cool-hours", "4", "--dt", "60"]
 TARGETS = ["--target", "dy_um", "--target", "dz_um", "--aux", "spindle_rpm"]
+DZ_ONLY = ["--target", "dz_um", "--aux", "spindle_rpm"]
+SINGLE_AXIS = {"ambient", "coolant"}  # effects that move dz only, trained on dz alone
 
 
 def host(*args: str) -> str:
@@ -51,10 +60,11 @@ class Scenario:
         host("simulate", *TEST, *size, "--seed", str(seed + 100), "--effects", test_effects,
              "-o", str(self.test_csv))
         self.truth = load_truth(self.test_csv)
-        host("train", str(self.train_csv), *TARGETS, "--no-effects", "--no-codegen",
+        targets = DZ_ONLY if effect in SINGLE_AXIS else TARGETS
+        host("train", str(self.train_csv), *targets, "--no-effects", "--no-codegen",
              "--out", str(d / "baseline"))
         # with effects, codegen runs too: train fails if the box could not run the model
-        self.summary = json.loads(host("train", str(self.train_csv), *TARGETS, "--json",
+        self.summary = json.loads(host("train", str(self.train_csv), *targets, "--json",
                                        "--out", str(d / "effects")))
         self.baseline = json.loads((d / "baseline" / "model.json").read_text())
         self.model = json.loads((d / "effects" / "model.json").read_text())
@@ -86,14 +96,20 @@ def scenario(tmp_path_factory):
     return get
 
 
-# The axis each effect moves most (simulator defaults, docs/simulator.md).
-@pytest.mark.parametrize("effect,axis,kinds", [
-    ("lag", "dz_um", {"lag", "rate"}),
-    ("speed", "dz_um", {"speed"}),
-    ("nonlinear", "dy_um", {"nonlinear"}),
+# The axis each effect moves most (simulator defaults, docs/simulator.md); the issue asks for
+# the requirement on every scenario, so ambient and speed are held to it on three days each.
+@pytest.mark.parametrize("effect,seed,axis,kinds", [
+    ("lag", 0, "dz_um", {"lag", "rate"}),
+    ("speed", 0, "dz_um", {"speed"}),
+    ("speed", 1, "dz_um", {"speed"}),
+    ("speed", 2, "dz_um", {"speed"}),
+    ("nonlinear", 0, "dy_um", {"nonlinear"}),
+    ("ambient", 0, "dz_um", {"ambient"}),
+    ("ambient", 1, "dz_um", {"ambient"}),
+    ("ambient", 2, "dz_um", {"ambient"}),
 ])
-def test_injected_effect_is_named_and_held_out_error_drops(scenario, effect, axis, kinds):
-    s = scenario(effect)
+def test_injected_effect_is_named_and_held_out_error_drops(scenario, effect, seed, axis, kinds):
+    s = scenario(effect, seed)
     assert set(s.kinds(axis)) & kinds, s.model["axes"][axis]["effects"]
     before, after = s.held_out(s.baseline, axis), s.held_out(s.model, axis)
     assert after <= 0.6 * before, (before, after)
@@ -126,17 +142,30 @@ def test_codegen_bound_holds_and_matches_the_filter_state_estimate(scenario, eff
         assert fp["state_quantisation_um"] == pytest.approx(mine, rel=1e-9, abs=1e-15)
 
 
-def test_ambient_effect_is_never_a_false_claim(scenario):
-    """The issue asks for `ambient` to be named; on this simulator it is not (the table and
-    tank thermocouples follow shop air and the selection takes them as proxies inside one run;
-    docs/effects.md). What must hold: no effect worsens the other day, and what the training
-    run cannot explain is said plainly."""
-    s = scenario("ambient")
-    for axis in ("dy_um", "dz_um"):
-        spec = s.model["axes"][axis]
-        assert s.held_out(s.model, axis) <= 1.1 * s.held_out(s.baseline, axis)
-        assert spec["effects"] or spec["unexplained"] is not None or (
-            spec["effects_search"]["residual"]["above_noise"] is False)
+@pytest.mark.parametrize("effect,seed", [("ambient", 0), ("ambient", 1), ("ambient", 2),
+                                         ("speed", 1)])
+def test_input_effect_replaces_the_stand_in_sensors(scenario, effect, seed):
+    """The air and the spindle speed reach the whole machine, so the static selection picks
+    thermocouples that stand in for them; the input's family comes with the sensors selected
+    again, and what the model keeps is the input's own term (the truth's matching term for the
+    air: its lag at the frame's time constant) instead of stand-ins for it."""
+    s = scenario(effect, seed)
+    spec = s.model["axes"]["dz_um"]
+    first = spec["effects"][0]
+    assert first["kind"] == effect and first.get("reselected") is True
+    ev = first["evidence"]
+    # the input itself must beat the re-selected sensors alone by the same rule
+    assert ev["improvement_over_sensors_only_pct"] >= 10.0
+    assert ev["folds_improved_over_sensors_only"] in ("2/3", "3/3")
+    final = {(t["kind"], t["source"]) for t in spec["terms"]}
+    if effect == "ambient":
+        truth = s.truth["effects"]["ambient"]["matching_terms"]
+        lag = next(m for m in truth if m["kind"] == "lag")
+        taus = [t["tau_s"] for t in spec["terms"] if t["kind"] == "lag"
+                and t["source"] == lag["source"]]
+        assert taus and min(abs(math.log(t / lag["tau_s"])) for t in taus) < math.log(2)
+    else:
+        assert ("speed2", "spindle_rpm") in final
 
 
 def test_no_effect_nothing_added_on_eight_of_ten_seeds(scenario):
@@ -184,4 +213,4 @@ def test_diagnose_accuses_no_healthy_sensor(scenario, effect):
     doc = json.loads(host("diagnose", str(s.header.parent / "model.json"), str(s.test_csv),
                           "--json"))
     assert doc["faulty"] == []
-    assert set(doc["axes"]) == {"dy_um", "dz_um"}
+    assert set(doc["axes"]) == set(s.model["axes"])
