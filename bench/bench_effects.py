@@ -4,7 +4,7 @@ Simulated: `host simulate` injects one effect (or none); `host train` learns on 
 run (6 h + 4 h cooling, 60 s) and is judged on a ``random`` run of another seed. Scenarios
 train dy and dz together, except ``ambient`` and ``coolant`` (dz alone, the one axis they
 move: with two axes the box's 8-channel budget keeps the search to wired sensors and shuts
-out T_amb; the ``ambient, dy+dz`` rows show that case). Measured:
+out T_amb; the ``..., dy+dz`` and ``nonlinear, dy alone`` rows show the other case). Measured:
 examples/fl_thermal_steps.csv, trained on the first three heat/cool cycles (0-24 h), judged on
 the fourth (24-32 h). docs/effects.md discusses the table.
 """
@@ -32,9 +32,11 @@ DZ = ["dz_um"]
 SCENARIOS = (("lag", "lag", "dz_um", {"lag", "rate"}, TARGETS),
              ("speed", "speed", "dz_um", {"speed"}, TARGETS),
              ("nonlinear", "nonlinear", "dy_um", {"nonlinear"}, TARGETS),
+             ("nonlinear, dy alone", "nonlinear", "dy_um", {"nonlinear"}, ["dy_um"]),
              ("ambient", "ambient", "dz_um", {"ambient"}, DZ),
              ("ambient, dy+dz", "ambient", "dz_um", {"ambient"}, TARGETS),
              ("coolant", "coolant", "dz_um", set(), DZ),
+             ("coolant, dy+dz", "coolant", "dz_um", set(), TARGETS),
              ("none", "none", "dz_um", set(), TARGETS))
 
 
