@@ -8,7 +8,10 @@ fixed-point contract). Starting from the baseline selection, ``search_effects``:
 1. takes the *out-of-fold* residual of the current model (leave-one-run-out, or contiguous
    time blocks of one run: host/validation.py), never the training residual alone;
 2. scores every candidate family: its partial correlation with that residual (evidence only)
-   and the out-of-fold RMSE of the current terms plus the family, per fold and overall;
+   and the out-of-fold RMSE of the current terms plus the family, per fold and overall; the
+   families of a measured input (shop air, spindle speed) are also scored with the sensors
+   re-selected given that input, because a static selection picks stand-ins for an input
+   (``reselected_candidates``), and must then also beat the re-selected sensors alone;
 3. adds the best candidate only if it is material and stable (the rule, ``passes``): at least
    ``MIN_GAIN`` (10 %) lower validation RMSE *and* a lower held-out RMSE in every fold. The
    thresholds are fixed a priori for unseen runs, not tuned to a dataset;
@@ -758,14 +761,16 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
                    rule: Rule | None = None, max_error_um: float = MAX_ERROR_UM,
                    taus: Iterable[float] = TAU_GRID_S, kinds: Iterable[str] = EFFECT_KINDS,
                    selection: Mapping | None = None, max_sensors: int = DEFAULT_MAX_SENSORS,
-                   max_new_sensors: int | None = None) -> EffectsResult:
+                   max_new_sensors: int | None = None, channels_in_use: Iterable[str] = ()
+                   ) -> EffectsResult:
     """Add up to ``max_effects`` validated effects to the ``baseline`` terms of one axis.
 
     ``ambient`` is the ambient sensor (default: a sensor named like *amb*, if any); ``aux`` the
     aux columns speed terms may use (default: every aux column of the runs). ``selection``
     (the baseline's selection trace) and ``max_sensors`` say how an input's family re-selects
     the sensors; ``max_new_sensors`` (default ``max_effects``: host.train's channel budget
-    counts on at most one new sensor per effect) caps the sensors outside the baseline's.
+    counts on at most one new sensor per effect) caps the sensors outside the baseline's and
+    ``channels_in_use`` (sensors another axis already wires, which cost no channel).
     """
     runs = list(runs)
     rule = rule or Rule()
@@ -792,7 +797,7 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
     run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
     how = Reselection.from_trace(selection, max_sensors)
     allowed_new = max_effects if max_new_sensors is None else int(max_new_sensors)
-    baseline_sources = set(axis_sensors(baseline))
+    baseline_sources = set(axis_sensors(baseline)) | set(channels_in_use)
 
     def fits_budget(c: Candidate) -> bool:
         return len(set(axis_sensors(c.apply(terms))) - baseline_sources) <= allowed_new
@@ -961,12 +966,14 @@ def axis_sensors(terms: Iterable[Term]) -> list[str]:
 def add_effects(axis: dict, *, runs: Sequence[Run], target: str, period_s: float,
                 n_blocks: int = DEFAULT_BLOCKS, ambient: str | None = None,
                 aux: Sequence[str] | None = None, max_error_um: float = MAX_ERROR_UM,
-                max_effects: int = MAX_EFFECTS, max_sensors: int = DEFAULT_MAX_SENSORS) -> dict:
+                max_effects: int = MAX_EFFECTS, max_sensors: int = DEFAULT_MAX_SENSORS,
+                max_new_sensors: int | None = None, channels_in_use: Iterable[str] = ()) -> dict:
     """host.train's effects hook: the baseline axis dict in, the final axis dict out.
 
     The final terms are refitted with host.train.fit_axis (same metrics as the baseline);
     the axis gains ``baseline_validation_rmse_um``, ``effects``, ``unexplained``, ``baseline``,
     ``effects_search`` and ``sensor_reference`` (used by ``host diagnose``).
+    ``max_sensors``, ``max_new_sensors`` and ``channels_in_use``: see ``search_effects``.
     """
     from host.train import fit_axis  # train calls this hook: import here, not at the top
 
@@ -974,7 +981,8 @@ def add_effects(axis: dict, *, runs: Sequence[Run], target: str, period_s: float
     result = search_effects(runs, target, baseline, period_s, ambient=ambient, aux=aux,
                             n_blocks=n_blocks, max_error_um=max_error_um,
                             max_effects=max_effects, selection=axis.get("selection"),
-                            max_sensors=max_sensors)
+                            max_sensors=max_sensors, max_new_sensors=max_new_sensors,
+                            channels_in_use=channels_in_use)
     out = dict(axis)
     out.update(fit_axis(list(runs), target, result.terms, period_s, n_blocks))
     out.update(result.report)

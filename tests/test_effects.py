@@ -250,6 +250,11 @@ def test_reselection_keeps_to_the_new_sensor_budget():
         res = search_effects([run], "dz_um", base, DT, max_new_sensors=budget)
         new = {t.source for t in res.terms if t.source in run.sensor_names} - {"T1", "T5"}
         assert len(new) <= budget, res.report["effects"]
+    # sensors another axis already wires cost no channel: the column sensor may come in
+    res = search_effects([run], "dz_um", base, DT, max_new_sensors=0,
+                         channels_in_use=["T2", "T3", "T4"])
+    used = {t.source for t in res.terms if t.source in run.sensor_names}
+    assert "T3" in used and used <= {"T1", "T2", "T3", "T4", "T5"}
 
 
 # ------------------------------------------------------------------ the box's error bound
