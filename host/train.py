@@ -33,7 +33,6 @@ from host.validation import common_period, fold_groups, stack, validation_rmse
 
 TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
 MAX_CHANNELS = 8  # MAX31856 chip selects on the box (firmware BOX_MAX_CHANNELS, PC0..PC7)
-MAX_EFFECTS_PER_AXIS = 3  # host.effects adds at most this many effects, each <= 1 new sensor
 DEFAULT_TC_TYPE = "K"
 CHANNEL_MIN_C = -40.0
 CHANNEL_MAX_C = 200.0
@@ -108,7 +107,8 @@ def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
 
 # --- issue 7 hook -------------------------------------------------------------------------
 def _add_effects(axis: dict, *, runs: list[Run], target: str, period_s: float, n_blocks: int,
-                 enabled: bool, ambient: str | None = None) -> dict:
+                 enabled: bool, ambient: str | None = None, max_sensors: int,
+                 max_new_sensors: int, channels_in_use: list[str]) -> dict:
     """EFFECTS HOOK (issue 7, host/effects.py): add validated dynamic/aux effects to the
     fitted baseline axis and return the final axis dict (terms refitted, metrics on the final
     model, plus ``effects``, ``unexplained``, ``baseline``, ``effects_search`` and
@@ -118,7 +118,15 @@ def _add_effects(axis: dict, *, runs: list[Run], target: str, period_s: float, n
     from host.effects import add_effects
 
     return add_effects(axis, runs=runs, target=target, period_s=period_s, n_blocks=n_blocks,
-                       ambient=ambient)
+                       ambient=ambient, max_sensors=max_sensors,
+                       max_new_sensors=max_new_sensors, channels_in_use=channels_in_use)
+
+
+def _ambient_sensor(names: list[str], ambient: str | None) -> str | None:
+    """The shop-air sensor the effects step would use (host.effects.find_ambient)."""
+    from host.effects import find_ambient
+
+    return find_ambient(names, ambient)
 # ------------------------------------------------------------------------------------------
 
 
@@ -288,37 +296,44 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
 
     selected = {t: select(t) for t in progress(targets, "selecting sensors", quiet=quiet)}
+    # Keep one channel free for the shop-air sensor when there is one and effects may use it:
+    # paper 002 measured 15 um from ambient alone, and the static selection cannot see that
+    # T_amb will matter on another day (docs/effects.md).
+    air = _ambient_sensor(names, ambient) if effects else None
+    reserve = int(air is not None and max_channels > 1
+                  and all(t.source != air for terms, _ in selected.values() for t in terms))
     selected, budget = _fit_channel_budget(
-        selected, runs, period_s, n_blocks, max_channels,
+        selected, runs, period_s, n_blocks, max_channels - reserve,
         reselect=lambda pool: {t: select(t, pool) for t in targets})
     for _terms, trace in selected.values():
         if budget:  # the axes together wanted more channels than the box has
-            trace["channel_budget"] = budget
+            trace["channel_budget"] = {**budget, "reserved_for": air if reserve else None}
 
     axes: dict[str, dict] = {}
-    used: set[str] = {t.source for terms, _ in selected.values() for t in terms}
+    wired = {t: {term.source for term in terms} for t, (terms, _) in selected.items()}
     for target in progress(targets, "fitting axes and effects", quiet=quiet):
         terms, trace = selected[target]
         axis = fit_axis(runs, target, terms, period_s, n_blocks)
         axis["selection"] = trace
         axis["baseline_validation_rmse_um"] = axis["metrics"]["validation_rmse_um"]
         axis["effects"] = []
-        # Effects may bring in new sensors (at most one per effect): when the box's channel
-        # budget could not take that, they may only use sensors that already have a channel.
-        room = len(used) + MAX_EFFECTS_PER_AXIS <= max_channels
-        effect_runs = runs if room else _as_runs(runs, targets, sorted(used, key=names.index),
-                                                 aux, 0)
-        axis = _add_effects(axis, runs=effect_runs, target=target, period_s=period_s,
-                            n_blocks=n_blocks, enabled=effects,
-                            ambient=ambient if room or ambient in used else None)
+        # The effect search may bring in new sensors only as far as free channels allow;
+        # sensors other axes already wire cost nothing.
+        others = set().union(*(v for k, v in wired.items() if k != target))
+        free = max_channels - len(others | wired[target])
+        axis = _add_effects(axis, runs=runs, target=target, period_s=period_s,
+                            n_blocks=n_blocks, enabled=effects, ambient=ambient,
+                            max_sensors=max_sensors, max_new_sensors=max(0, free),
+                            channels_in_use=sorted(others))
         final_terms = [Term.from_json(t) for t in axis["terms"]]
         if final_terms != terms:  # effects changed the terms: refit, metrics on the final model
             axis.update(fit_axis(runs, target, final_terms, period_s, n_blocks))
-        used |= {t.source for t in final_terms if t.kind in TEMPERATURE_KINDS}
+        wired[target] = {t.source for t in final_terms if t.kind in TEMPERATURE_KINDS}
         axes[target] = axis
+    used = set().union(*wired.values())
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
-        raise TrainingError(f"model needs {len(used)} thermocouple channels, the box has "
-                            f"{max_channels}")
+        raise TrainingError(f"model needs {len(used)} thermocouple channels "
+                            f"({', '.join(sorted(used))}), the box has {max_channels}")
 
     return {
         "schema": SCHEMA,
