@@ -64,6 +64,7 @@ MAX_IDLE_LOSS = 0.05  # a fold that does not exercise it may get at most 5 % wor
 MAX_FOLD_SPREAD = 1.0  # the effect fitted without a fold keeps its shape (RMS change < size)
 PARSIMONY = 0.01  # a candidate with fewer terms within 1 % of the best is preferred
 MAX_EFFECTS = 3
+MAX_SEARCH_ROWS = 20_000  # the search scores at most about this many samples (search_stride)
 # Families of a measured input (shop air, spindle speed): the static selection may have picked
 # stand-ins for them, so they are also tried with the sensors re-selected (docs/effects.md).
 INPUT_KINDS = ("ambient", "speed")
@@ -206,22 +207,43 @@ def generate_candidates(current: Sequence[Term], sensors: Sequence[str], aux: Se
 # ------------------------------------------------------------------ scoring
 
 
+def search_stride(runs: Sequence[Run], max_rows: int = MAX_SEARCH_ROWS) -> int:
+    """Every how-many-th sample the search scores, so it sees at most about ``max_rows``.
+
+    Thermal signals change over minutes; a 24 h run at 1 s has far more rows than the
+    comparison of candidates needs, and scoring ~1000 candidate columns at full rate costs
+    gigabytes. Features are still computed at the full rate (filters run on every sample, as
+    on the box) and the final model is refitted on every sample (host.train.fit_axis).
+    """
+    return max(1, math.ceil(sum(r.n_samples for r in runs) / max_rows))
+
+
+def every_nth(runs: Sequence[Run], stride: int, values: np.ndarray) -> np.ndarray:
+    """Keep every ``stride``-th row of each run within stacked per-sample ``values``."""
+    keep, offset = [], 0
+    for r in runs:
+        keep.append(offset + np.arange(0, r.n_samples, stride))
+        offset += r.n_samples
+    return values[np.concatenate(keep)]
+
+
 class FeatureCache:
     """Term values on every run, stacked, each computed once (filters run per whole run)."""
 
-    def __init__(self, runs: Sequence[Run], period_s: float) -> None:
+    def __init__(self, runs: Sequence[Run], period_s: float, stride: int = 1) -> None:
         self.columns = [r.columns() for r in runs]
         self.period_s = period_s
+        self.stride = stride
         self._cache: dict[Term, np.ndarray] = {}
 
     def column(self, term: Term) -> np.ndarray:
         if term not in self._cache:
             self._cache[term] = np.concatenate(
-                [term_values(term, cols, self.period_s) for cols in self.columns])
+                [term_values(term, cols, self.period_s)[::self.stride] for cols in self.columns])
         return self._cache[term]
 
     def matrix(self, terms: Sequence[Term]) -> np.ndarray:
-        n = sum(len(c["time_s"]) for c in self.columns)
+        n = sum(len(c["time_s"][::self.stride]) for c in self.columns)
         if not terms:
             return np.empty((n, 0))
         return np.column_stack([self.column(t) for t in terms])
@@ -697,12 +719,16 @@ def noise_floor(y: np.ndarray, segments: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(6.0))
 
 
-def residual_structure(residual: np.ndarray, y: np.ndarray, segments: np.ndarray) -> dict:
-    """Is there structure left? lag-1 autocorrelation vs white noise, RMSE vs noise floor."""
+def residual_structure(residual: np.ndarray, y: np.ndarray, segments: np.ndarray,
+                       floor: float | None = None) -> dict:
+    """Is there structure left? lag-1 autocorrelation vs white noise, RMSE vs noise floor.
+
+    ``floor``: the gauge noise if already known (from the full-rate signal: second
+    differences of a thinned-out signal would count thermal curvature as noise)."""
     n = residual.size
     white = 2.0 / math.sqrt(max(n, 1))
     ac = lag1_autocorrelation(residual, segments)
-    floor = noise_floor(y, segments)
+    floor = noise_floor(y, segments) if floor is None else floor
     res = rmse(residual)
     above_noise = res > NOISE_MULTIPLE * floor
     structured = above_noise and ac > max(AUTOCORR_LIMIT, white)
@@ -789,12 +815,16 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
     ambient = find_ambient(sensors, ambient)
     shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
     taus = tau_grid(period_s, shortest, taus)
-    groups, scheme = fold_groups(runs, n_blocks)
-    y = np.concatenate([r.target(target) for r in runs])
-    cache = FeatureCache(runs, period_s)
+    stride = search_stride(runs)
+    groups_full, scheme = fold_groups(runs, n_blocks)
+    y_full = np.concatenate([r.target(target) for r in runs])
+    floor = noise_floor(y_full, groups_full)
+    groups, y = every_nth(runs, stride, groups_full), every_nth(runs, stride, y_full)
+    cache = FeatureCache(runs, period_s, stride)
     refs = {s: start_reference(runs, s) for s in sensors}
 
-    run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
+    run_ids = every_nth(runs, stride, np.concatenate([np.full(r.n_samples, i)
+                                                      for i, r in enumerate(runs)]))
     how = Reselection.from_trace(selection, max_sensors)
     allowed_new = max_effects if max_new_sensors is None else int(max_new_sensors)
     baseline_sources = set(axis_sensors(baseline)) | set(channels_in_use)
@@ -824,7 +854,7 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
         if len(added) >= max_effects:
             max_reached = True
             break
-        if not residual_structure(residual, y, groups)["above_noise"]:
+        if not residual_structure(residual, y, groups, floor)["above_noise"]:
             break  # the residual is at the gauge's noise: no effect to look for
         n_tested += len(scored)
         chosen: Scored | None = None
@@ -864,7 +894,7 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
 
     assert baseline_score is not None
     final = fit_linear(cache.matrix(terms), y)
-    structure = residual_structure(residual, y, groups)
+    structure = residual_structure(residual, y, groups, floor)
     unexplained = None
     if structure["structured"]:
         unexplained = {k: structure[k] for k in ("lag1_autocorr", "white_noise_limit",
