@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from fractions import Fraction
@@ -16,6 +14,7 @@ from codegen.errors import CodegenError
 from codegen.quantise import ACC_LIMIT, HEADER_FORMAT, QModel, quantise
 from codegen.render import render
 from host import __version__ as CODEGEN_VERSION
+from host.model_io import write_text_atomic
 
 DEFAULT_MAX_ERROR_UM = 0.01
 
@@ -99,21 +98,6 @@ def generate(model: Mapping, max_error_um: float = DEFAULT_MAX_ERROR_UM) -> Gene
                            tuple(bounds), crc)
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    """Write via a temp file in the same directory and rename: never a half-written file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def load_model(path: str | Path) -> dict:
     path = Path(path)
     try:
@@ -142,7 +126,7 @@ def write_header(model_json_path: str | Path, header_path: str | Path,
         gen = generate(model, max_error_um)
     except CodegenError as exc:
         raise CodegenError(f"{model_json_path}: {exc}") from None
-    _atomic_write(header_path, gen.text)
+    write_text_atomic(header_path, gen.text)
     model["fixed_point"] = gen.fixed_point
-    _atomic_write(model_json_path, json.dumps(model, indent=2) + "\n")
+    write_text_atomic(model_json_path, json.dumps(model, indent=2) + "\n")
     return header_path
