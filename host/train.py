@@ -108,7 +108,7 @@ def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
 # --- issue 7 hook -------------------------------------------------------------------------
 def _add_effects(axis: dict, *, runs: list[Run], target: str, period_s: float, n_blocks: int,
                  enabled: bool, ambient: str | None = None, max_sensors: int,
-                 max_new_sensors: int, channels_in_use: list[str]) -> dict:
+                 channels_in_use: list[str]) -> dict:
     """EFFECTS HOOK (issue 7, host/effects.py): add validated dynamic/aux effects to the
     fitted baseline axis and return the final axis dict (terms refitted, metrics on the final
     model, plus ``effects``, ``unexplained``, ``baseline``, ``effects_search`` and
@@ -119,15 +119,7 @@ def _add_effects(axis: dict, *, runs: list[Run], target: str, period_s: float, n
 
     return add_effects(axis, runs=runs, target=target, period_s=period_s, n_blocks=n_blocks,
                        ambient=ambient, max_sensors=max_sensors,
-                       max_new_sensors=max_new_sensors, channels_in_use=channels_in_use)
-
-
-def _ambient_sensor(names: list[str], ambient: str | None) -> str | None:
-    """The shop-air sensor the effects step would use (host.effects.find_ambient)."""
-    from host.effects import find_ambient
-
-    return find_ambient(names, ambient)
-# ------------------------------------------------------------------------------------------
+                       channels_in_use=channels_in_use)
 
 
 def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapping[str, int],
@@ -154,35 +146,21 @@ def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapp
 Selected = dict[str, tuple[list[Term], dict]]  # per axis: terms and selection trace
 
 
-def _fit_channel_budget(selected: Selected, runs: list[Run], period_s: float, n_blocks: int,
-                        max_channels: int, reselect: Callable[[list[str]], Selected],
-                        ) -> tuple[Selected, dict | None]:
-    """Make all axes together fit the box's thermocouple channels.
+def _channels_of(sel: Mapping[str, list[Term]]) -> set[str]:
+    """Thermocouples the terms of all axes need (aux inputs and `time` need none)."""
+    return {t.source for terms in sel.values() for t in terms if t.kind in TEMPERATURE_KINDS}
 
-    Returns the per-axis selection that fits and a note for the trace (None when the axes'
-    own choices already fit). Two ways are tried and the one whose out-of-fold (validation)
-    RMSE rises least, summed over axes relative to each axis's unconstrained error, is kept:
-    - ``drop``: drop the sensor whose removal costs the least from every axis using it, repeat;
-    - ``shared-pool``: keep the ``max_channels`` sensors most axes chose (ties: larger |r|)
-      and run each axis's selection again on that pool only (lets an axis substitute).
-    An axis never loses its last sensor.
+
+def _drop_to_budget(current: Mapping[str, list[Term]], vrmse: Callable[[str, list[Term]], float],
+                    max_channels: int) -> tuple[dict[str, list[Term]], list[str]]:
+    """Drop the sensor whose removal (with every term built on it, from every axis) raises the
+    out-of-fold RMSE least, relative to each axis's current error; repeat until the sensors
+    fit ``max_channels``. An axis never loses its last term. Returns the terms and the drops.
     """
-    def vrmse(target: str, terms: list[Term]) -> float:
-        st = stack(runs, terms, target, period_s, n_blocks)
-        return validation_rmse(st.X, st.y, st.groups)
-
-    def union_of(sel: Mapping[str, list[Term]]) -> set[str]:
-        return {term.source for terms in sel.values() for term in terms}
-
-    union = union_of({t: terms for t, (terms, _) in selected.items()})
-    if len(union) <= max_channels:
-        return selected, None
-    base = {t: vrmse(t, terms) for t, (terms, _) in selected.items()}
-
-    current = {t: list(terms) for t, (terms, _) in selected.items()}
-    score = dict(base)
+    current = {t: list(terms) for t, terms in current.items()}
+    score = {t: vrmse(t, terms) for t, terms in current.items()}
     dropped: list[str] = []
-    while len(union := union_of(current)) > max_channels:
+    while len(union := _channels_of(current)) > max_channels:
         costs: dict[str, tuple[float, dict]] = {}
         for sensor in sorted(union):
             cost, trial = 0.0, {}
@@ -200,6 +178,28 @@ def _fit_channel_budget(selected: Selected, runs: list[Run], period_s: float, n_
         for target, (rest, err) in costs[sensor][1].items():
             current[target], score[target] = rest, err
         dropped.append(sensor)
+    return current, dropped
+
+
+def _fit_channel_budget(selected: Selected, max_channels: int,
+                        vrmse: Callable[[str, list[Term]], float],
+                        reselect: Callable[[list[str]], Selected],
+                        ) -> tuple[Selected, dict | None]:
+    """Make all axes' selected sensors together fit the box's thermocouple channels.
+
+    Returns the per-axis selection that fits and a note for the trace (None when the axes'
+    own choices already fit). Two ways are tried and the one whose out-of-fold (validation)
+    RMSE rises least, summed over axes relative to each axis's unconstrained error, is kept:
+    - ``drop``: _drop_to_budget;
+    - ``shared-pool``: keep the ``max_channels`` sensors most axes chose (ties: larger |r|)
+      and run each axis's selection again on that pool only (lets an axis substitute).
+    """
+    terms_of = {t: terms for t, (terms, _) in selected.items()}
+    union = _channels_of(terms_of)
+    if len(union) <= max_channels:
+        return selected, None
+    base = {t: vrmse(t, terms) for t, terms in terms_of.items()}
+    current, dropped = _drop_to_budget(terms_of, vrmse, max_channels)
     by_drop = {t: (current[t], trace) for t, (_, trace) in selected.items()}
 
     def rank(name: str) -> tuple[int, float]:
@@ -207,8 +207,7 @@ def _fit_channel_budget(selected: Selected, runs: list[Run], period_s: float, n_
         corr = max(abs(trace["correlations"].get(name, 0.0)) for _, trace in selected.values())
         return votes, corr
 
-    pool = sorted(union_of({t: terms for t, (terms, _) in selected.items()}), key=rank,
-                  reverse=True)[:max_channels]
+    pool = sorted(union, key=rank, reverse=True)[:max_channels]
     by_pool = reselect(pool)
 
     def cost_of(sel: Selected) -> float:
@@ -220,7 +219,7 @@ def _fit_channel_budget(selected: Selected, runs: list[Run], period_s: float, n_
             "dropped": dropped, "pool": pool,
             "relative_validation_cost": {k: round(v, 4) for k, v in costs.items()}}
     chosen = by_drop if strategy == "drop" else by_pool
-    if len(union_of({t: terms for t, (terms, _) in chosen.items()})) > max_channels:
+    if len(_channels_of({t: terms for t, (terms, _) in chosen.items()})) > max_channels:
         raise AssertionError("channel budget not met")  # both strategies guarantee it
     return chosen, note
 
@@ -295,22 +294,19 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         pool_names = [names[i] for i in cols]
         return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
 
+    def vrmse(target: str, terms: list[Term]) -> float:
+        st = stack(runs, terms, target, period_s, n_blocks)
+        return validation_rmse(st.X, st.y, st.groups)
+
     selected = {t: select(t) for t in progress(targets, "selecting sensors", quiet=quiet)}
-    # Keep one channel free for the shop-air sensor when there is one and effects may use it:
-    # paper 002 measured 15 um from ambient alone, and the static selection cannot see that
-    # T_amb will matter on another day (docs/effects.md).
-    air = _ambient_sensor(names, ambient) if effects else None
-    reserve = int(air is not None and max_channels > 1
-                  and all(t.source != air for terms, _ in selected.values() for t in terms))
     selected, budget = _fit_channel_budget(
-        selected, runs, period_s, n_blocks, max_channels - reserve,
+        selected, max_channels, vrmse,
         reselect=lambda pool: {t: select(t, pool) for t in targets})
     for _terms, trace in selected.values():
         if budget:  # the axes together wanted more channels than the box has
-            trace["channel_budget"] = {**budget, "reserved_for": air if reserve else None}
+            trace["channel_budget"] = budget
 
     axes: dict[str, dict] = {}
-    wired = {t: {term.source for term in terms} for t, (terms, _) in selected.items()}
     for target in progress(targets, "fitting axes and effects", quiet=quiet):
         terms, trace = selected[target]
         axis = fit_axis(runs, target, terms, period_s, n_blocks)
@@ -318,22 +314,35 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         baseline_validation = axis["metrics"]["validation_rmse_um"]
         axis["baseline_validation_rmse_um"] = baseline_validation
         axis["effects"] = []
-        # The effect search may bring in new sensors only as far as free channels allow;
-        # sensors other axes already wire cost nothing.
-        others = set().union(*(v for k, v in wired.items() if k != target))
-        free = max_channels - len(others | wired[target])
+        # sensors other axes already wire cost no channel; new ones are settled below
+        others = _channels_of({k: [Term.from_json(t) for t in a["terms"]]
+                               for k, a in axes.items()})
         axis = _add_effects(axis, runs=runs, target=target, period_s=period_s,
                             n_blocks=n_blocks, enabled=effects, ambient=ambient,
-                            max_sensors=max_sensors, max_new_sensors=max(0, free),
-                            channels_in_use=sorted(others))
+                            max_sensors=max_sensors, channels_in_use=sorted(others))
         final_terms = [Term.from_json(t) for t in axis["terms"]]
         if final_terms != terms:  # effects changed the terms: refit, metrics on the final model
             axis.update(fit_axis(runs, target, final_terms, period_s, n_blocks))
         # on long runs the search scores a thinned-out copy; the baseline figure is full-rate
         axis["baseline_validation_rmse_um"] = baseline_validation
-        wired[target] = {t.source for t in final_terms if t.kind in TEMPERATURE_KINDS}
         axes[target] = axis
-    used = set().union(*wired.values())
+
+    # Effects may have brought in sensors (the shop-air sensor, re-selected ones): if all axes
+    # together now need more channels than the box has, give up the cheapest sensors again.
+    final = {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()}
+    if len(_channels_of(final)) > max_channels:
+        kept, dropped = _drop_to_budget(final, vrmse, max_channels)
+        for target, axis in axes.items():
+            if kept[target] != final[target]:
+                gone = {t.name for t in final[target]} - {t.name for t in kept[target]}
+                axis.update(fit_axis(runs, target, kept[target], period_s, n_blocks))
+                axis["channel_budget_after_effects"] = {
+                    "max_channels": max_channels, "dropped_sensors": dropped,
+                    "dropped_terms": sorted(gone)}
+                for effect in axis.get("effects", []):
+                    if any(t.get("source") in dropped for t in effect.get("added", [])):
+                        effect["dropped_for_channels"] = True
+    used = _channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
                             f"({', '.join(sorted(used))}), the box has {max_channels}")
