@@ -56,3 +56,27 @@ def test_impossible_budgets_are_refused():
         train_model([_run(1)], ["dx_um"], max_sensors=5, max_channels=4)
     with pytest.raises(TrainingError, match="--max-channels must be 1..8"):
         train_model([_run(1)], ["dx_um"], max_channels=9)
+
+
+def test_two_axes_still_get_the_air_sensor_and_stay_within_the_box(tmp_path):
+    """dy and dz baselines fill the 8 channels; the shop-air effect on dz needs T_amb (and
+    sensors re-selected for it). The budget is settled after the effects: the model keeps the
+    ambient effect and gives up the cheapest other sensors instead."""
+    import json
+
+    from host.cli import main
+
+    run = tmp_path / "train.csv"
+    assert main(["simulate", "--protocol", "step", "--hours", "6", "--cool-hours", "4", "--dt",
+                 "60", "--seed", "0", "--effects", "ambient", "-o", str(run)]) == 0
+    assert main(["train", str(run), "--target", "dy_um", "--target", "dz_um", "--aux",
+                 "spindle_rpm", "--out", str(tmp_path / "m"), "--no-codegen", "--json"]) == 0
+    model = json.loads((tmp_path / "m" / "model.json").read_text())
+    assert len(model["channels"]) <= 8
+    assert "ambient" in [e["kind"] for e in model["axes"]["dz_um"]["effects"]]
+    wired = {c["sensor"] for c in model["channels"]}
+    assert "T_amb" in wired
+    notes = [a.get("channel_budget_after_effects") for a in model["axes"].values()]
+    for note in filter(None, notes):  # what was given up is really gone from every axis
+        for axis in model["axes"].values():
+            assert not {t.get("source") for t in axis["terms"]} & set(note["dropped_sensors"])
