@@ -52,7 +52,9 @@ def rms(x: np.ndarray) -> float:
 def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float],
                     correlations: Sequence[float], labels: Sequence[int],
                     chosen: Sequence[str]) -> Figure:
-    """Paper 000 Fig. 7: sensors in the (delay, correlation) plane by cluster, chosen ones named."""
+    """Paper 000 Fig. 7: sensors in the (delay, correlation) plane by cluster, chosen ones named.
+
+    Label -1 marks sensors the channel budget kept out of the selection (grey crosses)."""
     fig = Figure(figsize=SQUARE, layout="constrained")
     ax = fig.add_subplot()
     delays, xlabel = delay_axis(np.asarray(delays_s, dtype=float))
@@ -62,6 +64,10 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
     cmap = matplotlib.colormaps["tab10" if len(groups) <= 10 else "tab20"]
     for k, group in enumerate(groups):
         mask = labels_arr == group
+        if group < 0:  # not offered to the selection (no box channel left for it)
+            ax.scatter(delays[mask], corr[mask], s=40, color="0.75", marker="x",
+                       label=f"no channel on the box ({int(mask.sum())})")
+            continue
         ax.scatter(delays[mask], corr[mask], s=40, color=cmap(k % cmap.N), alpha=0.85,
                    label=f"group {group} ({int(mask.sum())})")
     chosen_set = set(chosen)

@@ -444,6 +444,13 @@ def _selection_figure(axis_name: str, axis: dict):
     corr = [float(sel["correlations"][n]) for n in names]
     labels = [int(sel.get("labels", {}).get(n, 0)) for n in names]
     chosen = sel.get("sensors", [])
+    # sensors the box's channel budget left out of the shared pool: drawn as group -1
+    outside = sel.get("channel_budget", {}).get("outside_pool", {}).get(axis_name, {})
+    for n, r in outside.get("correlations", {}).items():
+        names.append(n)
+        corr.append(float(r))
+        delays.append(float(outside.get("delays_s", {}).get(n, math.nan)))
+        labels.append(-1)
     fig = plots.selection_plane(axis_name, names, delays, corr, labels, chosen)
     title = f"{axis_name}: sensors by delay and correlation"
     caption = (f"Each dot is a thermocouple: how strongly it correlates with {axis_name} and how "

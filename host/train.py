@@ -219,6 +219,11 @@ def _fit_channel_budget(selected: Selected, max_channels: int,
             "dropped": dropped, "pool": pool,
             "relative_validation_cost": {k: round(v, 4) for k, v in costs.items()}}
     chosen = by_drop if strategy == "drop" else by_pool
+    if strategy == "shared-pool":  # the pool's traces show only its sensors: keep the rest
+        note["outside_pool"] = {
+            t: {k: {n: v for n, v in trace[k].items() if n not in pool}
+                for k in ("correlations", "delays_s")}
+            for t, (_, trace) in selected.items()}
     if len(_channels_of({t: terms for t, (terms, _) in chosen.items()})) > max_channels:
         raise AssertionError("channel budget not met")  # both strategies guarantee it
     return chosen, note
