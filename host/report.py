@@ -24,10 +24,9 @@ import numpy as np
 from host import plots
 from host.data import Run, load_run
 from host.fit import fit_linear
+from host.model_io import read_model
 from host.progress import progress
 from host.terms import Term, design_matrix
-
-SCHEMA = "thermal-model/1"
 
 
 class ReportError(ValueError):
@@ -35,30 +34,6 @@ class ReportError(ValueError):
 
 
 # ---------------------------------------------------------------- model and predictions
-
-def load_model(path: str | Path) -> dict:
-    """Read model.json and check the parts the report relies on."""
-    path = Path(path)
-    if not path.is_file():
-        raise ReportError(f"{path}: model file not found")
-    try:
-        model = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ReportError(f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}): "
-                          f"{exc.msg}") from None
-    if not isinstance(model, dict) or model.get("schema") != SCHEMA:
-        raise ReportError(f"{path}: schema is {model.get('schema')!r}, expected {SCHEMA!r}")
-    for key in ("sample_period_s", "channels", "axes"):
-        if key not in model:
-            raise ReportError(f"{path}: missing '{key}'")
-    if not model["axes"]:
-        raise ReportError(f"{path}: the model has no axes")
-    for name, axis in model["axes"].items():
-        for key in ("intercept", "terms"):
-            if key not in axis:
-                raise ReportError(f"{path}: axis '{name}' has no '{key}'")
-    return model
-
 
 def axis_terms(axis: dict) -> tuple[list[Term], np.ndarray]:
     terms = [Term.from_json(t) for t in axis["terms"]]
@@ -294,7 +269,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                  fill_gaps: int = 0, quiet: bool = False,
                  hil: list[str | Path] | None = None) -> Report:
     """Render every figure and write ``out_dir/index.html``; inputs are all checked first."""
-    model = load_model(model_path)
+    model = read_model(model_path)
     runs = load_report_runs(model, list(run_paths), fill_gaps)
     matrix = load_protocols(protocols) if protocols else None
     hil_results = [load_hil(p) for p in hil or []]
