@@ -8,11 +8,11 @@ tests can exercise every term kind the box supports on real and simulated runs.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from host import model_io
 from host.data import load_run
 from host.terms import Term, design_matrix, make_lag, make_rate, make_speed, make_temp
 
@@ -83,7 +83,6 @@ def fl_thermal_model(path: str | Path) -> dict:
 
 
 def write_model(model: dict, path: str | Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(model, indent=2) + "\n", encoding="utf-8")
-    return path
+    """host.model_io.write_model (schema-checked, atomic), returning the path for chaining."""
+    model_io.write_model(model, path)
+    return Path(path)
