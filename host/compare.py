@@ -3,7 +3,8 @@
 Every method sees only the training runs (its own choices, fits and any internal validation use
 the same folds as ours: leave-one-run-out, or time blocks of one run) and is judged by the RMSE
 of its predictions on the test runs. Methods:
-- ours, ``validated`` (default) and ``paper`` (paper 000 exactly), static linear models;
+- ours, ``validated`` (default), ``validated-refined`` (plus the group refinement, opt-in)
+  and ``paper`` (paper 000 exactly), static linear models;
 - OLS on all sensors;
 - the k most correlated sensors (paper 002, k = 4 by default) + OLS;
 - an engineering pick given by the user + OLS;
@@ -144,7 +145,7 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
                     max_sensors: int = DEFAULT_MAX_SENSORS, groups: int = DEFAULT_GROUPS,
                     n_blocks: int = DEFAULT_BLOCKS, max_delay_s: float | None = None,
                     exhaustive_limit: int = EXHAUSTIVE_LIMIT, seed: int = 0,
-                    methods: Sequence[str] = ("validated", "paper"),
+                    methods: Sequence[str] = ("validated", "validated-refined", "paper"),
                     quiet: bool = True) -> dict:
     """Train every method on ``train_runs`` and report its test RMSE per axis."""
     train_runs, test_runs = list(train_runs), list(test_runs)
@@ -175,6 +176,7 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
             sensors = axis_sensors(model["axes"][target])
             k = len(sensors) if k is None else k  # peers get as many sensors as the default
             label = {"validated": "ours, validated (default)", "paper": "ours, paper 000 exact",
+                     "validated-refined": "ours, validated + group refinement",
                      "validated-ec": "ours, validated reps + EC"}.get(method, method)
             results.append(MethodResult(label, sensors, rmse(yt - pred),
                                         float(np.max(np.abs(yt - pred))), dt))

@@ -11,6 +11,7 @@ from host.selection import (
     GramCache,
     ec_reduction,
     fold_labels,
+    group_refinement,
     select_sensors,
     sequential_selection,
 )
@@ -129,7 +130,7 @@ def _two_source_data(n: int = 1200, seed: int = 4):
     return X, y
 
 
-@pytest.mark.parametrize("method", ["paper", "validated", "validated-ec"])
+@pytest.mark.parametrize("method", ["paper", "validated", "validated-refined", "validated-ec"])
 def test_select_sensors_keeps_one_sensor_of_each_source(method):
     X, y = _two_source_data()
     n = len(y)
@@ -152,7 +153,8 @@ def test_selector_in_pipeline_and_cross_val_score():
     sel = ThermalSensorSelector(n_groups=2, period_s=60.0).fit(X, y)
     assert sel.transform(X).shape == (len(y), int(sel.get_support().sum()))
     assert sel.correlations_.shape == (8,) and sel.delays_.shape == (8,)
-    assert set(sel.representatives_) >= set(np.flatnonzero(sel.get_support()))
+    chosen = np.flatnonzero(sel.get_support())  # one sensor per group (refinement keeps that)
+    assert len(set(sel.labels_[chosen])) == len(chosen)
     assert sel.labels_.shape == (8,) and len(sel.ec_curve_) == 2
 
 
@@ -162,3 +164,81 @@ def test_selector_rejects_bad_parameters():
         ThermalSensorSelector(selection="nope").fit(X, y)
     with pytest.raises(ValueError, match="max-sensors"):
         ThermalSensorSelector(max_sensors=0).fit(X, y)
+
+
+def _greedy_trap(n: int = 900, p_noise: float = 0.6, seed: int = 7):
+    """y = a + b. Group 0 holds P = a + 0.5 b + noise (best alone, so eq. 9 takes it first) and
+    Q = a; group 1 holds B = b. Jointly {Q, B} explains y and {P, B} keeps P's noise."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=n).cumsum()
+    b = rng.normal(size=n).cumsum()
+    P = a + 0.5 * b + p_noise * rng.normal(size=n)
+    Q = a + 0.05 * rng.normal(size=n)
+    X = np.column_stack([P, Q, b]) + 25.0
+    y = a + b + 0.05 * rng.normal(size=n)
+    return X, y, np.array([0, 0, 1])
+
+
+def _oof(X, y, folds, cols):
+    return validation_rmse(X[:, cols], y, folds)
+
+
+def test_group_refinement_replaces_the_member_eq9_chose_too_early():
+    X, y, labels = _greedy_trap()
+    folds = fold_labels(np.zeros(len(y)), 3)
+    cache = GramCache(X, y, folds)
+    reps, _ = sequential_selection(cache, labels, "validation")
+    assert reps == [0, 2]  # the trap: P wins its group alone
+    before, after = _oof(X, y, folds, [0, 2]), _oof(X, y, folds, [1, 2])
+    assert after < 0.5 * before  # independent out-of-fold fits: Q is the better partner
+    chosen, swaps = group_refinement(cache, labels, reps, "validation")
+    assert chosen == [1, 2]
+    assert [(w.removed, w.added) for w in swaps] == [(0, 1)]
+    assert swaps[0].error_before == pytest.approx(before, rel=1e-8)
+    assert swaps[0].error_after == pytest.approx(after, rel=1e-8)
+
+
+def test_group_refinement_needs_more_than_the_margin():
+    X, y, labels = _greedy_trap()
+    folds = fold_labels(np.zeros(len(y)), 3)
+    cache = GramCache(X, y, folds)
+    gain = 1 - _oof(X, y, folds, [1, 2]) / _oof(X, y, folds, [0, 2])
+    assert group_refinement(cache, labels, [0, 2], "validation", margin=gain * 1.01)[1] == []
+    assert group_refinement(cache, labels, [0, 2], "validation", margin=gain * 0.99)[0] == [1, 2]
+
+
+def test_group_refinement_keeps_groups_count_and_never_raises_the_error():
+    rng = np.random.default_rng(11)
+    n, k = 600, 12
+    X = 25 + rng.normal(size=(n, k)).cumsum(axis=0) * 0.1
+    y = X[:, [1, 4, 7, 10]] @ np.array([1.0, -0.5, 0.8, 0.3]) + rng.normal(size=n) * 0.2
+    labels = np.arange(k) % 4
+    folds = fold_labels(np.zeros(n), 3)
+    cache = GramCache(X, y, folds)
+    start = [0, 5, 6, 11]  # one per group, deliberately poor
+    chosen, swaps = group_refinement(cache, labels, start, "validation")
+    assert [labels[c] for c in chosen] == [labels[c] for c in start]
+    assert len(set(chosen)) == len(chosen)
+    assert swaps  # the poor start leaves room
+    assert _oof(X, y, folds, chosen) <= _oof(X, y, folds, start)
+    # every remaining within-group swap is worth less than the 1 % margin
+    err = _oof(X, y, folds, chosen)
+    for pos, c in enumerate(chosen):
+        for m in np.flatnonzero(labels == labels[c]):
+            if m not in chosen:
+                trial = [*chosen[:pos], int(m), *chosen[pos + 1:]]
+                assert _oof(X, y, folds, trial) >= err * 0.99 - 1e-12
+
+
+def test_only_validated_refined_refines_and_the_trace_says_so():
+    X, y = _two_source_data()
+    n = len(y)
+    folds = fold_labels(np.zeros(n))
+    names = [f"T{i:02d}" for i in range(X.shape[1])]
+    for method, refines in (("validated-refined", True), ("validated", False),
+                            ("validated-ec", False), ("paper", False)):
+        result = select_sensors(X, y, np.zeros(n), folds, 60.0, n_groups=3, method=method)
+        trace = result.trace(names)
+        assert ("refinement" in trace) is refines
+        if not refines:
+            assert result.sensors == result.ec.subsets[result.ec.chosen_count - 1]

@@ -12,7 +12,8 @@ from host.model_io import jsonable
 from host.split import window
 
 NAME = "compare"
-HELP = "train our selection (validated and paper-exact) and peer methods; compare test RMSE"
+HELP = ("train our selection (validated, refined, paper-exact) and peer methods; "
+        "compare test RMSE")
 
 
 def register(parser: argparse.ArgumentParser) -> None:

@@ -43,7 +43,9 @@ def add_selection_arguments(parser: argparse.ArgumentParser) -> None:
                         help="c-means groups (default %(default)s, capped by the sensor count)")
     parser.add_argument("--selection", choices=METHODS, default="validated",
                         help="'validated' (default): representatives and EC subset by "
-                        "out-of-fold error; 'paper': paper 000 exactly (training error)")
+                        "out-of-fold error; 'paper': paper 000 exactly (training error); "
+                        "'validated-refined': plus swaps within a group; 'validated-ec': "
+                        "out-of-fold error, EC count (docs/selection.md)")
     parser.add_argument("--max-delay-h", type=float, default=None, metavar="H",
                         help="limit of the delay search (default a quarter of the shortest run)")
     parser.add_argument("--blocks", type=int, default=DEFAULT_BLOCKS, metavar="N",
