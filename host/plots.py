@@ -88,25 +88,41 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
 
 
 def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
-             subsets: Sequence[Sequence[str]] | None = None) -> Figure:
-    """Paper 000 Fig. 8: the reduction criterion EC_i over model size, minimum marked."""
+             subsets: Sequence[Sequence[str]] | None = None,
+             errors: Sequence[float] | None = None, rule: str = "ec") -> Figure:
+    """Paper 000 Fig. 8: EC_i over model size; with ``errors`` also S_i itself (right axis).
+
+    ``rule`` says which curve fixed the count: "ec" (paper 000: smallest EC_i) or "min"
+    (validated: smallest out-of-fold S_i); the chosen size is circled on that curve.
+    """
     fig = Figure(figsize=WIDE, layout="constrained")
     ax = fig.add_subplot()
     sizes = np.arange(1, len(ec) + 1)
-    ax.plot(sizes, ec, "o-", color=OURS_COLOUR, label="EC$_i$ = (S$_i$/S$_1$)·(i/c)")
+    lines = ax.plot(sizes, ec, "o-", color=OURS_COLOUR, label="EC$_i$ = (S$_i$/S$_1$)·(i/c)")
+    ax.set_ylabel("evaluation criterion EC$_i$ (–)")
+    marked_ax, marked = ax, list(ec)
+    if errors is not None and len(errors) == len(ec):
+        ax2 = ax.twinx()
+        lines += ax2.plot(sizes, errors, "s--", color=PEER_COLOURS[0],
+                          label="S$_i$, error of the best i-sensor model (µm)")
+        ax2.set_ylabel("S$_i$ (µm)")
+        if rule == "min":
+            marked_ax, marked = ax2, list(errors)
     if 1 <= chosen_count <= len(ec):
-        y = ec[chosen_count - 1]
-        ax.scatter([chosen_count], [y], s=250, facecolors="none", edgecolors="tab:red",
-                   linewidths=2.5, zorder=3, label=f"chosen: {chosen_count} sensors")
+        y = marked[chosen_count - 1]
+        lines.append(marked_ax.scatter([chosen_count], [y], s=250, facecolors="none",
+                                       edgecolors="tab:red", linewidths=2.5, zorder=3,
+                                       label=f"chosen: {chosen_count} sensors"))
         if subsets and len(subsets) >= chosen_count:
-            ax.annotate(", ".join(subsets[chosen_count - 1]), (chosen_count, y),
-                        xytext=(0, 18), textcoords="offset points", ha="center", fontsize=10)
+            marked_ax.annotate(", ".join(subsets[chosen_count - 1]), (chosen_count, y),
+                               xytext=(0, 18), textcoords="offset points", ha="center",
+                               fontsize=10)
     ax.set_xticks(sizes)
     ax.set_xlabel("number of sensors i in the model")
-    ax.set_ylabel("evaluation criterion EC$_i$ (–)")
-    ax.set_title(f"{axis}: model size chosen where EC is smallest")
+    ax.set_title(f"{axis}: model size chosen where "
+                 + ("EC is smallest" if rule == "ec" else "the out-of-fold error S is smallest"))
     ax.grid(True, alpha=0.3)
-    ax.legend()
+    ax.legend(lines, [ln.get_label() for ln in lines])
     return fig
 
 

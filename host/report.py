@@ -303,12 +303,22 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             file = f"selection_{_slug(axis_name)}.png"
         elif kind == "ec":
             sel = axis["selection"]
+            rule = "ec" if sel.get("count_rule", "smallest EC_i") == "smallest EC_i" else "min"
             fig_obj = plots.ec_curve(axis_name, sel["ec_curve"], int(sel.get("chosen_count", 0)),
-                                     sel.get("ec_subsets"))
+                                     sel.get("ec_subsets"), sel.get("ec_errors_um"), rule)
             title = f"{axis_name}: evaluation criterion"
             caption = ("EC<sub>i</sub> = (S<sub>i</sub>/S<sub>1</sub>)·(i/c) trades the error "
-                       "variance of the best i-sensor model against its size; the circled "
-                       "minimum fixes how many sensors the box reads.")
+                       "of the best i-sensor model against its size. The circled point fixes "
+                       "how many sensors the box reads: "
+                       + ("the smallest EC (paper 000)." if rule == "ec" else
+                          "the smallest out-of-fold error S<sub>i</sub> (an error on data the "
+                          "fit did not see already rises when a model is too big)."))
+            swaps = sel.get("refinement") or []
+            if swaps:
+                caption += " Group refinement then swapped " + ", ".join(
+                    f"{html.escape(w['removed'])} → {html.escape(w['added'])} "
+                    f"({w['error_before_um']:.3g} → {w['error_after_um']:.3g} µm)"
+                    for w in swaps) + "."
             file = f"ec_{_slug(axis_name)}.png"
         elif kind == "runs":
             measured = run.target(axis_name)

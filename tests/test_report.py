@@ -95,6 +95,12 @@ def example(tmp_path_factory):
                          "intercept": float(coef[0]), "terms": "FINAL"}],
         }
         axes[axis]["effects"][0]["terms"] = axes[axis]["terms"]
+        if axis == "ch5_um":  # the validated count rule, with a group-refinement swap
+            axes[axis]["selection"].update({
+                "count_rule": "smallest out-of-fold error S_i",
+                "ec_errors_um": [5.0, 2.2, 2.4, 2.6, 3.0],
+                "refinement": [{"removed": "T16", "added": s_temp, "error_before_um": 2.5,
+                                "error_after_um": 2.2}]})
     channels = sorted({s for pair in sensors_used.values() for s in pair})
     model = {
         "schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": PERIOD_S,
@@ -160,6 +166,9 @@ def test_html_embeds_every_figure_and_links_the_files(rendered):
         assert f'href="{name}"' in page
     assert "lag(T05, tau=1800s)</b>: validation RMSE 3.21 → 1.23 µm, 62 % better" in page
     assert "HIL replay (" in page and "twin_bit_exact passed" in page
+    assert "how many sensors the box reads: the smallest EC (paper 000)." in page  # ch3
+    assert "the smallest out-of-fold error S<sub>i</sub>" in page  # ch5
+    assert "Group refinement then swapped T16 → " in page and "(2.5 → 2.2 µm)" in page
     assert "<td>0.410</td><td>4.200</td>" in page  # box vs float and its bound, in nm
     assert "http://" not in page and "https://" not in page  # nothing to fetch
 
