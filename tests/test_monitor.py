@@ -306,7 +306,11 @@ def test_monitor_on_the_native_firmware_over_its_pty(native_box, tmp_path):
         assert box.stdin is not None
         box.stdin.write(feed.encode())
         box.stdin.flush()
-        out, err = monitor.communicate(timeout=30)
+        # not communicate(): it reads the pipe's descriptor and would lose whatever readline()
+        # above already buffered (the INFO line often arrives with "connected to"). The output
+        # is a few lines, far below a pipe's capacity, so waiting first cannot deadlock.
+        monitor.wait(timeout=30)
+        out, err = monitor.stdout.read(), monitor.stderr.read() if monitor.stderr else ""
     finally:
         if monitor.poll() is None:
             monitor.kill()
