@@ -12,6 +12,8 @@ of its predictions on the test runs. Methods:
 - LassoCV on standardised temperatures (its own count);
 - the exhaustive best subset of as many sensors as ours (smallest training error), when
   C(n_sensors, k) is affordable; otherwise skipped and said so.
+Per axis it also names the best method on this test and the best one the box can read (at
+most MAX_CHANNELS sensors): OLS on all sensors often wins and cannot be wired.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from host.evaluate import predict
 from host.fit import fit_linear, rmse
 from host.progress import progress
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, GramCache
-from host.train import axis_sensors, train_model
+from host.train import MAX_CHANNELS, axis_sensors, train_model
 from host.validation import common_period, fold_groups
 
 DEFAULT_K_CORRELATED = 4
@@ -192,5 +194,21 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
             results.append(MethodResult(label, chosen, rmse(yt - pred),
                                         float(np.max(np.abs(yt - pred))), dt, note))
         out["axes"][target] = {"raw_rms_um": rmse(yt), "k": k,
-                               "methods": [r.to_json() for r in results]}
+                               "methods": [r.to_json() for r in results],
+                               **best_methods(results)}
     return out
+
+
+def best_methods(results: Sequence[MethodResult]) -> dict:
+    """The lowest test RMSE overall and among methods the box can read (<= MAX_CHANNELS
+    sensors on one axis); skipped methods (NaN) do not count."""
+    scored = [r for r in results if not math.isnan(r.test_rmse_um)]
+    fits = [r for r in scored if len(r.sensors) <= MAX_CHANNELS]
+
+    def pick(rs: list[MethodResult]) -> dict | None:
+        if not rs:
+            return None
+        top = min(rs, key=lambda r: r.test_rmse_um)
+        return {"method": top.method, "test_rmse_um": top.test_rmse_um}
+
+    return {"best": pick(scored), "best_within_box": pick(fits)}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from host.cli import main
-from host.compare import best_subset, compare_methods
+from host.compare import MethodResult, best_methods, best_subset, compare_methods
 from host.data import Run, write_run
 
 
@@ -108,3 +108,22 @@ def test_cli_compare_json_with_split(tmp_path, capsys):
     assert main(["compare", str(path), "--split-at-h", str(split_h), "--target", "dz_um",
                  "--engineering", "T9"]) == 2
     assert "unknown sensor(s) T9" in capsys.readouterr().err
+
+
+def test_best_overall_and_best_the_box_can_read():
+    rows = [MethodResult("ours", ["T1", "T2"], 2.0, 3.0, 0.1),
+            MethodResult("all sixteen", [f"T{i}" for i in range(16)], 1.5, 2.0, 0.1),
+            MethodResult("skipped", [], math.nan, math.nan, 0.0, "skipped"),
+            MethodResult("eight", [f"T{i}" for i in range(8)], 1.9, 2.5, 0.1)]
+    best = best_methods(rows)
+    assert best["best"] == {"method": "all sixteen", "test_rmse_um": 1.5}
+    assert best["best_within_box"] == {"method": "eight", "test_rmse_um": 1.9}  # 8 fits
+    assert best_methods(rows[2:3]) == {"best": None, "best_within_box": None}
+
+
+def test_compare_reports_the_best_method_of_each_axis(doc):
+    _, _, d = doc
+    axis = d["axes"]["dz_um"]
+    scored = [m for m in axis["methods"] if not math.isnan(m["test_rmse_um"])]
+    lowest = min(scored, key=lambda m: m["test_rmse_um"])
+    assert axis["best"] == {"method": lowest["method"], "test_rmse_um": lowest["test_rmse_um"]}

@@ -10,6 +10,7 @@ from host.compare import DEFAULT_K_CORRELATED, EXHAUSTIVE_LIMIT, compare_methods
 from host.data import load_runs
 from host.model_io import jsonable
 from host.split import window
+from host.train import MAX_CHANNELS
 
 NAME = "compare"
 HELP = ("train our selection (validated, refined, paper-exact) and peer methods; "
@@ -52,6 +53,12 @@ def print_table(doc: dict) -> None:
                 extra = f"{extra} ({m['note']})" if extra else m["note"]
             print(f"  {m['method']:<48} {m['n_sensors']:>3} {_fmt(m['test_rmse_um']):>12} "
                   f"{_fmt(m['test_max_abs_um']):>10} {m['fit_time_s']:>7.2f}  {extra}")
+        best, in_box = a.get("best"), a.get("best_within_box")
+        if best:
+            print(f"  best on this test: {best['method']} ({_fmt(best['test_rmse_um'])} um)")
+        if in_box and in_box != best:
+            print(f"  best the box can read (<= {MAX_CHANNELS} sensors): {in_box['method']} "
+                  f"({_fmt(in_box['test_rmse_um'])} um)")
 
 
 def run(args: argparse.Namespace) -> int:
