@@ -18,6 +18,8 @@ selection trace, the redundant neighbours). Training stored, in ``sensor_referen
   neither accuses a healthy sensor;
 - stuck: the same reading for a long stretch while the mates move;
 - noisy: sample-to-sample noise many times its training noise (or its mates').
+And which inputs leave their training range (host.extrapolation): a larger error there is the
+model extrapolating, not an effect or a sensor fault.
 Without a stored reference (a model trained with --no-effects) the lines are fitted on the
 first third of the run itself, which can only see drift that starts later.
 """
@@ -47,6 +49,7 @@ from host.effects import (
     score_candidates,
     tau_grid,
 )
+from host.extrapolation import describe, outside_training
 from host.fit import fit_linear, rmse
 from host.model_io import axis_terms, model_aux, model_sensors
 from host.terms import design_matrix
@@ -311,11 +314,12 @@ def diagnose(model: Mapping, run: Run, *, ambient: str | None = None,
               for s, c in sensors.items() for f in c["faults"]]
     missing = [a for a in model["axes"] if a not in run.target_names]
     return {"run": run.path, "samples": run.n_samples, "axes": axes,
-            "axes_without_measurement": missing, "sensors": sensors, "faulty": faulty}
+            "axes_without_measurement": missing, "sensors": sensors, "faulty": faulty,
+            "outside_training_range": outside_training(model, run)}
 
 
-def summary_lines(doc: Mapping) -> list[str]:
-    """The readable report."""
+def summary_lines(doc: Mapping, units: Mapping[str, str] | None = None) -> list[str]:
+    """The readable report (``units``: per input, for the training-range lines)."""
     lines = [f"run: {doc['run']} ({doc['samples']} samples)"]
     for axis, a in doc["axes"].items():
         val = a.get("model_validation_rmse_um")
@@ -341,4 +345,6 @@ def summary_lines(doc: Mapping) -> list[str]:
             lines.append(f"sensor {f['sensor']}: {f['fault']} -- {f['message']}")
     else:
         lines.append(f"sensors: {len(doc['sensors'])} checked, none looks faulty")
+    if "outside_training_range" in doc:
+        lines += describe(doc["outside_training_range"], units)
     return lines

@@ -2,9 +2,11 @@
 
 Per axis: ``rmse_um`` and ``max_abs_um`` of the residual (measured - predicted),
 ``raw_rms_um`` and ``raw_peak_um`` of the measured displacement itself (what the machine does
-without compensation) and ``reduction_pct`` = 100 * (1 - rmse / raw_rms). Predictions use
-host.terms.design_matrix with each axis's terms, so dynamic and auxiliary terms evaluate exactly
-as in training (lag filters start cold at the run's first sample, like the box at power-up).
+without compensation) and ``reduction_pct`` = 100 * (1 - rmse / raw_rms). Per run: the inputs
+that leave their training range (host.extrapolation), where a larger error is to be expected.
+Predictions use host.terms.design_matrix with each axis's terms, so dynamic and auxiliary terms
+evaluate exactly as in training (lag filters start cold at the run's first sample, like the box
+at power-up).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from host.data import Run, load_run
+from host.extrapolation import outside_training
 from host.fit import rmse
 from host.model_io import axis_terms, model_aux, model_sensors
 from host.terms import design_matrix
@@ -78,4 +81,5 @@ def evaluate_model(model: dict, run: Run) -> dict:
                               f"{', '.join(missing)}")
     preds = predict(model, run)
     return {"run": run.path,
-            "axes": {a: axis_metrics(run.target(a), p) for a, p in preds.items()}}
+            "axes": {a: axis_metrics(run.target(a), p) for a, p in preds.items()},
+            "outside_training_range": outside_training(model, run)}

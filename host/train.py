@@ -18,6 +18,7 @@ import numpy as np
 
 from host import __version__
 from host.data import Run, load_runs
+from host.extrapolation import training_ranges
 from host.fit import condition_number, fit_linear, r_squared, rmse, variance_inflation
 from host.model_io import AUX_KINDS, SCHEMA, TEMPERATURE_KINDS
 from host.progress import progress
@@ -352,12 +353,16 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
                             f"({', '.join(sorted(used))}), the box has {max_channels}")
 
+    wired = _channels(axes, names, dict(channels or {}), tc_type)
+    aux_inputs = _aux(axes, runs)
+    inputs = [c["sensor"] for c in sorted(wired, key=lambda c: c["channel"])] + \
+        [a["name"] for a in aux_inputs]
     return {
         "schema": SCHEMA,
         "tool_version": __version__,
         "sample_period_s": float(period_s),
-        "channels": _channels(axes, names, dict(channels or {}), tc_type),
-        "aux": _aux(axes, runs),
+        "channels": wired,
+        "aux": aux_inputs,
         "time_max_s": TIME_MAX_S,
         "axes": axes,
         "training": {
@@ -374,6 +379,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "effects": bool(effects),
             "ambient": ambient,
             "max_channels": int(max_channels),
+            "input_ranges": training_ranges(runs, inputs),
         },
     }
 

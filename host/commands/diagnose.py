@@ -7,6 +7,7 @@ import argparse
 import json
 
 from host.diagnose import diagnose, load_for_model, summary_lines
+from host.extrapolation import input_units
 from host.model_io import jsonable, read_model
 from host.validation import DEFAULT_BLOCKS
 
@@ -40,5 +41,5 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
     else:
         print(f"model: {args.model}")
-        print("\n".join(summary_lines(doc)))
+        print("\n".join(summary_lines(doc, input_units(model))))
     return 0

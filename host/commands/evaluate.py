@@ -6,6 +6,7 @@ import argparse
 import json
 
 from host.evaluate import evaluate_model, load_for_model
+from host.extrapolation import describe, input_units
 from host.model_io import jsonable, read_model
 
 NAME = "evaluate"
@@ -33,4 +34,6 @@ def run(args: argparse.Namespace) -> int:
     for name, m in doc["axes"].items():
         print(f"{name:<10} {m['rmse_um']:>9.3f} {m['max_abs_um']:>10.3f} {m['raw_rms_um']:>11.3f} "
               f"{m['raw_peak_um']:>12.3f} {m['reduction_pct']:>9.1f}%")
+    for line in describe(doc["outside_training_range"], input_units(model)):
+        print(line)
     return 0
