@@ -23,6 +23,7 @@ import numpy as np
 
 from host import plots
 from host.data import Run, load_run
+from host.extrapolation import outside_training
 from host.fit import fit_linear
 from host.model_io import read_model
 from host.progress import progress
@@ -385,6 +386,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
         "model_hash": _model_hash(model),
         "axes": summary_rows(model),
         "runs": run_table,
+        "outside_training": {run.name: outside_training(model, run) for run in runs},
         "figures": [f.file for f in report.figures],
     }
     if hil_results:
@@ -549,6 +551,18 @@ figcaption{font-size:.92em;color:#444;max-width:900px}.meta{color:#666;font-size
 """
 
 
+def _beyond_text(rows: list[dict] | None) -> str:
+    if rows is None:
+        return "not stored in this model"
+    if not rows:
+        return "none"
+    return ", ".join(
+        f"{r['input']} {'+' if r['run_max'] > r['train_max'] else '−'}"
+        + (f"{100 * r['beyond_share']:.0f} %" if r["beyond_share"] is not None
+           else f"{r['beyond']:.3g}")
+        + f" ({r['samples_outside_pct']:.0f} % of the run)" for r in rows)
+
+
 def _cell(value, left: bool = False) -> str:
     cls = ' class="l"' if left else ""
     return f"<td{cls}>{value}</td>"
@@ -600,15 +614,22 @@ def render_html(model: dict, report: Report) -> str:
         parts.append("<h2>Error on each run, before and after compensation</h2><table><tr>"
                      '<th class="l">run</th><th class="l">axis</th><th>seen in training</th>'
                      "<th>raw RMS (µm)</th>"
-                     + "".join(f"<th>{e(m)} RMS (µm)</th>" for m in models) + "</tr>")
+                     + "".join(f"<th>{e(m)} RMS (µm)</th>" for m in models)
+                     + '<th class="l">inputs beyond their training range</th></tr>')
+        beyond = summary.get("outside_training", {})
         for run_name, per in summary["runs"].items():
             for axis_name, row in per.items():
                 parts.append("<tr>" + _cell(e(run_name), True) + _cell(e(axis_name), True)
                              + _cell("yes" if row["in_training"] else "no")
                              + _cell(_fmt(row["raw_rms_um"]))
                              + "".join(_cell(_fmt(row["residual_rms_um"].get(m)))
-                                       for m in models) + "</tr>")
+                                       for m in models)
+                             + _cell(e(_beyond_text(beyond.get(run_name))), True) + "</tr>")
         parts.append("</table>")
+        parts.append('<p class="meta">Beyond its training range (by more than 5 % of the span) '
+                     "the model extrapolates: expect larger errors there. Figures: how far "
+                     "beyond, as a share of the input's training span, and the share of the "
+                     "run's samples out there.</p>")
 
     for hil in summary.get("hil", []):
         label = hil.get("data") or hil["file"]

@@ -107,7 +107,10 @@ def example(tmp_path_factory):
         "channels": [{"channel": i, "sensor": s, "tc_type": "K", "min_c": -40.0, "max_c": 200.0}
                      for i, s in enumerate(channels)],
         "aux": [], "time_max_s": 604800.0, "axes": axes,
-        "training": {"runs": [str(paths[0])], "targets": list(AXES), "sensors": "T*"},
+        "training": {"runs": [str(paths[0])], "targets": list(AXES), "sensors": "T*",
+                     "input_ranges": {s: {"min": float(train.column(s).min()),
+                                          "max": float(train.column(s).max())}
+                                      for s in channels}},
         "fixed_point": {"axes": {"ch3_um": {"bound_um": 0.0042}}},
     }
     model_path = tmp / "model.json"
@@ -171,6 +174,27 @@ def test_html_embeds_every_figure_and_links_the_files(rendered):
     assert "Group refinement then swapped T16 → " in page and "(2.5 → 2.2 µm)" in page
     assert "<td>0.410</td><td>4.200</td>" in page  # box vs float and its bound, in nm
     assert "http://" not in page and "https://" not in page  # nothing to fetch
+
+
+def test_runs_table_says_which_inputs_leave_the_training_range(example, rendered):
+    first, second = (np.loadtxt(p, delimiter=",", skiprows=1) for p in example["runs"])
+    header = example["runs"][0].read_text().splitlines()[0].split(",")
+    channels = [c["sensor"] for c in example["model"]["channels"]]
+    page = rendered.index.read_text()
+    expected = []
+    for s in channels:
+        a, b = first[:, header.index(s)], second[:, header.index(s)]
+        lo, hi = a.min(), a.max()
+        tol = 0.05 * (hi - lo)
+        if b.max() > hi + tol or b.min() < lo - tol:
+            up = b.max() - hi >= lo - b.min()
+            share = max(b.max() - hi, lo - b.min()) / (hi - lo)
+            pct = 100 * np.mean((b < lo - tol) | (b > hi + tol))
+            expected.append(f"{s} {'+' if up else '−'}{100 * share:.0f} % "
+                            f"({pct:.0f} % of the run)")
+    assert expected, "the second half of the FL run goes beyond the first"
+    assert f'<td class="l">{", ".join(expected)}</td>' in page
+    assert '<td class="l">none</td>' in page  # the training half itself
 
 
 def test_summary_numbers_match_an_independent_computation(example, rendered):
