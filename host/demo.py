@@ -286,6 +286,12 @@ def step_fl(demo: Demo) -> tuple[list[Path], dict]:
             verdict = f"{change:.0f} % less" if change >= 0 else f"{-change:.0f} % WORSE"
             demo.say(f"    {axis}: RMS {fmt_um(m['raw_rms_um'])} raw → {fmt_um(m['rmse_um'])} "
                      f"compensated ({verdict}), worst {fmt_um(m['max_abs_um'])}")
+        beyond = entry.get("outside_training_range") or []
+        if beyond:
+            demo.say(f"    hotter than training: {len(beyond)} of {len(model['channels'])} inputs "
+                     "leave their training range (" + ", ".join(
+                         f"{r['input']} +{100 * r['beyond_share']:.0f} %" for r in beyond
+                         if r["beyond_share"] is not None) + " of span): the model extrapolates")
     demo.done()
     return parts, model
 
