@@ -17,7 +17,8 @@ def serialise(model: QModel) -> bytes:
     out = bytearray(struct.pack("<IIII", len(model.channels), len(model.aux),
                                 len(model.axes), model.period_ms))
     for ch in model.channels:
-        out += struct.pack("<iiB", ch.min_code, ch.max_code, ch.tc_code)
+        out += struct.pack("<iiiiB", ch.min_code, ch.max_code, ch.window_lo_code,
+                           ch.window_hi_code, ch.tc_code)
     for a in model.aux:
         out += struct.pack("<ii", a.min, a.max)
     for ax in model.axes:

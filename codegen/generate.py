@@ -66,7 +66,8 @@ def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
         "time_max_samples": model.time_max_samples,
         "acc_limit": ACC_LIMIT,
         "channels": [{"channel": c.index, "sensor": c.sensor, "min_code": c.min_code,
-                      "max_code": c.max_code} for c in model.channels],
+                      "max_code": c.max_code, "window_lo_code": c.window_lo_code,
+                      "window_hi_code": c.window_hi_code} for c in model.channels],
         "aux": [{"input": a.index, "name": a.name, "min": a.min, "max": a.max}
                 for a in model.aux],
         "axes": {

@@ -17,7 +17,7 @@ from fractions import Fraction
 from codegen.errors import CodegenError
 
 SCHEMA = "thermal-model/1"
-HEADER_FORMAT = 1
+HEADER_FORMAT = 2  # 2: channels carry the training window (EXTRAP status bit)
 
 KIND_CODES = {"temp": 0, "lag": 1, "rate": 2, "speed": 3, "speed2": 4, "square": 5, "time": 6}
 TEMPERATURE_KINDS = ("temp", "lag", "rate", "square")
@@ -37,6 +37,9 @@ INT32_MIN = -(1 << 31)
 UINT32_MAX = (1 << 32) - 1
 DEFAULT_MIN_C = -40.0
 DEFAULT_MAX_C = 200.0
+# The box flags EXTRAP when a valid channel leaves its training range by more than this share of
+# the range's span (the same rule host evaluate/diagnose use, host/extrapolation.py).
+EXTRAPOLATION_MARGIN = Fraction(1, 20)  # exact: window codes must not depend on float 0.05
 
 # Runtime capacity (firmware/include/model_eval.h).
 MAX_CHANNELS = 32
@@ -88,6 +91,8 @@ class QChannel:
     max_c: float
     min_code: int
     max_code: int
+    window_lo_code: int  # training range widened by EXTRAPOLATION_MARGIN, in codes; the
+    window_hi_code: int  # valid range when the model has no training range for the channel
 
 
 @dataclass(frozen=True)
@@ -217,10 +222,30 @@ def _parse_channels(model: Mapping) -> tuple[QChannel, ...]:
                 f"{where} ({sensor}): valid range {min_c:g}..{max_c:g} degC gives codes "
                 f"{lo}..{hi}; it must be non-empty and inside the chip's 19-bit range "
                 f"{CODE_MIN}..{CODE_MAX} ({CODE_MIN / 128:g}..{CODE_MAX / 128:g} degC)")
-        out.append(QChannel(i, sensor, tc, TC_TYPES[tc], min_c, max_c, lo, hi))
+        win_lo, win_hi = _training_window(ch, where, sensor, lo, hi)
+        out.append(QChannel(i, sensor, tc, TC_TYPES[tc], min_c, max_c, lo, hi, win_lo, win_hi))
     if len({c.sensor for c in out}) != len(out):
         raise CodegenError("channels: sensor names must be unique")
     return tuple(out)
+
+
+def _training_window(ch: Mapping, where: str, sensor: str, lo: int, hi: int
+                     ) -> tuple[int, int]:
+    """Codes outside which a valid reading is an extrapolation: the training range
+    (``trained_min_c``..``trained_max_c``) widened by EXTRAPOLATION_MARGIN of its span on each
+    side, rounded outwards and kept inside the valid range. Without a training range: the
+    valid range (the box never flags)."""
+    if "trained_min_c" not in ch and "trained_max_c" not in ch:
+        return lo, hi
+    t_lo = _number(ch.get("trained_min_c"), f"{where}.trained_min_c")
+    t_hi = _number(ch.get("trained_max_c"), f"{where}.trained_max_c")
+    if t_lo > t_hi:
+        raise CodegenError(f"{where} ({sensor}): training range {t_lo:g}..{t_hi:g} degC is "
+                           "empty (trained_min_c > trained_max_c)")
+    margin = (Fraction(t_hi) - Fraction(t_lo)) * EXTRAPOLATION_MARGIN
+    w_lo = math.floor((Fraction(t_lo) - margin) * 128)
+    w_hi = math.ceil((Fraction(t_hi) + margin) * 128)
+    return min(max(w_lo, lo), hi), max(min(w_hi, hi), lo)
 
 
 def _parse_aux(model: Mapping) -> tuple[QAux, ...]:

@@ -141,6 +141,11 @@ def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: st
             "min_c": _num(ch.min_c), "max_c": _num(ch.max_c),
             "min_macro": f"TCM_CH{ch.index}_MIN_CODE", "max_macro": f"TCM_CH{ch.index}_MAX_CODE",
             "min_lit": c_int32(ch.min_code), "max_lit": c_int32(ch.max_code),
+            "win_lo_macro": f"TCM_CH{ch.index}_WINDOW_LO",
+            "win_hi_macro": f"TCM_CH{ch.index}_WINDOW_HI",
+            "win_lo_lit": c_int32(ch.window_lo_code), "win_hi_lit": c_int32(ch.window_hi_code),
+            "win_lo_c": _num(ch.window_lo_code / 128), "win_hi_c": _num(ch.window_hi_code / 128),
+            "has_window": (ch.window_lo_code, ch.window_hi_code) != (ch.min_code, ch.max_code),
         } for ch in model.channels],
         "aux": [{
             "index": a.index, "name": a.name,

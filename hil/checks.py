@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.expect import CLAMP, HOLD, MODEL_BAD, NO_DATA, SLEW, Expected, status_text
+from hil.expect import CLAMP, HOLD, MODEL_BAD, NO_DATA, SLEW, STATUS_NAMES, Expected, status_text
 from hil.feed import Feed
 from hil.runner import Capture, Session
 from host.protocol import ErrorReply, Info, ProtocolError, Sample, decode
@@ -90,6 +90,15 @@ class ReplayReport:
         }
 
     @property
+    def status_counts(self) -> dict[str, int]:
+        """Samples whose status word (as the box sent it) carries each bit."""
+        if self.fw_status is None:
+            return {}
+        got = self.fw_status[self.fw_status >= 0]
+        return {name: int(((got >> i) & 1).sum()) for i, name in enumerate(STATUS_NAMES)
+                if ((got >> i) & 1).any()}
+
+    @property
     def ok(self) -> bool:
         return all(self.checks.values()) and not self.problems_fatal
 
@@ -107,6 +116,7 @@ class ReplayReport:
             "checks": self.checks,
             "received": self.received,
             "status_mismatches": self.status_mismatches,
+            "status_counts": self.status_counts,
             "code_mismatches": self.code_mismatches,
             "lost": self.lost,
             "duplicated": self.duplicated,

@@ -45,6 +45,11 @@ def format_table(report: ReplayReport, data: str) -> str:
                  f"  ({report.lost} lost, {report.duplicated} duplicated, {report.reordered} "
                  f"reordered, {report.bad_lines} bad lines)")
     lines.append("4. residuals                      reported above (measured - correction)")
+    if report.status_counts:
+        lines.append("   status bits the box raised (samples): " + ", ".join(
+            f"{k} {v}" for k, v in report.status_counts.items())
+            + ("  (EXTRAP: inputs beyond the training window; still corrected)"
+               if "EXTRAP" in report.status_counts else ""))
     if "qemu_equals_native" in checks:
         lines.append(f"5. QEMU image = native build      {checks['qemu_equals_native']}"
                      "  (every sample line byte for byte)")

@@ -22,10 +22,10 @@ from codegen.fixed import FixedModel
 from codegen.quantise import AUX_KINDS, TEMPERATURE_KINDS
 
 # docs/protocol.md status word
-MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA = (
-    1 << i for i in range(10))
+MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA, EXTRAP = (
+    1 << i for i in range(11))
 STATUS_NAMES = ("MODEL_BAD", "HOLD", "SLEW", "CLAMP", "RANGE", "OPEN", "TC_FAULT", "AUX_FAULT",
-                "WDT_RESET", "NO_DATA")
+                "WDT_RESET", "NO_DATA", "EXTRAP")
 SR_OPEN = 0x01  # MAX31856 fault status register bit OPEN
 
 BOX_CONFIG = Path(__file__).resolve().parent.parent / "firmware" / "include" / "box_config.h"
@@ -91,11 +91,14 @@ class Expected:
 
 
 def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
-                   max_code: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(valid [n, ch], status bits [n]) from the chips' SR and the channels' valid ranges.
+                   max_code: np.ndarray, window_lo: np.ndarray | None = None,
+                   window_hi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(valid [n, ch], status bits [n]) from the chips' SR, the channels' valid ranges and
+    their training windows.
 
     A chip reporting a fault is a fault of the chip (OPEN / TC_FAULT), whatever its code; only
-    a chip without fault is range-checked (RANGE).
+    a chip without fault is range-checked (RANGE); only a valid code is window-checked
+    (EXTRAP: the model extrapolates, the axis is still corrected).
     """
     chip_fault = sr != 0
     out_of_range = ~chip_fault & ((codes < min_code) | (codes > max_code))
@@ -104,6 +107,9 @@ def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
     bits |= np.where((sr & SR_OPEN).any(axis=1), OPEN, 0)
     bits |= np.where((sr & ~SR_OPEN & 0xFF).any(axis=1), TC_FAULT, 0)
     bits |= np.where(out_of_range.any(axis=1), RANGE, 0)
+    if window_lo is not None and window_hi is not None:
+        beyond = valid & ((codes < window_lo) | (codes > window_hi))
+        bits |= np.where(beyond.any(axis=1), EXTRAP, 0)
     return valid, bits
 
 
@@ -158,7 +164,9 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
     n = codes.shape[0]
     lo = np.array([c.min_code for c in m.channels], dtype=np.int64)
     hi = np.array([c.max_code for c in m.channels], dtype=np.int64)
-    valid, bits = channel_faults(codes, sr, lo, hi)
+    wlo = np.array([c.window_lo_code for c in m.channels], dtype=np.int64)
+    whi = np.array([c.window_hi_code for c in m.channels], dtype=np.int64)
+    valid, bits = channel_faults(codes, sr, lo, hi, wlo, whi)
     if m.aux:
         alo = np.array([a.min for a in m.aux], dtype=np.int64)
         ahi = np.array([a.max for a in m.aux], dtype=np.int64)

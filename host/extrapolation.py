@@ -3,9 +3,13 @@
 A linear thermal model is fitted over the temperatures of its training runs. Beyond them it
 extrapolates, and that is where selections and effects that looked right on every training fold
 break (docs/selection.md, the hotter FL cycle; docs/effects.md, square(T13) at 5000 rpm).
-``host train`` stores each model input's training range (``training.input_ranges``);
-``host evaluate`` and ``host diagnose`` say which inputs of a new run leave it, by how much and
-for how long, so a user reads a larger error as "hotter than the test", not as a broken box.
+``host train`` stores each input's training range next to its declaration in model.json
+(``channels[i].trained_min_c/_max_c``, ``aux[k].trained_min/_max``); the box flags a valid
+reading beyond it (status EXTRAP, codegen turns the range into a window of codes), and
+``host evaluate`` / ``host diagnose`` / the report say which inputs of a run leave it, by how
+much and for how long, so a user reads a larger error as "hotter than the test", not as a
+broken box. One rule everywhere: outside means beyond the range by more than
+``EXTRAPOLATION_MARGIN`` (5 %) of its span.
 """
 
 from __future__ import annotations
@@ -14,20 +18,35 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from codegen.quantise import EXTRAPOLATION_MARGIN
 from host.data import Run
 
-# An input counts as outside when it leaves its training range by more than this share of the
-# range's span: a few per cent is sensor noise and harmless; the FL 5000 rpm cycle goes 20-41 %.
-TOLERANCE_SHARE = 0.05
+TOLERANCE_SHARE = float(EXTRAPOLATION_MARGIN)  # a few % is noise; the FL 5000 rpm cycle: 20-41 %
 
 
-def training_ranges(runs: Sequence[Run], inputs: Sequence[str]) -> dict[str, dict[str, float]]:
-    """{input: {"min", "max"}} over all training runs (sensor or aux column names)."""
+def add_training_ranges(channels: Sequence[dict], aux: Sequence[dict],
+                        runs: Sequence[Run]) -> None:
+    """Write each wired sensor's and aux input's min/max over the training runs into its
+    model.json declaration (part of the model hash: the box's EXTRAP window comes from it)."""
+    for c in channels:
+        values = np.concatenate([r.column(c["sensor"]) for r in runs])
+        c["trained_min_c"], c["trained_max_c"] = float(np.min(values)), float(np.max(values))
+    for a in aux:
+        values = np.concatenate([r.column(a["name"]) for r in runs])
+        a["trained_min"], a["trained_max"] = float(np.min(values)), float(np.max(values))
+
+
+def training_ranges(model: Mapping) -> dict[str, dict[str, float]] | None:
+    """{input: {"min", "max"}} from the model's declarations, channel order then aux; None
+    when the model was trained before ranges were stored."""
     out = {}
-    for name in inputs:
-        values = np.concatenate([r.column(name) for r in runs])
-        out[name] = {"min": float(np.min(values)), "max": float(np.max(values))}
-    return out
+    for c in sorted(model.get("channels", []), key=lambda c: c["channel"]):
+        if "trained_min_c" in c:
+            out[c["sensor"]] = {"min": float(c["trained_min_c"]), "max": float(c["trained_max_c"])}
+    for a in sorted(model.get("aux", []), key=lambda a: a["input"]):
+        if "trained_min" in a:
+            out[a["name"]] = {"min": float(a["trained_min"]), "max": float(a["trained_max"])}
+    return out or None
 
 
 def outside_training(model: Mapping, run: Run) -> list[dict] | None:
@@ -37,9 +56,9 @@ def outside_training(model: Mapping, run: Run) -> list[dict] | None:
     input: the training ``train_min``/``train_max``, the run's ``run_min``/``run_max``,
     ``beyond`` (the largest distance outside the range, in the input's unit), ``beyond_share``
     (that distance over the training span) and ``samples_outside_pct`` (samples beyond the
-    tolerance). ``None`` when the model predates ``training.input_ranges``.
+    tolerance). ``None`` when the model stores no training ranges.
     """
-    ranges = (model.get("training") or {}).get("input_ranges")
+    ranges = training_ranges(model)
     if ranges is None:
         return None
     rows = []
@@ -47,7 +66,7 @@ def outside_training(model: Mapping, run: Run) -> list[dict] | None:
         if name not in run.sensor_names and name not in run.aux_names:
             continue  # the loader already refuses a run without a column the model needs
         x = run.column(name)
-        lo, hi = float(r["min"]), float(r["max"])
+        lo, hi = r["min"], r["max"]
         span = hi - lo
         tol = TOLERANCE_SHARE * span
         beyond = max(float(np.max(x)) - hi, lo - float(np.min(x)), 0.0)

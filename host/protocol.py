@@ -35,6 +35,7 @@ class Status(IntFlag):
     AUX_FAULT = 1 << 7
     WDT_RESET = 1 << 8
     NO_DATA = 1 << 9
+    EXTRAP = 1 << 10  # a valid reading beyond its training window: advice, still corrected
 
 
 STATUS_BITS = tuple(s.name for s in Status)  # bit order: STATUS_BITS[i] is bit i

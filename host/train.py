@@ -18,7 +18,7 @@ import numpy as np
 
 from host import __version__
 from host.data import Run, load_runs
-from host.extrapolation import training_ranges
+from host.extrapolation import add_training_ranges
 from host.fit import condition_number, fit_linear, r_squared, rmse, variance_inflation
 from host.model_io import AUX_KINDS, SCHEMA, TEMPERATURE_KINDS
 from host.progress import progress
@@ -355,8 +355,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
 
     wired = _channels(axes, names, dict(channels or {}), tc_type)
     aux_inputs = _aux(axes, runs)
-    inputs = [c["sensor"] for c in sorted(wired, key=lambda c: c["channel"])] + \
-        [a["name"] for a in aux_inputs]
+    add_training_ranges(wired, aux_inputs, runs)
     return {
         "schema": SCHEMA,
         "tool_version": __version__,
@@ -379,7 +378,6 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "effects": bool(effects),
             "ambient": ambient,
             "max_channels": int(max_channels),
-            "input_ranges": training_ranges(runs, inputs),
         },
     }
 

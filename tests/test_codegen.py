@@ -165,7 +165,8 @@ def test_model_hash_ignores_traces_but_not_the_function():
 
 def _one_term_crc() -> int:
     data = struct.pack("<IIII", 1, 0, 1, 1000)  # channels, aux, axes, period ms
-    data += struct.pack("<iiB", -5120, 25600, 0)  # T01: -40..200 degC, type K
+    data += struct.pack("<iiiiB", -5120, 25600, -5120, 25600, 0)  # T01: -40..200 degC, no
+    # training range (window = valid range), type K
     data += struct.pack("<BBq", ONE_SHIFT, 1, ONE_INTERCEPT_Q)
     data += struct.pack("<BBiq", 0, 0, 0, ONE_COEF_Q)  # temp, channel 0, no param
     return zlib.crc32(data)
@@ -179,7 +180,7 @@ GOLDEN = """\
  * Model {hash} (schema thermal-model/1), sample period 1000 ms.
  * Output: per axis, int32_t nanometres. Inputs: int32_t temperature codes, LSB 1/128 degC
  * (MAX31856 LTCB >> 5, sign-extended); a code outside its channel's range below is a fault.
- * Arithmetic: docs/fixed-point.md (runtime format 1); bounds: docs/codegen.md.
+ * Arithmetic: docs/fixed-point.md (runtime format 2); bounds: docs/codegen.md.
  * Include this file from exactly one firmware source file.
  */
 #ifndef TCM_GENERATED_MODEL_H
@@ -189,9 +190,9 @@ GOLDEN = """\
 
 #include "model_eval.h"
 
-#define TCM_HEADER_FORMAT 1
+#define TCM_HEADER_FORMAT 2
 #if TCM_HEADER_FORMAT != TCM_RUNTIME_FORMAT
-#error "model.h is header format 1 but model_eval.h is another runtime format: regenerate \
+#error "model.h is header format 2 but model_eval.h is another runtime format: regenerate \
 model.h with the codegen matching this firmware (host codegen)"
 #endif
 
@@ -211,6 +212,9 @@ model.h with the codegen matching this firmware (host codegen)"
 /* channel 0: T01, type K, -40.0 .. 200.0 degC */
 #define TCM_CH0_MIN_CODE INT32_C(-5120)
 #define TCM_CH0_MAX_CODE INT32_C(25600)
+/* no training range: the window is the valid range (EXTRAP never set) */
+#define TCM_CH0_WINDOW_LO INT32_C(-5120)
+#define TCM_CH0_WINDOW_HI INT32_C(25600)
 
 /* ---- Axis 0: dz_um ----
  * out_nm = rdiv(intercept_q + sum_j coef_q[j] * x_j, 2^43): each integer below is
@@ -252,10 +256,14 @@ _Static_assert(TCM_AXIS0_N_TERMS == TCM_N_TERMS, "axes' term counts do not add u
 _Static_assert(TCM_CODE_MIN <= TCM_CH0_MIN_CODE && TCM_CH0_MIN_CODE <= TCM_CH0_MAX_CODE && \
 TCM_CH0_MAX_CODE <= TCM_CODE_MAX,
                "channel 0 (T01): range outside the 19-bit code range");
+_Static_assert(TCM_CH0_MIN_CODE <= TCM_CH0_WINDOW_LO && TCM_CH0_WINDOW_LO <= TCM_CH0_WINDOW_HI \
+&& TCM_CH0_WINDOW_HI <= TCM_CH0_MAX_CODE,
+               "channel 0 (T01): training window outside the valid range");
 
 /* ---- Tables --------------------------------------------------------------------------- */
 static const tcm_channel_t tcm_channels[] = {{
-    {{.min_code = TCM_CH0_MIN_CODE, .max_code = TCM_CH0_MAX_CODE, .tc_type = TCM_TC_K, \
+    {{.min_code = TCM_CH0_MIN_CODE, .max_code = TCM_CH0_MAX_CODE, \
+.window_lo_code = TCM_CH0_WINDOW_LO, .window_hi_code = TCM_CH0_WINDOW_HI, .tc_type = TCM_TC_K, \
 .sensor = "T01"}},
 }};
 _Static_assert(sizeof tcm_channels / sizeof tcm_channels[0] == TCM_N_CHANNELS, \
@@ -379,7 +387,34 @@ REFUSALS = [
                                  lambda m: m.pop("time_max_s")),
      ["time", "time_max_s"]),
     ("no axes", _edit(GOOD, lambda m: m.update(axes={})), ["no axes"]),
+    ("empty training range",
+     _edit(GOOD, lambda m: m["channels"][0].update(trained_min_c=30.0, trained_max_c=20.0)),
+     ["channels[0] (T01)", "training range 30..20", "empty"]),
+    ("training range not a number",
+     _edit(GOOD, lambda m: m["channels"][0].update(trained_min_c="cold", trained_max_c=20.0)),
+     ["channels[0].trained_min_c", "'cold'"]),
 ]
+
+
+@pytest.mark.parametrize("t_lo, t_hi, lo_c, hi_c", [
+    (10.0, 40.0, -40.0, 200.0),  # span 30: window 8.5 .. 41.5 degC, exact codes
+    (18.3, 41.7, -40.0, 200.0),  # not on a code boundary: rounded outwards
+    (-19.0, 119.5, -20.0, 120.0),  # wider than the valid range: clipped to it
+    (25.0, 25.0, -40.0, 200.0),  # constant in training: the window is that code's span
+])
+def test_training_window_codes_follow_the_documented_rule(t_lo, t_hi, lo_c, hi_c):
+    m = _edit(GOOD, lambda m: m["channels"][0].update(trained_min_c=t_lo, trained_max_c=t_hi,
+                                                      min_c=lo_c, max_c=hi_c))
+    ch = codegen.generate(m).model.channels[0]
+    lo, hi = math.ceil(Fraction(lo_c) * 128), math.floor(Fraction(hi_c) * 128)
+    margin = (Fraction(t_hi) - Fraction(t_lo)) / 20
+    want_lo = min(max(math.floor((Fraction(t_lo) - margin) * 128), lo), hi)
+    want_hi = max(min(math.ceil((Fraction(t_hi) + margin) * 128), hi), lo)
+    assert (ch.window_lo_code, ch.window_hi_code) == (want_lo, want_hi)
+    if (t_lo, t_hi) == (10.0, 40.0):
+        assert (ch.window_lo_code, ch.window_hi_code) == (1088, 5312)  # 8.5 * 128, 41.5 * 128
+    # the model hash covers the window: another training range is another model
+    assert codegen.model_hash(m) != codegen.model_hash(GOOD)
 
 
 @pytest.mark.parametrize("label, bad, fragments", REFUSALS, ids=[r[0] for r in REFUSALS])

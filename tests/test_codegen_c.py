@@ -11,11 +11,13 @@ agree within the bound the generator claims (measured and claimed are printed).
 from __future__ import annotations
 
 import itertools
+import math
 import shutil
 import struct
 import subprocess
 import zlib
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -71,7 +73,7 @@ def test_header_compiles_warning_free_on_host_and_cortex_m4(name, tmp_path):
 @pytest.mark.skipif(GCC is None, reason="needs gcc")
 def test_stale_header_format_is_a_compile_error(tmp_path):
     gen = _write_header(tmp_path, "one_term")
-    stale = gen.text.replace("#define TCM_HEADER_FORMAT 1", "#define TCM_HEADER_FORMAT 0")
+    stale = gen.text.replace("#define TCM_HEADER_FORMAT 2", "#define TCM_HEADER_FORMAT 1")
     assert stale != gen.text
     (tmp_path / "model.h").write_text(stale)
     r = _compile(GCC, ["-c", "use.c", "-o", "/dev/null"], tmp_path)
@@ -113,7 +115,13 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
     for c in channels:
         lo = int(np.ceil(c["min_c"] * 128))
         hi = int(np.floor(c["max_c"] * 128))
-        out += struct.pack("<iiB", lo, hi, {"K": 0, "J": 1}[c["tc_type"]])
+        w_lo, w_hi = lo, hi  # docs/fixed-point.md: training range +- 5 % of its span, outwards
+        if "trained_min_c" in c:  # exact arithmetic, as the rule is stated
+            t_lo, t_hi = Fraction(c["trained_min_c"]), Fraction(c["trained_max_c"])
+            margin = (t_hi - t_lo) / 20
+            w_lo = min(max(math.floor((t_lo - margin) * 128), lo), hi)
+            w_hi = max(min(math.ceil((t_hi + margin) * 128), hi), lo)
+        out += struct.pack("<iiiiB", lo, hi, w_lo, w_hi, {"K": 0, "J": 1}[c["tc_type"]])
     for a in aux:
         out += struct.pack("<ii", int(np.ceil(a["min"])), int(np.floor(a["max"])))
     kinds = ["temp", "lag", "rate", "speed", "speed2", "square", "time"]

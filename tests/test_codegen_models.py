@@ -4,7 +4,8 @@ Parameters the box stores quantised (alpha, ref_c) come from host.terms' make_* 
 they are exactly what a trained model.json holds. Together the models cover: 1-5 terms per
 axis, 1-3 axes, every term kind, large and tiny coefficients, negative intercepts, an
 all-negative channel range, a wide (-200..1300 degC) range, a model without channels, a
-sub-second sample period and a `time` term that saturates within a test run.
+sub-second sample period, a `time` term that saturates within a test run, and channels with
+and without a training range (one whose EXTRAP window is clipped to the valid range).
 """
 
 from __future__ import annotations
@@ -41,8 +42,11 @@ def one_term() -> dict:
 def all_kinds() -> dict:
     """3 channels, 1 aux, 3 axes (5, 3 and 1 terms): every kind, negative intercepts."""
     p = 1.0
-    m = base(period_s=p, channels=[channel(0, "T01"), channel(1, "T02", tc="J"),
-                                   channel(2, "T03", -20.0, 120.0)],
+    trained = {"trained_min_c": 18.3, "trained_max_c": 41.7}  # as host train writes it
+    near_edge = {"trained_min_c": -19.0, "trained_max_c": 119.5}  # window clipped to the range
+    m = base(period_s=p, channels=[{**channel(0, "T01"), **trained},
+                                   channel(1, "T02", tc="J"),
+                                   {**channel(2, "T03", -20.0, 120.0), **near_edge}],
              aux=[SPINDLE], time_max_s=3000.0)
     m["axes"]["dx_um"] = {"unit": "um", "intercept": -3.125, "terms": [
         term(make_temp("T01"), 2.31),

@@ -55,13 +55,11 @@ def _columns(path: Path) -> dict[str, np.ndarray]:
 def test_model_stores_each_wired_input_training_range(trained):
     paths, model_path = trained
     model = read_model(model_path)
-    wired = [c["sensor"] for c in model["channels"]]
-    ranges = model["training"]["input_ranges"]
-    assert list(ranges) == wired  # aux inputs appear only when a term uses them
     cols = _columns(paths["train"])
-    for name in wired:
-        assert ranges[name] == {"min": pytest.approx(cols[name].min(), abs=1e-9),
-                                "max": pytest.approx(cols[name].max(), abs=1e-9)}
+    for c in model["channels"]:
+        assert c["trained_min_c"] == pytest.approx(cols[c["sensor"]].min(), abs=1e-9)
+        assert c["trained_max_c"] == pytest.approx(cols[c["sensor"]].max(), abs=1e-9)
+    assert model["aux"] == []  # aux inputs are declared (with their range) only when used
 
 
 def test_a_hotter_run_is_flagged_with_distance_share_and_time_outside(trained):
@@ -112,7 +110,8 @@ def test_cli_evaluate_and_diagnose_say_it(trained, capsys):
 def test_older_models_without_ranges_say_so(trained):
     paths, model_path = trained
     model = read_model(model_path)
-    del model["training"]["input_ranges"]
+    for c in model["channels"]:
+        del c["trained_min_c"], c["trained_max_c"]
     run = load_run(paths["hot"], ["dz_um"], "T*")
     assert outside_training(model, run) is None
     assert "not stored" in describe(None)[0]
@@ -129,6 +128,7 @@ def test_the_hotter_fl_cycle_leaves_the_training_range(tmp_path, capsys):
     rows = evaluate_model(model, load_run(second, ["ch3_um"], "T*"))["outside_training_range"]
     a, b = _columns(first), _columns(second)
     tol = {s: 0.05 * (a[s].max() - a[s].min()) for s in a}
-    expected = [s for s in model["training"]["input_ranges"]
+    wired = [c["sensor"] for c in sorted(model["channels"], key=lambda c: c["channel"])]
+    expected = [s for s in wired
                 if b[s].max() > a[s].max() + tol[s] or b[s].min() < a[s].min() - tol[s]]
     assert expected and [r["input"] for r in rows] == expected

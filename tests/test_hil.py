@@ -11,9 +11,11 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import shutil
 import subprocess
 import sys
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +27,8 @@ from hil.checks import judge
 from hil.example_model import default_terms, fit_example_model, fl_thermal_model, write_model
 from hil.runner import Capture
 from host.protocol import decode, encode_sample
+from host.split import split_file
+from host.train import train_model
 
 REPO = Path(__file__).resolve().parents[1]
 FL = REPO / "examples" / "fl_thermal_steps.csv"
@@ -249,3 +253,27 @@ def test_a_box_that_stops_answering_fails_the_replay_and_says_where(fl_setup):
     assert report.received <= 500 and report.lost == report.samples - report.received
     assert capture.sessions[0].exit_code == 2
     assert any("sample 500" in p or "closed" in p for p in report.problems), report.problems
+
+
+def test_box_flags_extrapolation_on_the_hotter_fl_cycle(tmp_path):
+    """Trained on 0-24 h, the box replays the 5000 rpm cycle (24-32 h): every sample whose
+    reading of a wired channel leaves the training window carries EXTRAP, and only those; the
+    window is recomputed here from docs/protocol.md's rule, exactly, from the CSV files."""
+    first, second = split_file(FL, [24 * 3600.0], tmp_path)
+    model = train_model([first], ["ch3_um"], effects=False)
+    model_path = write_model(model, tmp_path / "model.json")
+    report, _ = hil_replay.run(hil_replay.prepare(model_path, second, tmp_path / "hil"))
+    assert report.ok and report.status_mismatches == 0, report.problems
+
+    train, test = csv_columns(first), csv_columns(second)
+    beyond = np.zeros(len(test["time_s"]), dtype=bool)
+    for c in model["channels"]:
+        lo, hi = Fraction(train[c["sensor"]].min()), Fraction(train[c["sensor"]].max())
+        w_lo = math.floor((lo - (hi - lo) / 20) * 128)
+        w_hi = math.ceil((hi + (hi - lo) / 20) * 128)
+        code = np.sign(test[c["sensor"]]) * np.floor(np.abs(test[c["sensor"]]) * 128 + 0.5)
+        beyond |= (code < w_lo) | (code > w_hi)
+    assert beyond.sum() > 0.2 * beyond.size  # the hotter cycle is far outside, not by noise
+    assert report.status_counts.get("EXTRAP", 0) == int(beyond.sum())
+    got = (report.fw_status >> 10) & 1
+    np.testing.assert_array_equal(got.astype(bool), beyond)

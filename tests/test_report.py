@@ -104,13 +104,12 @@ def example(tmp_path_factory):
     channels = sorted({s for pair in sensors_used.values() for s in pair})
     model = {
         "schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": PERIOD_S,
-        "channels": [{"channel": i, "sensor": s, "tc_type": "K", "min_c": -40.0, "max_c": 200.0}
+        "channels": [{"channel": i, "sensor": s, "tc_type": "K", "min_c": -40.0, "max_c": 200.0,
+                      "trained_min_c": float(train.column(s).min()),
+                      "trained_max_c": float(train.column(s).max())}
                      for i, s in enumerate(channels)],
         "aux": [], "time_max_s": 604800.0, "axes": axes,
-        "training": {"runs": [str(paths[0])], "targets": list(AXES), "sensors": "T*",
-                     "input_ranges": {s: {"min": float(train.column(s).min()),
-                                          "max": float(train.column(s).max())}
-                                      for s in channels}},
+        "training": {"runs": [str(paths[0])], "targets": list(AXES), "sensors": "T*"},
         "fixed_point": {"axes": {"ch3_um": {"bound_um": 0.0042}}},
     }
     model_path = tmp / "model.json"

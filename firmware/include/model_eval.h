@@ -23,7 +23,7 @@
 #include <stdint.h>
 
 /* A generated model.h must carry the same number (nanopb style check in the header). */
-#define TCM_RUNTIME_FORMAT 1
+#define TCM_RUNTIME_FORMAT 2
 
 /* Capacity of the runtime (state is statically sized; codegen refuses bigger models). */
 #define TCM_MAX_CHANNELS 32u /* valid_mask is a uint32_t */
@@ -80,10 +80,13 @@
 /* rdiv of a non-negative constant (identity for f = 0). */
 #define TCM_RDIV_CONST(v, f) (((int64_t)(v) + ((INT64_C(1) << (f)) >> 1)) >> (f))
 
-/* One thermocouple channel: the valid code range (a code outside it is a fault). */
+/* One thermocouple channel: the valid code range (a code outside it is a fault) and the
+ * training window (a valid code outside it is an extrapolation: status EXTRAP). */
 typedef struct {
-    int32_t min_code;   /* ceil(min_c * 128) */
-    int32_t max_code;   /* floor(max_c * 128) */
+    int32_t min_code;       /* ceil(min_c * 128) */
+    int32_t max_code;       /* floor(max_c * 128) */
+    int32_t window_lo_code; /* training range widened by 5 % of its span, in codes */
+    int32_t window_hi_code; /* (the valid range when the model has no training range) */
     uint8_t tc_type;    /* TCM_TC_K / TCM_TC_J */
     const char *sensor; /* sensor name, for INFO (not part of the CRC) */
 } tcm_channel_t;

@@ -14,6 +14,7 @@
 #define STATUS_AUX_FAULT ((uint16_t)1u << 7)
 #define STATUS_WDT_RESET ((uint16_t)1u << 8)
 #define STATUS_NO_DATA ((uint16_t)1u << 9)
+#define STATUS_EXTRAP ((uint16_t)1u << 10) /* a valid reading beyond its training window */
 
 /* Per-channel fault word reported by STATUS: bits 0-7 are the MAX31856 fault status register
  * as last read, then the box's own findings. */

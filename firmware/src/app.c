@@ -161,6 +161,9 @@ static uint16_t sample_channels(uint32_t *valid_mask)
             st |= STATUS_RANGE;
         } else {
             *valid_mask |= (uint32_t)1u << ch;
+            if (r.code < c->window_lo_code || r.code > c->window_hi_code) {
+                st |= STATUS_EXTRAP; /* still corrected: advice, not a fault */
+            }
         }
         app.codes[ch] = r.code;
         app.ch_fault[ch] = fault;

@@ -89,6 +89,8 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
     for (uint32_t c = 0; c < m->n_channels; ++c) {
         crc = crc_i32(crc, m->channels[c].min_code);
         crc = crc_i32(crc, m->channels[c].max_code);
+        crc = crc_i32(crc, m->channels[c].window_lo_code);
+        crc = crc_i32(crc, m->channels[c].window_hi_code);
         crc = crc_u8(crc, m->channels[c].tc_type);
     }
     for (uint32_t k = 0; k < m->n_aux; ++k) {

@@ -15,8 +15,10 @@ expected lines of a seeded session of N_SAMPLES periods).
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import sys
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -30,8 +32,8 @@ N_CHANNELS = 8
 SEED = 20240605
 
 # docs/protocol.md status bits
-MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA = (
-    1 << i for i in range(10))
+MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA, EXTRAP = (
+    1 << i for i in range(11))
 SR_OPEN = 0x01
 
 
@@ -44,6 +46,9 @@ def test_model(period: float = 1.0) -> dict:
     channels = [{"channel": i, "sensor": f"T0{i + 1}", "tc_type": "J" if i in (2, 5) else "K",
                  "min_c": 0.0 if i == 3 else -40.0, "max_c": 100.0 if i == 3 else 200.0}
                 for i in range(N_CHANNELS)]
+    # T01 was trained between 10 and 40 degC (window 8.5..41.5 degC): its +30 degC step below
+    # leaves it, EXTRAP. The other channels have no training range (window = valid range).
+    channels[0].update({"trained_min_c": 10.0, "trained_max_c": 40.0})
     m = {"schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": period,
          "channels": channels,
          "aux": [{"input": 0, "name": "spindle_rpm", "min": 0.0, "max": 12000.0}],
@@ -111,6 +116,15 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
                 bits |= RANGE
             else:
                 valid_mask |= 1 << c
+                # the training window, from docs/protocol.md: lo = floor((min - 5 % span) * 128)
+                t_lo, t_hi = model["channels"][c].get("trained_min_c"), \
+                    model["channels"][c].get("trained_max_c")
+                if t_lo is not None:  # exact arithmetic, as the rule is stated
+                    margin = (Fraction(t_hi) - Fraction(t_lo)) / 20
+                    w_lo = math.floor((Fraction(t_lo) - margin) * 128)
+                    w_hi = math.ceil((Fraction(t_hi) + margin) * 128)
+                    if not w_lo <= code <= w_hi:
+                        bits |= EXTRAP
         aux = int(s["aux"][i]) if s["aux_ok"][i] else aux_lo - 1
         if not s["aux_ok"][i] or not aux_lo <= aux <= aux_hi:
             bits |= AUX_FAULT
@@ -175,7 +189,7 @@ def main(argv: list[str]) -> int:
     seen = int(np.bitwise_or.reduce(e["status"]))
     for bit, name in ((HOLD, "HOLD"), (SLEW, "SLEW"), (CLAMP, "CLAMP"), (RANGE, "RANGE"),
                       (OPEN, "OPEN"), (TC_FAULT, "TC_FAULT"), (AUX_FAULT, "AUX_FAULT"),
-                      (NO_DATA, "NO_DATA")):
+                      (NO_DATA, "NO_DATA"), (EXTRAP, "EXTRAP")):
         if not seen & bit:
             raise SystemExit(f"gen_test_model: the test session never raises {name}")
 
