@@ -41,6 +41,7 @@ FL_TARGETS = ["ch1_um", "ch2_um", "ch3_um", "ch4_um", "ch5_um"]
 FL_BUILD = BUILD / "fl"
 FL_REPORT = REPORT / "fl"
 HIL_RESULT = BUILD / f"hil_{SIM_TEST.stem}.json"
+FL_HIL_RESULT = FL_BUILD / "hil_fl_24-32h.json"
 STEP_TIMEOUT_S = 600
 
 
@@ -193,15 +194,16 @@ def step_firmware(demo: Demo, header: Path) -> Path:
     return native
 
 
-def step_hil(demo: Demo) -> dict:
-    demo.step(f"HIL: the native firmware replays the unseen run {SIM_TEST.name}")
-    text = demo.run([sys.executable, "-m", "hil", "replay", "--model", BUILD / "model.json",
-                     "--data", SIM_TEST, "--json"])
+def step_hil(demo: Demo, model_json: Path = BUILD / "model.json", data: Path = SIM_TEST,
+             result: Path = HIL_RESULT, title: str | None = None) -> dict:
+    demo.step(title or f"HIL: the native firmware replays the unseen run {data.name}")
+    text = demo.run([sys.executable, "-m", "hil", "replay", "--model", model_json,
+                     "--data", data, "--json"])
     try:
         doc = json.loads(text)
     except json.JSONDecodeError:
         raise DemoFailed(f"HIL replay printed no valid JSON: {text[:300]!r}") from None
-    (ROOT / HIL_RESULT).write_text(json.dumps(doc, indent=2))
+    (ROOT / result).write_text(json.dumps(doc, indent=2))
     checks = doc.get("checks", {})
     demo.say(f"    {doc.get('samples')} samples fed, {doc.get('received')} lines back, "
              f"{doc.get('bad_lines')} bad, {doc.get('lost')} lost; box vs integer twin: "
@@ -217,6 +219,10 @@ def step_hil(demo: Demo) -> dict:
         raise DemoFailed(f"HIL checks failed: {', '.join(failed) or 'not ok'}; problems: "
                          f"{doc.get('problems')}")
     demo.say(f"    checks: {', '.join(checks) or '—'}: all passed")
+    extrap = doc.get("status_counts", {}).get("EXTRAP", 0)
+    if extrap:
+        demo.say(f"    the box raised EXTRAP on {extrap} of {doc.get('samples')} samples: "
+                 "inputs beyond their training window (still corrected)")
     demo.done()
     return doc
 
@@ -327,7 +333,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         protocols = step_protocols(demo)
         sim = step_report(demo, BUILD, [*SIM_TRAIN, SIM_TEST], REPORT, protocols, HIL_RESULT)
         fl_parts, _ = step_fl(demo)
-        fl = step_report(demo, FL_BUILD, fl_parts, FL_REPORT)
+        step_hil(demo, FL_BUILD / "model.json", fl_parts[1], FL_HIL_RESULT,
+                 "HIL: the box replays the hotter unseen cycle (does it know it extrapolates?)")
+        fl = step_report(demo, FL_BUILD, fl_parts, FL_REPORT, hil=FL_HIL_RESULT)
     except DemoFailed as exc:
         demo.say(f"\ndemo: step {demo.step_no} ({demo.current}) failed:\n{exc}")
         return 1

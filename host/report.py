@@ -551,6 +551,17 @@ figcaption{font-size:.92em;color:#444;max-width:900px}.meta{color:#666;font-size
 """
 
 
+def _status_counts_text(counts: dict | None) -> str:
+    if not counts:
+        return ""
+    text = " Status bits the box raised: " + html.escape(", ".join(
+        f"{name} on {n} sample{'s' if n != 1 else ''}" for name, n in counts.items())) + "."
+    if "EXTRAP" in counts:
+        text += (" EXTRAP: a reading beyond its training window, so the correction is an "
+                 "extrapolation (still applied).")
+    return text
+
+
 def _beyond_text(rows: list[dict] | None) -> str:
     if rows is None:
         return "not stored in this model"
@@ -640,7 +651,8 @@ def render_html(model: dict, report: Report) -> str:
                      f"{hil.get('mismatches', '?')} of its outputs differ from the integer twin, "
                      f"{hil.get('lost', '?')} lines were lost, {hil.get('bad_lines', '?')} bad. "
                      "Checks: " + e(", ".join(f"{k} {'passed' if v else 'FAILED'}"
-                                              for k, v in checks.items()) or "—") + ".</p>")
+                                              for k, v in checks.items()) or "—") + "."
+                     + _status_counts_text(hil.get("status_counts")) + "</p>")
         parts.append("<table><tr>" + "".join(_th(h, left=i == 0) for i, h in enumerate(
             ["axis", "raw RMS (µm)", "box-compensated RMS (µm)", "max |box − float| (nm)",
              "bound (nm)", "mismatches"])) + "</tr>")

@@ -122,6 +122,7 @@ def example(tmp_path_factory):
     hil = tmp / "hil_fl_second.json"
     hil.write_text(json.dumps({
         "samples": 960, "mismatches": 0, "lost": 0, "bad_lines": 0,
+        "status_counts": {"SLEW": 1, "EXTRAP": 412},
         "checks": {"twin_bit_exact": True, "float_within_bound": True},
         "axes": {"ch3_um": {"raw_rms_um": 37.3, "compensated_rms_um": 29.55, "mismatches": 0,
                             "float_max_diff_um": 0.00041, "bound_um": 0.0042}}}))
@@ -168,6 +169,7 @@ def test_html_embeds_every_figure_and_links_the_files(rendered):
         assert f'href="{name}"' in page
     assert "lag(T05, tau=1800s)</b>: validation RMSE 3.21 → 1.23 µm, 62 % better" in page
     assert "HIL replay (" in page and "twin_bit_exact passed" in page
+    assert "Status bits the box raised: SLEW on 1 sample, EXTRAP on 412 samples." in page
     assert "how many sensors the box reads: the smallest EC (paper 000)." in page  # ch3
     assert "the smallest out-of-fold error S<sub>i</sub>" in page  # ch5
     assert "Group refinement then swapped T16 → " in page and "(2.5 → 2.2 µm)" in page
