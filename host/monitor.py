@@ -49,6 +49,9 @@ class MonitorState:
     connected: bool = False
     last_rx: float | None = None
     messages: list[str] = field(default_factory=list)
+    # sensor -> (window_lo, window_hi) codes from model.json (codegen's EXTRAP windows); used
+    # only while the box reports that model's hash, to name the channels behind EXTRAP
+    windows: dict[str, tuple[int, int]] = field(default_factory=dict)
 
     @property
     def hash_ok(self) -> bool | None:
@@ -63,6 +66,26 @@ class MonitorState:
     def channel_names(self, n: int) -> list[str]:
         names = [c.sensor for c in self.info.channels] if self.info else []
         return names[:n] + [f"ch{i}" for i in range(len(names), n)]
+
+    def beyond_training(self) -> list[str]:
+        """Channels of the current sample outside their training window (named only when the
+        box runs the model.json the windows came from)."""
+        s = self.sample
+        if s is None or not self.windows or self.hash_ok is not True:
+            return []
+        names = self.channel_names(len(s.temp_codes))
+        return [n for n, code in zip(names, s.temp_codes, strict=True)
+                if n in self.windows and not self.windows[n][0] <= code <= self.windows[n][1]]
+
+
+def _flags(state: MonitorState, sep: str) -> str:
+    """The status flags of the current sample; EXTRAP names its channels when it can."""
+    assert state.sample is not None
+    names = protocol.status_names(state.sample.status)
+    beyond = state.beyond_training() if "EXTRAP" in names else []
+    if beyond:
+        names = [f"EXTRAP({'+'.join(beyond)})" if n == "EXTRAP" else n for n in names]
+    return sep.join(names) or "ok"
 
 
 def _hash_line(state: MonitorState) -> str:
@@ -88,8 +111,7 @@ def render(state: MonitorState, now: float) -> list[str]:
         lines.append("no sample yet")
     else:
         age = "" if state.last_rx is None else f", {now - state.last_rx:.1f} s ago"
-        flags = ", ".join(protocol.status_names(s.status)) or "ok"
-        lines.append(f"sample #{s.seq}{age}   status {s.status:04X}: {flags}")
+        lines.append(f"sample #{s.seq}{age}   status {s.status:04X}: {_flags(state, ', ')}")
         for name, nm in zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
                             strict=True):
             lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} µm")
@@ -112,7 +134,7 @@ def plain_sample_line(state: MonitorState) -> str:
                     zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm, strict=True))
     temps = " ".join(f"{n}={c / 128.0:.2f}C" for n, c in
                      zip(state.channel_names(len(s.temp_codes)), s.temp_codes, strict=True))
-    flags = ",".join(protocol.status_names(s.status)) or "ok"
+    flags = _flags(state, ",")
     return (f"seq={s.seq} status={s.status:04X}[{flags}] {corr} {temps} "
             f"bad={state.bad_lines}".replace("  ", " "))
 
@@ -182,6 +204,7 @@ class Monitor:
     """
 
     def __init__(self, port: str, baud: int = 115200, expected_hash: str | None = None,
+                 windows: dict[str, tuple[int, int]] | None = None,
                  log: str | Path | None = None, count: int | None = None,
                  duration: float | None = None, out: TextIO | None = None,
                  ansi: bool | None = None, retry_s: float = RETRY_S,
@@ -194,7 +217,7 @@ class Monitor:
         self.ansi = self.out.isatty() if ansi is None else ansi
         self.retry_s = retry_s
         self.opener = opener
-        self.state = MonitorState(port, expected_hash=expected_hash)
+        self.state = MonitorState(port, expected_hash=expected_hash, windows=dict(windows or {}))
         self.log = CsvLog(log) if log else None
         self._port: serial.SerialBase | None = None
         self._buf = bytearray()

@@ -262,13 +262,16 @@ NATIVE_MODEL = {
 def native_box(tmp_path_factory):
     """The native firmware built for a small model (cold-start slew off, so every sample's
     correction is the model's value) in a private build directory."""
+    return _build_native(tmp_path_factory.mktemp("native_monitor"), NATIVE_MODEL)
+
+
+def _build_native(tmp: Path, model: dict) -> tuple[Path, Path]:
     if shutil.which("gcc") is None or shutil.which("make") is None:
         pytest.skip("gcc/make not installed: cannot build the native firmware")
     from codegen import write_header
 
-    tmp = tmp_path_factory.mktemp("native_monitor")
     model_path = tmp / "model.json"
-    model_path.write_text(json.dumps(NATIVE_MODEL))
+    model_path.write_text(json.dumps(model))
     write_header(model_path, tmp / "model.h")
     build = subprocess.run(["make", "-s", "-C", str(ROOT / "firmware"), "BOARD=native",
                             f"MODEL={tmp / 'model.h'}", f"BUILD={tmp / 'fw'}",
@@ -331,3 +334,37 @@ def test_monitor_on_the_native_firmware_over_its_pty(native_box, tmp_path):
         assert int(row["status"], 16) == 0
     assert [int(r["seq"]) for r in rows] == list(range(int(rows[0]["seq"]),
                                                        int(rows[0]["seq"]) + 6))
+
+
+def test_monitor_names_the_channels_behind_extrap(tmp_path):
+    """T05 trained over 20..30 degC: its window is 19.5..30.5 degC (docs/protocol.md, 5 % of the
+    span). At 35 degC the box raises EXTRAP and the monitor says which channel; at 25 it does
+    not. T12 has no training range, so it never counts."""
+    model = json.loads(json.dumps(NATIVE_MODEL))
+    model["channels"][0].update(trained_min_c=20.0, trained_max_c=30.0)
+    binary, model_path = _build_native(tmp_path, model)
+    box, pty = start_native(binary)
+    monitor = subprocess.Popen([sys.executable, "-m", "host", "monitor", pty, "--model",
+                                str(model_path), "--count", "3"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               cwd=ROOT)
+    try:
+        assert monitor.stdout is not None and box.stdin is not None
+        first = monitor.stdout.readline()
+        assert first.startswith("connected to"), first + (monitor.stderr.read() or "")
+        feed = "".join(f"S 0 {round(t05 * 128)} {round(22.0 * 128)}\n"
+                       for t05 in (25.0, 35.0, 30.4))
+        box.stdin.write(feed.encode())
+        box.stdin.flush()
+        monitor.wait(timeout=30)  # few lines: cannot fill the pipe (see above)
+        out = monitor.stdout.read()
+    finally:
+        if monitor.poll() is None:
+            monitor.kill()
+        box.stdin.write(b"Q\n")
+        box.stdin.close()
+        box.wait(10)
+    samples = [line for line in out.splitlines() if line.startswith("seq=")]
+    assert len(samples) == 3, out
+    assert "EXTRAP" not in samples[0] and "EXTRAP" not in samples[2]  # 25 and 30.4 degC
+    assert "EXTRAP(T05)" in samples[1] and "status=0400" in samples[1]  # 35 degC, bit 10

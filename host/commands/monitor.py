@@ -15,7 +15,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "URL such as socket://host:port)")
     parser.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
     parser.add_argument("--model", metavar="JSON",
-                        help="model.json whose hash the box must report (checked via INFO)")
+                        help="model.json whose hash the box must report (checked via INFO); "
+                        "also names the channels behind an EXTRAP flag")
     parser.add_argument("--log", metavar="CSV", help="append every sample received to this CSV")
     parser.add_argument("--count", type=int, metavar="N", help="stop after N samples")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
@@ -29,17 +30,20 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    expected = None
+    expected, windows = None, {}
     if args.model:
-        from codegen import model_hash
+        from codegen import generate, model_hash
         from host.model_io import read_model
 
-        expected = model_hash(read_model(args.model))
+        model = read_model(args.model)
+        expected = model_hash(model)
+        windows = {c.sensor: (c.window_lo_code, c.window_hi_code)
+                   for c in generate(model).model.channels}
     if args.count is not None and args.count < 1:
         raise MonitorError(f"--count must be at least 1 (got {args.count})")
     if args.duration is not None and args.duration <= 0:
         raise MonitorError(f"--duration must be positive (got {args.duration})")
     ansi = True if args.ansi else False if args.plain else None
-    monitor = Monitor(args.port, args.baud, expected_hash=expected, log=args.log,
+    monitor = Monitor(args.port, args.baud, expected_hash=expected, windows=windows, log=args.log,
                       count=args.count, duration=args.duration, ansi=ansi, retry_s=args.retry)
     return monitor.run()
