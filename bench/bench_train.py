@@ -10,7 +10,7 @@ for c = 10 groups (1,023 subset fits, each from Gram matrices).
 
 from __future__ import annotations
 
-import os
+import json
 import subprocess
 import sys
 import tempfile
@@ -43,15 +43,33 @@ def synthetic_run(n_rows: int, n_sensors: int, period_s: float = 1.0, seed: int 
     return t, cols
 
 
+# Linux carries the old address space's high-water mark into ru_maxrss across fork + exec, so
+# a process started straight from this (by now large) bench process would report the bench's
+# memory. A small launcher starts the command instead and reports its wait4 rusage.
+LAUNCHER = r"""
+import json, os, sys, time
+t0 = time.perf_counter()
+pid = os.fork()
+if pid == 0:
+    os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+    os.execvp(sys.argv[1], sys.argv[1:])
+_, status, usage = os.wait4(pid, 0)
+print(json.dumps({"seconds": time.perf_counter() - t0, "maxrss_kb": usage.ru_maxrss,
+                  "exit": os.waitstatus_to_exitcode(status)}))
+"""
+
+
 def _timed_process(cmd: list[str]) -> tuple[float, float]:
-    """Wall time and peak RSS (MB) of one fresh process (its own rusage, via wait4)."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    dt = time.perf_counter() - t0
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed: {proc.stderr.read().decode()[-2000:]}")
-    return dt, usage.ru_maxrss / 1024.0
+    """Wall time and peak RSS (MB) of one fresh process (its own rusage, via the launcher)."""
+    done = subprocess.run([sys.executable, "-c", LAUNCHER, *cmd], capture_output=True,
+                          text=True)
+    try:
+        m = json.loads(done.stdout.strip().splitlines()[-1])
+    except (IndexError, json.JSONDecodeError):
+        raise RuntimeError(f"launcher failed: {done.stderr[-2000:]}") from None
+    if m["exit"] != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed: {done.stderr[-2000:]}")
+    return m["seconds"], m["maxrss_kb"] / 1024.0
 
 
 def _cli(csv: Path, out: Path) -> tuple[float, float, str]:
