@@ -4,7 +4,7 @@ Targets (issue 2): the large run in under 10 s and 1 GB on a 2-core machine, the
 under 1 s. `host train` is timed in a fresh process (interpreter start and CSV parsing
 included), once with codegen and the effects search off (selection + fit + validation) and
 once as a user runs it by default (effects + codegen); its peak resident memory comes from
-its own rusage (``os.wait4``). The EC step is timed alone
+its own rusage (``os.wait4`` in a small launcher, see LAUNCHER). The EC step is timed alone
 for c = 10 groups (1,023 subset fits, each from Gram matrices).
 """
 
