@@ -289,24 +289,20 @@ def start_native(binary: Path):
     assert line.startswith("PTY "), line
     return proc, line[4:]
 
-
-def test_monitor_on_the_native_firmware_over_its_pty(native_box, tmp_path):
-    binary, model_path = native_box
+def _monitor_native(binary: Path, model_path: Path, temps: list[tuple[float, float]],
+                    extra: list[str] | None = None) -> tuple[int, str, str, str]:
+    """Start the native box and `host monitor --model` on its pty, feed (T05, T12) samples,
+    and return the monitor's (exit code, first line, rest of stdout, stderr)."""
     box, pty = start_native(binary)
-    log = tmp_path / "native.csv"
     monitor = subprocess.Popen([sys.executable, "-m", "host", "monitor", pty, "--model",
-                                str(model_path), "--count", "6", "--log", str(log)],
+                                str(model_path), "--count", str(len(temps)), *(extra or [])],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                cwd=ROOT)
     try:
-        assert monitor.stdout is not None
+        assert monitor.stdout is not None and box.stdin is not None
         first = monitor.stdout.readline()
         assert first.startswith("connected to"), first + (monitor.stderr.read() or "")
-        # the monitor has the port open (pyserial flushes input on open): feed six samples
-        temps = [(25.0, 22.0), (25.5, 22.25), (26.0, 22.5), (27.25, 23.0), (28.0, 23.5),
-                 (30.0, 24.0)]
         feed = "".join(f"S 0 {round(a * 128)} {round(b * 128)}\n" for a, b in temps)
-        assert box.stdin is not None
         box.stdin.write(feed.encode())
         box.stdin.flush()
         # not communicate(): it reads the pipe's descriptor and would lose whatever readline()
@@ -320,7 +316,17 @@ def test_monitor_on_the_native_firmware_over_its_pty(native_box, tmp_path):
         box.stdin.write(b"Q\n")
         box.stdin.close()
         box.wait(10)
-    assert monitor.returncode == 0, first + out + err
+    return monitor.returncode, first, out, err
+
+
+def test_monitor_on_the_native_firmware_over_its_pty(native_box, tmp_path):
+    binary, model_path = native_box
+    log = tmp_path / "native.csv"
+    # the monitor has the port open (pyserial flushes input on open): feed six samples
+    temps = [(25.0, 22.0), (25.5, 22.25), (26.0, 22.5), (27.25, 23.0), (28.0, 23.5),
+             (30.0, 24.0)]
+    code, first, out, err = _monitor_native(binary, model_path, temps, ["--log", str(log)])
+    assert code == 0, first + out + err
     assert "matches model.json" in out
     with log.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
@@ -343,27 +349,7 @@ def test_monitor_names_the_channels_behind_extrap(tmp_path):
     model = json.loads(json.dumps(NATIVE_MODEL))
     model["channels"][0].update(trained_min_c=20.0, trained_max_c=30.0)
     binary, model_path = _build_native(tmp_path, model)
-    box, pty = start_native(binary)
-    monitor = subprocess.Popen([sys.executable, "-m", "host", "monitor", pty, "--model",
-                                str(model_path), "--count", "3"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               cwd=ROOT)
-    try:
-        assert monitor.stdout is not None and box.stdin is not None
-        first = monitor.stdout.readline()
-        assert first.startswith("connected to"), first + (monitor.stderr.read() or "")
-        feed = "".join(f"S 0 {round(t05 * 128)} {round(22.0 * 128)}\n"
-                       for t05 in (25.0, 35.0, 30.4))
-        box.stdin.write(feed.encode())
-        box.stdin.flush()
-        monitor.wait(timeout=30)  # few lines: cannot fill the pipe (see above)
-        out = monitor.stdout.read()
-    finally:
-        if monitor.poll() is None:
-            monitor.kill()
-        box.stdin.write(b"Q\n")
-        box.stdin.close()
-        box.wait(10)
+    _, _, out, _ = _monitor_native(binary, model_path, [(t05, 22.0) for t05 in (25.0, 35.0, 30.4)])
     samples = [line for line in out.splitlines() if line.startswith("seq=")]
     assert len(samples) == 3, out
     assert "EXTRAP" not in samples[0] and "EXTRAP" not in samples[2]  # 25 and 30.4 degC
