@@ -109,6 +109,20 @@ def check_model(model: Any, where: str = "model") -> None:
     if len(set(sensors)) != len(sensors) or len(set(indices)) != len(indices):
         fail("channels: duplicate sensor or channel index")
     aux_names = [a.get("name") for a in aux]
+    for kind, entries, keys in (("channels", channels, ("trained_min_c", "trained_max_c")),
+                                ("aux", aux, ("trained_min", "trained_max"))):
+        for e in entries:
+            if not any(k in e for k in keys):
+                continue  # a model written before training ranges were kept
+            lo, hi = (e.get(k) for k in keys)
+            label = e.get("sensor", e.get("name"))
+            if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and
+                       math.isfinite(v) for v in (lo, hi)):
+                fail(f"{kind} '{label}': {keys[0]} and {keys[1]} must both be finite numbers "
+                     f"(got {lo!r}, {hi!r})")
+            if lo > hi:
+                fail(f"{kind} '{label}': training range {lo:g}..{hi:g} is empty "
+                     f"({keys[0]} > {keys[1]})")
     for name, axis in axes.items():
         if not isinstance(axis, dict):
             fail(f"axis '{name}' is not an object")

@@ -14,7 +14,7 @@ from host.data import load_run, write_run
 from host.diagnose import diagnose, summary_lines
 from host.evaluate import evaluate_model
 from host.extrapolation import describe, outside_training
-from host.model_io import read_model
+from host.model_io import ModelFormatError, read_model
 
 ROOT = Path(__file__).resolve().parents[1]
 FL = ROOT / "examples" / "fl_thermal_steps.csv"
@@ -132,3 +132,21 @@ def test_the_hotter_fl_cycle_leaves_the_training_range(tmp_path, capsys):
     expected = [s for s in wired
                 if b[s].max() > a[s].max() + tol[s] or b[s].min() < a[s].min() - tol[s]]
     assert expected and [r["input"] for r in rows] == expected
+
+
+@pytest.mark.parametrize("edit, message", [
+    ({"trained_min_c": 30.0, "trained_max_c": 20.0}, "training range 30..20 is empty"),
+    ({"trained_min_c": "warm", "trained_max_c": 20.0}, "must both be finite numbers"),
+    ({"trained_min_c": 20.0}, "must both be finite numbers"),  # half a range
+])
+def test_a_broken_training_range_is_refused_with_the_channel_named(trained, tmp_path, edit,
+                                                                     message):
+    _, model_path = trained
+    model = json.loads(model_path.read_text())
+    model["channels"][0] = {k: v for k, v in model["channels"][0].items()
+                            if not k.startswith("trained_")} | edit
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(model))
+    with pytest.raises(ModelFormatError, match=message) as err:
+        read_model(bad)
+    assert str(bad) in str(err.value) and model["channels"][0]["sensor"] in str(err.value)
