@@ -190,6 +190,31 @@ def _paths(ax, x: np.ndarray, y: np.ndarray, heating: np.ndarray) -> None:
     ax.autoscale_view()
 
 
+def training_window(run: str, time_s: np.ndarray, inputs: Mapping[str, np.ndarray],
+                    ranges: Mapping[str, tuple[float, float]], margin: float) -> Figure:
+    """Each input of the model over the run, scaled to its training range (0 = the coldest,
+    1 = the hottest seen in training): the shaded band is where the model interpolates, the
+    dashed lines where the box starts to flag EXTRAP; a curve beyond them is extrapolation."""
+    fig = Figure(figsize=WIDE, layout="constrained")
+    ax = fig.add_subplot()
+    t, tlabel = time_axis(np.asarray(time_s, dtype=float))
+    ax.axhspan(0.0, 1.0, color="tab:green", alpha=0.12, label="training range")
+    for edge in (-margin, 1.0 + margin):
+        ax.axhline(edge, color="tab:red", ls="--", lw=1.0)
+    for name, x in inputs.items():
+        lo, hi = ranges[name]
+        span = hi - lo
+        label = name if span > 0 else f"{name} (constant in training: offset in its unit)"
+        ax.plot(t, (np.asarray(x, dtype=float) - lo) / (span if span > 0 else 1.0), lw=1.3,
+                label=label)
+    ax.set_xlabel(tlabel)
+    ax.set_ylabel("position in the training range (–)")
+    ax.set_title(f"{run}: inputs against their training range (dashed: EXTRAP)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(ncol=2, fontsize=9)
+    return fig
+
+
 def hysteresis(run: str, axis: str, sensor: str, temperature: np.ndarray, measured: np.ndarray,
                residual: np.ndarray, period_s: float) -> Figure:
     """Displacement against the most important temperature: the heating/cooling loop

@@ -23,7 +23,7 @@ import numpy as np
 
 from host import plots
 from host.data import Run, load_run
-from host.extrapolation import outside_training
+from host.extrapolation import TOLERANCE_SHARE, outside_training, training_ranges
 from host.fit import fit_linear
 from host.model_io import read_model
 from host.progress import progress
@@ -222,6 +222,7 @@ SECTIONS = [
     ("effects", "4. Effects added to close the loop"),
     ("hysteresis", "5. Heating and cooling paths (pseudo-hysteresis)"),
     ("protocols", "6. Which test protocol to run"),
+    ("window", "7. Inside or beyond the training range"),
 ]
 
 
@@ -294,6 +295,9 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             jobs.append(("hysteresis", axis_name, run))
     if matrix is not None:
         jobs.append(("protocols", None, None))
+    ranges = training_ranges(model)
+    if ranges:
+        jobs += [("window", None, run) for run in runs]
 
     run_table: dict[str, dict] = {}
     for kind, axis_name, run in progress(jobs, "report figures", quiet=quiet):
@@ -340,6 +344,21 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                        + (" This run was used for training." if entry[axis_name]["in_training"]
                           else " The model never saw this run."))
             file = f"run_{_slug(run.name)}_{_slug(axis_name)}.png"
+        elif kind == "window":
+            assert ranges is not None
+            used = {n: r for n, r in ranges.items()
+                    if n in run.sensor_names or n in run.aux_names}
+            fig_obj = plots.training_window(
+                run.name, run.time_s, {n: run.column(n) for n in used},
+                {n: (r["min"], r["max"]) for n, r in used.items()}, TOLERANCE_SHARE)
+            title = f"{run.name}: inputs against their training range"
+            caption = ("Each input the model reads, scaled so that 0 and 1 are the lowest and "
+                       "highest value it had in training. Inside the green band the model "
+                       "interpolates; beyond the dashed lines (5 % of the range further) it "
+                       "extrapolates and the box raises EXTRAP."
+                       + (" The model never saw this run." if not _in_training(model, run)
+                          else " This run was used for training, so it stays inside."))
+            file = f"window_{_slug(run.name)}.png"
         elif kind == "effects":
             stages = effect_stages(axis, axis_name, run, period)
             if len(stages) < 2:

@@ -140,7 +140,7 @@ def rendered(example, tmp_path_factory):
 
 
 def expected_files() -> set[str]:
-    files = {"protocols.png"}
+    files = {"protocols.png", "window_fl_first.png", "window_fl_second.png"}
     for axis in AXES:
         files |= {f"selection_{axis}.png", f"ec_{axis}.png"}
         for run in ("fl_first", "fl_second"):
