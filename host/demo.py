@@ -294,7 +294,8 @@ def step_fl(demo: Demo) -> tuple[list[Path], dict]:
                      f"compensated ({verdict}), worst {fmt_um(m['max_abs_um'])}")
         beyond = entry.get("outside_training_range") or []
         if beyond:
-            demo.say(f"    hotter than training: {len(beyond)} of {len(model['channels'])} inputs "
+            n_inputs = len(model["channels"]) + len(model.get("aux", []))
+            demo.say(f"    hotter than training: {len(beyond)} of {n_inputs} inputs "
                      "leave their training range (" + ", ".join(
                          f"{r['input']} +{100 * r['beyond_share']:.0f} %" for r in beyond
                          if r["beyond_share"] is not None) + " of span): the model extrapolates")

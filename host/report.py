@@ -355,7 +355,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             caption = ("Each input the model reads, scaled so that 0 and 1 are the lowest and "
                        "highest value it had in training. Inside the green band the model "
                        "interpolates; beyond the dashed lines (5 % of the range further) it "
-                       "extrapolates and the box raises EXTRAP."
+                       "extrapolates (for a thermocouple the box raises EXTRAP there)."
                        + (" The model never saw this run." if not _in_training(model, run)
                           else " This run was used for training, so it stays inside."))
             file = f"window_{_slug(run.name)}.png"
