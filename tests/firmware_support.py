@@ -104,3 +104,18 @@ def box_defaults() -> dict[str, int]:
     text = (FIRMWARE / "include" / "box_config.h").read_text()
     return {m.group(1): int(m.group(2))
             for m in re.finditer(r"^#define (BOX_[A-Z0-9_]+) (-?\d+)$", text, re.M)}
+
+
+def prepare_fl_head(d: Path, n: int, cflags: str = ""):
+    """The first ``n`` samples of the real FL run and the HIL's FL model, ready to replay
+    (hil.replay.prepare) from the build directory ``d/hil``."""
+    from hil import replay as hil_replay
+    from hil.example_model import fl_thermal_model, write_model
+    from host.data import load_run, write_run
+
+    fl = ROOT / "examples" / "fl_thermal_steps.csv"
+    run = load_run(fl, targets=["ch1_um", "ch3_um"], sensors="T*", aux=["spindle_rpm"])
+    cols = {k: v[:n] for k, v in run.columns().items() if k != "time_s"}
+    write_run(d / "fl_head.csv", run.time_s[:n], cols, precision=9)
+    model = write_model(fl_thermal_model(fl), d / "model.json")
+    return hil_replay.prepare(model, d / "fl_head.csv", d / "hil", cflags=cflags)

@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import re
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
+from firmware_support import prepare_fl_head
 
 from hil import replay as hil_replay
 from hil.build import build_firmware
-from hil.example_model import fl_thermal_model, write_model
 from hil.expect import (
     AUX_FAULT,
     HOLD,
@@ -38,14 +37,12 @@ from hil.expect import (
     output_stage,
 )
 from hil.runner import ChipFault, CodeOverride, Restart, SerialNoise
-from host.data import load_run, write_run
 from host.protocol import decode
 
 pytestmark = pytest.mark.skipif(
     shutil.which("gcc") is None or shutil.which("make") is None,
     reason="gcc/make not installed: the native firmware cannot be built")
 
-FL = Path(__file__).resolve().parents[1] / "examples" / "fl_thermal_steps.csv"
 N = 1200
 SLEW_CFLAGS = "-DBOX_SLEW_NM_PER_S=20"
 STEP_NM = 300  # 20 nm/s * 15 s
@@ -56,12 +53,7 @@ CH1, CH3 = 0, 1  # axis indices: ch1_um uses T10, T07, T04 + spindle; ch3_um T11
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    d = tmp_path_factory.mktemp("hil_faults")
-    run = load_run(FL, targets=["ch1_um", "ch3_um"], sensors="T*", aux=["spindle_rpm"])
-    cols = {k: v[:N] for k, v in run.columns().items() if k != "time_s"}
-    write_run(d / "fl_head.csv", run.time_s[:N], cols, precision=9)
-    model = write_model(fl_thermal_model(FL), d / "model.json")
-    return hil_replay.prepare(model, d / "fl_head.csv", d / "hil", cflags=SLEW_CFLAGS)
+    return prepare_fl_head(tmp_path_factory.mktemp("hil_faults"), N, cflags=SLEW_CFLAGS)
 
 
 def sessions_exit_cleanly(capture, killed: int = 0) -> None:

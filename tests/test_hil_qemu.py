@@ -9,19 +9,16 @@ middle, about 2 s of emulation); `python -m hil replay --target qemu` does whole
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
+from firmware_support import prepare_fl_head
 
 from hil import replay as hil_replay
 from hil.checks import capture_differences, sample_lines
-from hil.example_model import fl_thermal_model, write_model
 from hil.expect import HOLD, OPEN
 from hil.runner import ChipFault
-from host.data import load_run, write_run
 
-FL = Path(__file__).resolve().parents[1] / "examples" / "fl_thermal_steps.csv"
 N = 800
 
 pytestmark = [
@@ -36,12 +33,7 @@ pytestmark = [
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    d = tmp_path_factory.mktemp("hil_qemu")
-    run = load_run(FL, targets=["ch1_um", "ch3_um"], sensors="T*", aux=["spindle_rpm"])
-    cols = {k: v[:N] for k, v in run.columns().items() if k != "time_s"}
-    write_run(d / "fl_head.csv", run.time_s[:N], cols, precision=9)
-    model = write_model(fl_thermal_model(FL), d / "model.json")
-    return hil_replay.prepare(model, d / "fl_head.csv", d / "hil")
+    return prepare_fl_head(tmp_path_factory.mktemp("hil_qemu"), N)
 
 
 def test_qemu_image_matches_native_build_and_twin(setup):
