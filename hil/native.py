@@ -121,6 +121,11 @@ class NativeBox:
         self._stderr.seek(0)
         return self._stderr.read().decode(errors="replace")
 
+    def last_words(self) -> str:
+        """The last line the firmware wrote on stderr: why a box that died stopped."""
+        lines = self.stderr_text().strip().splitlines()
+        return lines[-1] if lines else ""
+
     def __enter__(self) -> NativeBox:
         return self
 

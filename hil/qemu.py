@@ -133,6 +133,10 @@ class QemuBox:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
+    def last_words(self) -> str:
+        """Nothing: the STM32 image has no stderr (its faults travel in the status flags)."""
+        return ""
+
     def stop(self, timeout: float = 5.0) -> int:
         if self.alive():
             try:

@@ -31,6 +31,7 @@ class Box(Protocol):
     def stop(self, timeout: float = 5.0) -> int: ...
     def kill(self) -> int: ...
     def alive(self) -> bool: ...
+    def last_words(self) -> str: ...
 
 
 # --- the script: what happens during a replay ---------------------------------------------
@@ -178,8 +179,9 @@ def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), wind
     except (LinkTimeout, BoxStartError) as exc:
         # The box stopped answering, died while being fed, or did not boot again: the replay
         # ends here and the checks report it (with everything received so far).
-        session.error = str(exc)
         finish(session, box, kill=True)
+        said = box.last_words()
+        session.error = f"{exc} (the box said: {said})" if said else str(exc)
     except BaseException:
         box.kill()
         raise

@@ -182,13 +182,15 @@ def test_model_crc_mismatch_means_no_corrections(fw):
 
 
 @pytest.mark.parametrize(("feed", "message"), [
-    ("S 1000 2560\nS x 2560\n", "feed line 2: S: aux value 'x'"),
-    ("S 1000 262144\n", "feed line 1: S: code '262144' is not an integer in -262144..262143"),
-    ("S 1000 1 2\nS 1000 1\n", "feed line 2: S: 1 codes, the first S line had 2"),
-    ("F 9 01\n", "feed line 1: F: channel '9'"),
-    ("F 1 1FF\n", "feed line 1: F: fault status '1FF'"),
-    ("\nT 1\n", "feed line 2: unknown command 'T 1'"),
-    ("S 1000\n", "feed line 1: S: no temperature codes"),
+    ("S 1000 2560\nS x 2560\n", "feed line 2 (sample 1): S: aux value 'x'"),
+    ("S 1000 262144\n",
+     "feed line 1 (sample 0): S: code '262144' is not an integer in -262144..262143"),
+    ("S 1000 1 2\nS 1000 1\n", "feed line 2 (sample 1): S: 1 codes, the first S line had 2"),
+    ("F 9 01\n", "feed line 1 (before sample 0): F: channel '9'"),
+    ("F 1 1FF\n", "feed line 1 (before sample 0): F: fault status '1FF'"),
+    ("S 1000 2560\nF 9 01\n", "feed line 2 (before sample 1): F: channel '9'"),
+    ("\nT 1\n", "feed line 2 (before sample 0): unknown command 'T 1'"),
+    ("S 1000\n", "feed line 1 (sample 0): S: no temperature codes"),
 ])
 def test_bad_feed_lines_stop_with_a_message_naming_the_line(fw, feed, message):
     box = Box(fw["binary"])

@@ -121,12 +121,16 @@ static unsigned long feed_line_no;
 static int chip_count = -1; /* fixed by the first S line */
 static long hang_after_samples = -1; /* --hang-after-samples */
 static long samples_fed;
+static bool in_sample_line; /* the line being handled is an S line (sample samples_fed) */
 
+/* Report a bad feed line and stop (exit 2). The message names the line and the sample it is
+ * (S lines) or comes before (other lines), so a replay that dies can say where. */
 __attribute__((format(printf, 1, 2))) static bool feed_error(const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    fprintf(stderr, "thermal_box: feed line %lu: ", feed_line_no);
+    fprintf(stderr, "thermal_box: feed line %lu (%ssample %ld): ", feed_line_no,
+            in_sample_line ? "" : "before ", samples_fed);
     vfprintf(stderr, fmt, ap);
     fputc('\n', stderr);
     va_end(ap);
@@ -268,8 +272,12 @@ static bool feed_command(char *line, uint32_t wake_at_ms)
         return feed_error("unknown command '%s' (expected S, F or Q)", p);
     }
     switch (cmd) {
-    case 'S':
-        return feed_sample(rest, wake_at_ms);
+    case 'S': {
+        in_sample_line = true;
+        bool ok = feed_sample(rest, wake_at_ms);
+        in_sample_line = false;
+        return ok;
+    }
     case 'F':
         return feed_fault(rest);
     case 'Q':
