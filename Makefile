@@ -43,7 +43,7 @@ test-firmware: $(STAMP)
 	$(MAKE) -C firmware test
 
 examples: $(STAMP)
-	$(PY) -m host.examples $(EXAMPLES)
+	$(PY) -m host.sim.examples $(EXAMPLES)
 
 train: $(STAMP)
 	$(HOST) train $(DEMO_TRAIN) $(DEMO_TARGETS) --out $(BUILD)

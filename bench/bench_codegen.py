@@ -16,7 +16,7 @@ import numpy as np
 
 import codegen
 from codegen.fixed import FixedModel
-from host.terms import make_lag, make_rate, make_speed, make_temp
+from contract.terms import make_lag, make_rate, make_speed, make_temp
 
 ROOT = Path(__file__).resolve().parents[1]
 N_SAMPLES = 86_400

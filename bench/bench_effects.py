@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from host.data import load_run
-from host.diagnose import diagnose
-from host.simulator import SimConfig, simulate, write_simulation
-from host.spindle_programs import build_program
-from host.terms import Term, design_matrix
+from contract.terms import Term
+from host.analysis import diagnose
+from host.fitting import design_matrix
+from host.io import load_run
+from host.sim import SimConfig, build_program, simulate, write_simulation
 from host.train import train_model
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -19,7 +19,7 @@ import numpy as np
 
 from hil import replay as hil_replay
 from hil.example_model import default_terms, fit_example_model, write_model
-from host.data import write_run
+from host.io import write_run
 
 N_SAMPLES = 86_400
 SENSORS = [f"T{i:02d}" for i in range(1, 6)]

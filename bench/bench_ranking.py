@@ -19,8 +19,8 @@ from itertools import combinations
 import numpy as np
 
 from bench.bench_selection import LOCO, PROBES, _cases_fl
+from host.fitting import common_period, fold_groups
 from host.selection import select_sensors
-from host.validation import common_period, fold_groups
 
 SIZES = (3, 4, 5)
 SPLIT = "FL, 0-24 h -> 24-32 h (5)"

@@ -1,14 +1,14 @@
 """Sensor selection judged on runs it never saw: the default against paper 000, the opt-in
 group refinement and the peers.
 
-Every method is trained on the training part only (`host.compare.compare_methods`, static
+Every method is trained on the training part only (`host.analysis.compare.compare_methods`, static
 linear models, internal validation on the same folds) and judged by its test RMSE. Case sets:
 - FL_THERMAL, each 8 h heat/cool cycle held out in turn, the other three as training runs
   (4 cycles x 5 probes = 20 cases);
 - FL_THERMAL, two cycles as training runs, each of the other two as test (6 x 2 x 5 = 60);
 - FL_THERMAL, 0-24 h -> 24-32 h, the issue's split (5 probes; one of the 20 above, but trained
   as one run with three time blocks);
-- the simulator (`host.simulator`), five machine seeds, train ``constant`` + ``step``, test
+- the simulator (`host.sim.simulator`), five machine seeds, train ``constant`` + ``step``, test
   ``random`` (8 h + 8 h cooling at 60 s, dx/dy/dz), static machine and with lag + ambient +
   speed effects (15 cases each).
 Per case set and method: mean test RMSE (for the one-cycle set also per held-out cycle), the
@@ -26,11 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from host.compare import compare_methods
-from host.data import Run, load_run
-from host.simulator import SimConfig, simulate, write_simulation
-from host.spindle_programs import build_program
-from host.split import window
+from host.analysis import compare_methods
+from host.io import Run, load_run, window
+from host.sim import SimConfig, build_program, simulate, write_simulation
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBES = [f"ch{i}_um" for i in range(1, 6)]

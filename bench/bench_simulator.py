@@ -6,8 +6,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from host.simulator import EFFECTS, SimConfig, simulate, write_simulation
-from host.spindle_programs import build_program
+from host.sim import EFFECTS, SimConfig, build_program, simulate, write_simulation
 
 
 def run() -> list[dict]:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
-from host.data import Run, write_run
+from host.io import Run, write_run
 from host.selection import GramCache, ec_reduction, fold_labels
 from host.train import train_model
 

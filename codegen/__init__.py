@@ -11,6 +11,7 @@ from codegen.generate import (
     CODEGEN_VERSION,
     DEFAULT_MAX_ERROR_UM,
     GeneratedHeader,
+    fixed_point_path,
     generate,
     load_model,
     write_header,
@@ -20,4 +21,4 @@ from codegen.hashing import model_hash
 __version__ = CODEGEN_VERSION
 
 __all__ = ["CODEGEN_VERSION", "DEFAULT_MAX_ERROR_UM", "CodegenError", "GeneratedHeader",
-           "generate", "load_model", "model_hash", "write_header"]
+           "fixed_point_path", "generate", "load_model", "model_hash", "write_header"]

@@ -11,14 +11,9 @@ import math
 from dataclasses import dataclass
 from fractions import Fraction
 
-from codegen.quantise import (
-    ALPHA_FRAC_BITS,
-    FILTER_KINDS,
-    TEMP_FRAC_BITS,
-    QAxis,
-    QModel,
-    QTerm,
-)
+from codegen.quantise import QAxis, QModel, QTerm
+from contract.fixed_point import ALPHA_FRAC_BITS, TEMP_FRAC_BITS
+from contract.terms import FILTER_KINDS
 
 FINAL_ROUNDING_NM = Fraction(1, 2)
 INPUT_HALF_LSB_C = Fraction(1, 2 << TEMP_FRAC_BITS)  # +-1/256 degC

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from contract.errors import InputError
 
-class CodegenError(ValueError):
+
+class CodegenError(InputError):
     """The model cannot be generated; the message names the axis, term, value and limit.
 
     A ValueError so that ``host`` maps it to exit code 2 like every other bad input.

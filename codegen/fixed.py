@@ -14,20 +14,16 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from codegen.quantise import (
+from codegen.quantise import QModel, QTerm, quantise
+from contract.fixed_point import (
     ALPHA_FRAC_BITS,
-    AUX_KINDS,
     CODE_MAX,
     CODE_MIN,
-    FILTER_KINDS,
     STATE_FRAC_BITS,
-    TEMPERATURE_KINDS,
     UINT32_MAX,
-    QModel,
-    QTerm,
-    quantise,
     rdiv,
 )
+from contract.terms import AUX_KINDS, FILTER_KINDS, TEMPERATURE_KINDS
 
 _STATE_ONE = 1 << STATE_FRAC_BITS
 _ALPHA_HALF = 1 << (ALPHA_FRAC_BITS - 1)

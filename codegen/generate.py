@@ -11,10 +11,12 @@ from pathlib import Path
 from codegen.bound import FINAL_ROUNDING_NM, AxisBound, model_bounds
 from codegen.crc import model_crc32
 from codegen.errors import CodegenError
-from codegen.quantise import ACC_LIMIT, HEADER_FORMAT, QModel, quantise
+from codegen.quantise import QModel, quantise
 from codegen.render import render
-from host import __version__ as CODEGEN_VERSION
-from host.model_io import write_text_atomic
+from contract import __version__ as CODEGEN_VERSION
+from contract.box import HEADER_FORMAT
+from contract.fixed_point import ACC_LIMIT
+from contract.model_file import write_text_atomic
 
 DEFAULT_MAX_ERROR_UM = 0.01
 
@@ -104,7 +106,7 @@ def load_model(path: str | Path) -> dict:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: no such model file") from None
+        raise CodegenError(f"{path}: no such model file") from None
     try:
         model = json.loads(text)
     except json.JSONDecodeError as exc:
@@ -115,11 +117,18 @@ def load_model(path: str | Path) -> dict:
     return model
 
 
-def write_header(model_json_path: str | Path, header_path: str | Path,
-                 max_error_um: float = DEFAULT_MAX_ERROR_UM) -> Path:
-    """Generate ``header_path`` from a model.json and store the fixed_point block back in it.
+def fixed_point_path(header_path: str | Path) -> Path:
+    """Where ``write_header`` puts the fixed_point block: beside the header (model.h.json)."""
+    header_path = Path(header_path)
+    return header_path.with_name(header_path.name + ".json")
 
-    Nothing is written unless generation succeeds; each file is replaced atomically.
+
+def write_header(model_json_path: str | Path, header_path: str | Path,
+                 max_error_um: float = DEFAULT_MAX_ERROR_UM) -> GeneratedHeader:
+    """Generate ``header_path`` from a model.json, and its fixed_point block beside it.
+
+    The model file is only read, never rewritten (it is the user's); nothing is written unless
+    generation succeeds; each file is replaced atomically.
     """
     model_json_path, header_path = Path(model_json_path), Path(header_path)
     model = load_model(model_json_path)
@@ -128,6 +137,5 @@ def write_header(model_json_path: str | Path, header_path: str | Path,
     except CodegenError as exc:
         raise CodegenError(f"{model_json_path}: {exc}") from None
     write_text_atomic(header_path, gen.text)
-    model["fixed_point"] = gen.fixed_point
-    write_text_atomic(model_json_path, json.dumps(model, indent=2) + "\n")
-    return header_path
+    write_text_atomic(fixed_point_path(header_path), json.dumps(gen.fixed_point, indent=2) + "\n")
+    return gen

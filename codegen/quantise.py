@@ -15,38 +15,41 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from codegen.errors import CodegenError
+from contract.box import (
+    CHANNEL_MAX_C,
+    CHANNEL_MIN_C,
+    RUNTIME_MAX_AUX,
+    RUNTIME_MAX_AXES,
+    RUNTIME_MAX_CHANNELS,
+    RUNTIME_MAX_STATES,
+    RUNTIME_MAX_TERMS_PER_AXIS,
+)
+from contract.fixed_point import (
+    ACC_LIMIT,
+    ALPHA_FRAC_BITS,
+    CODE_MAX,
+    CODE_MIN,
+    EXTRAPOLATION_MARGIN,
+    INT32_MAX,
+    INT32_MIN,
+    MAX_SHIFT,
+    STATE_FRAC_BITS,
+    TEMP_FRAC_BITS,
+    UINT32_MAX,
+    rdiv,
+    round_half_away,
+)
+from contract.model_file import SCHEMA
+from contract.terms import AUX_KINDS, FILTER_KINDS, KIND_CODES, TC_TYPES, TEMPERATURE_KINDS
 
-SCHEMA = "thermal-model/1"
-HEADER_FORMAT = 2  # 2: channels carry the training window (EXTRAP status bit)
-
-KIND_CODES = {"temp": 0, "lag": 1, "rate": 2, "speed": 3, "speed2": 4, "square": 5, "time": 6}
-TEMPERATURE_KINDS = ("temp", "lag", "rate", "square")
-AUX_KINDS = ("speed", "speed2")
-FILTER_KINDS = ("lag", "rate")
-TC_TYPES = {"K": 0, "J": 1}
-
-TEMP_FRAC_BITS = 7  # code LSB = 1/128 degC
-STATE_FRAC_BITS = 16  # filter state = code * 2^16
-ALPHA_FRAC_BITS = 30
-CODE_MIN = -(1 << 18)  # 19-bit two's complement (MAX31856 LTCB >> 5)
-CODE_MAX = (1 << 18) - 1
-ACC_LIMIT = 1 << 62  # |accumulator| bound: one guard bit below int64
-MAX_SHIFT = 62
-INT32_MAX = (1 << 31) - 1
-INT32_MIN = -(1 << 31)
-UINT32_MAX = (1 << 32) - 1
-DEFAULT_MIN_C = -40.0
-DEFAULT_MAX_C = 200.0
-# The box flags EXTRAP when a valid channel leaves its training range by more than this share of
-# the range's span (the same rule host evaluate/diagnose use, host/extrapolation.py).
-EXTRAPOLATION_MARGIN = Fraction(1, 20)  # exact: window codes must not depend on float 0.05
-
-# Runtime capacity (firmware/include/model_eval.h).
-MAX_CHANNELS = 32
-MAX_AUX = 8
-MAX_AXES = 32
-MAX_STATES = 32
-MAX_TERMS_PER_AXIS = 255
+# Runtime capacity (firmware/include/model_eval.h), named as codegen's messages use them.
+MAX_CHANNELS = RUNTIME_MAX_CHANNELS
+MAX_AUX = RUNTIME_MAX_AUX
+MAX_AXES = RUNTIME_MAX_AXES
+MAX_STATES = RUNTIME_MAX_STATES
+MAX_TERMS_PER_AXIS = RUNTIME_MAX_TERMS_PER_AXIS
+DEFAULT_MIN_C = CHANNEL_MIN_C
+DEFAULT_MAX_C = CHANNEL_MAX_C
 
 # Names end up in C string literals, comments and the wire protocol's INFO line
 # (separators , ; : *), so they are restricted to characters safe in all three.
@@ -67,18 +70,6 @@ COEF_UNIT = {"temp": "um/degC", "lag": "um/degC", "rate": "um/degC", "speed": "u
 X_UNIT_TEXT = {"temp": "1/128 degC", "lag": "2^-23 degC", "rate": "2^-23 degC",
                "speed": "rpm", "speed2": "rpm^2", "square": "2^-14 degC^2",
                "time": "sample periods"}
-
-
-def round_half_away(x: Fraction) -> int:
-    """Nearest integer, ties away from zero (the rounding used everywhere in the box)."""
-    q = math.floor(abs(x) + Fraction(1, 2))
-    return q if x >= 0 else -q
-
-
-def rdiv(v: int, f: int) -> int:
-    """v / 2^f rounded half away from zero, never shifting a negative value (as the C)."""
-    half = (1 << f) >> 1
-    return (v + half) >> f if v >= 0 else -((-v + half) >> f)
 
 
 @dataclass(frozen=True)
@@ -373,7 +364,7 @@ def _parse_term(axis: str, j: int, t: Mapping, channels: Sequence[QChannel],
         a = Fraction(alpha) * (1 << ALPHA_FRAC_BITS)
         if a.denominator != 1 or not 1 <= a <= (1 << ALPHA_FRAC_BITS):
             raise CodegenError(f"{where}: alpha {alpha!r} must be a multiple of 2^-30 in "
-                               "(0, 1] (make it with host.terms.make_lag/make_rate)")
+                               "(0, 1] (make it with contract.terms.make_lag/make_rate)")
         param = int(a)
         product = (hi - lo) * (1 << STATE_FRAC_BITS) * param
         if product > ACC_LIMIT:
@@ -387,7 +378,7 @@ def _parse_term(axis: str, j: int, t: Mapping, channels: Sequence[QChannel],
         if ref.denominator != 1 or not CODE_MIN <= ref <= CODE_MAX:
             raise CodegenError(f"{where}: ref_c {ref_c!r} must be a multiple of 1/128 degC "
                                f"within {CODE_MIN / 128:g}..{CODE_MAX / 128:g} degC "
-                               "(make it with host.terms.make_square)")
+                               "(make it with contract.terms.make_square)")
         param = int(ref)
 
     unit = Fraction(period_s) if kind == "time" else _X_UNIT[kind]

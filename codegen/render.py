@@ -13,14 +13,10 @@ from fractions import Fraction
 import jinja2
 
 from codegen.bound import AxisBound
-from codegen.quantise import (
-    FILTER_KINDS,
-    HEADER_FORMAT,
-    INT32_MIN,
-    X_UNIT_TEXT,
-    QModel,
-    QTerm,
-)
+from codegen.quantise import X_UNIT_TEXT, QModel, QTerm
+from contract.box import HEADER_FORMAT
+from contract.fixed_point import INT32_MIN
+from contract.terms import FILTER_KINDS
 
 GUARD = "TCM_GENERATED_MODEL_H"
 

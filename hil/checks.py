@@ -2,10 +2,10 @@
 
 Four checks (issue 6): 1. every correction equals the integer twin's (after the documented
 output stage), bit for bit, and so do the status word and the echoed temperature codes;
-2. the float model (host/terms.py on the quantised temperatures) is within the bound codegen
+2. the float model (contract/terms.py on the quantised temperatures) is within the bound codegen
 proved, wherever the box outputs the model value directly; 3. no sample line is lost,
 duplicated or reordered (``seq``); 4. the residual measured − correction beside the raw
-displacement, per axis, RMS and peak. The lines are decoded with host/protocol.py only.
+displacement, per axis, RMS and peak. The lines are decoded with contract/protocol.py only.
 """
 
 from __future__ import annotations
@@ -14,11 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from contract.protocol import ErrorReply, Info, ProtocolError, Sample, decode
+from contract.terms import Term
 from hil.expect import CLAMP, HOLD, MODEL_BAD, NO_DATA, SLEW, STATUS_NAMES, Expected, status_text
 from hil.feed import Feed
 from hil.runner import Capture, Session
-from host.protocol import ErrorReply, Info, ProtocolError, Sample, decode
-from host.terms import Term, design_matrix
+from host.fitting import design_matrix
 
 MAX_PROBLEMS = 20  # detail lines kept in a report; counts are always complete
 
@@ -164,7 +165,7 @@ def sequence_problems(seqs: list[int], n_fed: int) -> tuple[int, int, int]:
 
 
 def float_predictions(model: dict, feed: Feed, codes: np.ndarray, rows: slice) -> np.ndarray:
-    """The float model (host/terms.py) on the quantised inputs of one session: (n, axes) um."""
+    """The float model (contract/terms.py) on the quantised inputs of one session: (n, axes) um."""
     from hil.feed import aux_names, channel_sensors
 
     cols: dict[str, np.ndarray] = {}

@@ -2,7 +2,7 @@
 
 ``host train`` (sensor selection, validation) takes tens of seconds on a long run; the HIL does
 not care how a model was chosen, only that the box evaluates it exactly. This fits a fixed term
-list by least squares (host/terms.py features, numpy lstsq) and writes a valid model.json, so
+list by least squares (contract/terms.py features, numpy lstsq) and writes a valid model.json, so
 tests can exercise every term kind the box supports on real and simulated runs.
 """
 
@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from host import model_io
-from host.data import load_run
-from host.terms import Term, design_matrix, make_lag, make_rate, make_speed, make_temp
+from contract import model_file as model_io
+from contract.terms import Term, make_lag, make_rate, make_speed, make_temp
+from host.fitting import design_matrix
+from host.io import load_run
 
 
 def fit_example_model(data: str | Path, axes: dict[str, list[Term]],
@@ -83,6 +84,6 @@ def fl_thermal_model(path: str | Path) -> dict:
 
 
 def write_model(model: dict, path: str | Path) -> Path:
-    """host.model_io.write_model (schema-checked, atomic), returning the path for chaining."""
+    """contract.model_file.write_model (schema-checked, atomic), returning the path for chaining."""
     model_io.write_model(model, path)
     return Path(path)

@@ -19,20 +19,22 @@ from pathlib import Path
 import numpy as np
 
 from codegen.fixed import FixedModel
-from codegen.quantise import AUX_KINDS, TEMPERATURE_KINDS
+from contract.errors import InputError
+from contract.protocol import STATUS_BITS, ChannelFault, Status, status_names
+from contract.terms import AUX_KINDS, TEMPERATURE_KINDS
 
-# docs/protocol.md status word
-MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA, EXTRAP = (
-    1 << i for i in range(11))
-STATUS_NAMES = ("MODEL_BAD", "HOLD", "SLEW", "CLAMP", "RANGE", "OPEN", "TC_FAULT", "AUX_FAULT",
-                "WDT_RESET", "NO_DATA", "EXTRAP")
-SR_OPEN = 0x01  # MAX31856 fault status register bit OPEN
+# The status word has one home, contract.protocol (docs/protocol.md); short names here.
+MODEL_BAD, HOLD, SLEW, CLAMP = Status.MODEL_BAD, Status.HOLD, Status.SLEW, Status.CLAMP
+RANGE, OPEN, TC_FAULT, AUX_FAULT = Status.RANGE, Status.OPEN, Status.TC_FAULT, Status.AUX_FAULT
+WDT_RESET, NO_DATA, EXTRAP = Status.WDT_RESET, Status.NO_DATA, Status.EXTRAP
+STATUS_NAMES = STATUS_BITS
+SR_OPEN = int(ChannelFault.OPEN)  # MAX31856 fault status register bit OPEN
 
 BOX_CONFIG = Path(__file__).resolve().parent.parent / "firmware" / "include" / "box_config.h"
 
 
 def status_text(status: int) -> str:
-    names = [n for i, n in enumerate(STATUS_NAMES) if status >> i & 1]
+    names = status_names(status)
     return "|".join(names) if names else "-"
 
 
@@ -60,7 +62,7 @@ class OutputConfig:
                      "BOX_MAX_CHANNELS", "BOX_MAX_AXES", "BOX_MAX_AUX"):
             m = re.search(rf"^#define {name} (\d+)\s*$", text, re.M)
             if m is None:
-                raise ValueError(f"{config_h}: no '#define {name} <number>' default")
+                raise InputError(f"{config_h}: no '#define {name} <number>' default")
             values[name] = int(m.group(1))
         for m in re.finditer(r"-D(BOX_\w+)=(\d+)", cflags):
             if m.group(1) in values:
@@ -74,7 +76,7 @@ class OutputConfig:
         for count, limit, name in ((n_channels, self.max_channels, "channels"),
                                    (n_axes, self.max_axes, "axes"), (n_aux, self.max_aux, "aux")):
             if count > limit:
-                raise ValueError(f"{what}: {count} {name}, the firmware is built for at most "
+                raise InputError(f"{what}: {count} {name}, the firmware is built for at most "
                                  f"{limit} (BOX_MAX_{name.upper()} in firmware/include/"
                                  f"box_config.h); the box would report MODEL_BAD")
 

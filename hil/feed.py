@@ -14,10 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from host.data import Run, load_run
+from contract.errors import InputError
+from contract.model_file import model_aux, model_sensors
+from host.io import Run, load_run
 
 
-class FeedError(ValueError):
+class FeedError(InputError):
     """The run cannot be replayed with this model (names the file and the column)."""
 
 
@@ -53,12 +55,8 @@ def _header(path: Path) -> list[str]:
         return [h.strip() for h in next(csv.reader(fh), [])]
 
 
-def channel_sensors(model: dict) -> list[str]:
-    return [c["sensor"] for c in sorted(model["channels"], key=lambda c: int(c["channel"]))]
-
-
-def aux_names(model: dict) -> list[str]:
-    return [a["name"] for a in sorted(model.get("aux", []), key=lambda a: int(a["input"]))]
+channel_sensors = model_sensors  # the box's channel order, from the one model.json reader
+aux_names = model_aux
 
 
 def build_feed(model: dict, data_path: str | Path, max_aux: int = 1) -> Feed:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from codegen.fixed import FixedModel
-from codegen.quantise import CODE_MAX, CODE_MIN
+from contract.fixed_point import CODE_MAX, CODE_MIN
 from hil.build import ModelBuild, build_firmware, prepare_header
 from hil.checks import ReplayReport, judge
 from hil.expect import Expected, OutputConfig, expect_session, sr_timeline

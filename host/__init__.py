@@ -1,14 +1,21 @@
-"""Host side of the thermal-error compensation box: data, sensor selection, fit, evaluation."""
+"""Host side of the thermal-error compensation box: data, sensor selection, fit, evaluation.
+
+Wings by concern, each imported through its package (docs/architecture.md has the floors):
+io → fitting → selection → effects → train → analysis; sim and box apart; cli, commands and
+demo on top.
+"""
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from contract import __version__
+
+__all__ = ["__version__", "ThermalSensorSelector"]
 
 
 def __getattr__(name: str):
-    # Lazy so that `import host` stays fast for the CLI and the firmware tools.
+    # Lazy so that `import host` stays fast for the CLI (scikit-learn costs ~1 s).
     if name == "ThermalSensorSelector":
-        from host.selection import ThermalSensorSelector
+        from host.selection.estimator import ThermalSensorSelector
 
         return ThermalSensorSelector
     raise AttributeError(name)

@@ -1,8 +1,10 @@
 """The `host` command line: discovers subcommands in host.commands and maps errors to exit codes.
 
-The library raises domain exceptions (ValueError subclasses with messages that name the file,
-line, column, term or limit); this is the only place that turns them into a message on stderr
-and an exit code: 0 ok, 1 a check failed, 2 bad input or usage.
+The library raises the project's own errors (``contract.errors.InputError`` and its subclasses,
+with messages that name the file, line, column, term or limit); this is the only place that
+turns them into a message on stderr and an exit code: 0 ok, 1 a check failed, 2 bad input or
+usage. A file the system cannot open (``OSError``) is reported the same way; anything else is a
+bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -13,7 +15,8 @@ import pkgutil
 import sys
 
 import host.commands
-from host import __version__
+from contract import __version__
+from contract.errors import InputError
 
 
 def _command_modules() -> list:
@@ -43,9 +46,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args._run(args) or 0)
-    except (ValueError, KeyError, FileNotFoundError) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-        print(f"host {args.command}: error: {msg}", file=sys.stderr)
+    except InputError as exc:
+        print(f"host {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"host {args.command}: error: {exc.filename or ''}: {exc.strerror or exc}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"host {args.command}: interrupted", file=sys.stderr)

@@ -146,7 +146,7 @@ def step_examples(demo: Demo) -> None:
     missing = [p for p in [*SIM_TRAIN, SIM_TEST] if not (ROOT / p).is_file()]
     if missing:
         demo.say(f"    missing {', '.join(str(p) for p in missing)}: simulating them")
-        demo.run([sys.executable, "-m", "host.examples", EXAMPLES])
+        demo.run([sys.executable, "-m", "host.sim.examples", EXAMPLES])
     for path in [*SIM_TRAIN, SIM_TEST, FL_RUN]:
         demo.say(f"    {path}: {run_shape(path)}")
     demo.done()

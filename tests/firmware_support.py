@@ -111,7 +111,7 @@ def prepare_fl_head(d: Path, n: int, cflags: str = ""):
     (hil.replay.prepare) from the build directory ``d/hil``."""
     from hil import replay as hil_replay
     from hil.example_model import fl_thermal_model, write_model
-    from host.data import load_run, write_run
+    from host.io import load_run, write_run
 
     fl = ROOT / "examples" / "fl_thermal_steps.csv"
     run = load_run(fl, targets=["ch1_um", "ch3_um"], sensors="T*", aux=["spindle_rpm"])

@@ -4,7 +4,7 @@ A 0.5 m steel bar (section 8e-5 m^2) is heated at x = 0 by 20 W for 30 min, then
 30 min, then left to cool; 11 sensors sit every 5 cm from the source to the free end, and the
 free-end displacement is alpha * integral of the temperature rise (eq. 3). The bar is solved
 here with explicit finite volumes (conduction along the bar, convection from its surface), so
-the expectations come from the physics, not from host.correlation. The paper reports that
+the expectations come from the physics, not from host.selection.correlation. The paper reports that
 sensors further from the source lag more (and are smoothed), and that the free-end
 displacement *leads* the distant sensors because it integrates the whole bar.
 
@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from host.correlation import thermal_parameters
+from host.selection import thermal_parameters
 
 LENGTH_M = 0.5
 AREA_M2 = 8e-5
@@ -85,7 +85,7 @@ def test_bar_heats_and_cools_as_described(bar):
 
 def test_delay_grows_with_distance_and_displacement_leads_far_sensors(bar):
     t, T, d = bar
-    # physics, independently of host.correlation: peak times grow with distance and the
+    # physics, independently of host.selection.correlation: peak times grow with distance and the
     # displacement peaks before the far half of the bar does
     peak_t = t[np.argmax(T, axis=0)]
     assert np.all(np.diff(peak_t) >= 0) and peak_t[-1] > peak_t[1]

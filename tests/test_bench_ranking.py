@@ -7,8 +7,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from bench.bench_ranking import SIZES, spearman, subset_errors
-from host.fit import fit_linear, rmse
-from host.validation import validation_rmse
+from host.fitting import fit_linear, rmse, validation_rmse
 
 
 def test_subset_errors_equal_direct_fits():

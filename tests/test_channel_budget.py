@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from host.data import Run
+from host.io import Run
 from host.train import TrainingError, train_model
 
 

@@ -24,9 +24,9 @@ from test_codegen_models import MODELS, base, channel, model, term
 
 import codegen
 from codegen.fixed import FixedModel, temp_to_code
-from codegen.quantise import rdiv
+from contract.fixed_point import rdiv
+from contract.terms import make_lag, make_temp
 from host.cli import main as host_main
-from host.terms import make_lag, make_temp
 
 # ---- the one-term model, by hand ------------------------------------------------------------
 # T01 valid -40..200 degC -> codes -5120..25600 (x128). dz = 0.75 um + 1.5 um/degC * T.
@@ -450,19 +450,20 @@ def test_invalid_json_is_reported_with_line_and_column(tmp_path):
 
 # ---- write_header / CLI -----------------------------------------------------------------
 
-def test_write_header_stores_the_fixed_point_block_and_keeps_the_rest(tmp_path):
+def test_write_header_never_rewrites_the_model_and_puts_the_block_beside_the_header(tmp_path):
     m = model("all_kinds")
     m["axes"]["dx_um"]["metrics"] = {"train_rmse_um": 0.8}
     p = tmp_path / "model.json"
     p.write_text(json.dumps(m))
-    out = codegen.write_header(p, tmp_path / "build" / "model.h")
-    assert out == tmp_path / "build" / "model.h"
+    before = p.read_bytes()
+    gen_written = codegen.write_header(p, tmp_path / "build" / "model.h")
+    out = tmp_path / "build" / "model.h"
     gen = codegen.generate(m)
-    assert out.read_text() == gen.text
-    stored = json.loads(p.read_text())
-    fp = stored.pop("fixed_point")
-    assert stored == m  # nothing else touched
-    assert codegen.model_hash(stored) == fp["model_hash"] == codegen.model_hash(m)
+    assert out.read_text() == gen.text == gen_written.text
+    assert p.read_bytes() == before  # the user's model.json is only read
+    fp = json.loads(codegen.fixed_point_path(out).read_text())
+    assert codegen.fixed_point_path(out) == tmp_path / "build" / "model.h.json"
+    assert codegen.model_hash(m) == fp["model_hash"]
     assert fp["crc32"] == f"0x{gen.crc32:08X}"
     for b in gen.bounds:
         ax = fp["axes"][b.axis]
@@ -470,7 +471,8 @@ def test_write_header_stores_the_fixed_point_block_and_keeps_the_rest(tmp_path):
         assert ax["bound_um"] >= ax["coef_quantisation_um"] + ax["state_quantisation_um"] \
             + ax["final_rounding_um"] - 1e-18
         assert ax["final_rounding_um"] == 0.0005 and ax["bound_um"] <= 0.01
-    # Regenerating from the updated file gives the same header (the block is not an input).
+    # A model that carries a fixed_point block (host train's) gives the same header.
+    p.write_text(json.dumps({**m, "fixed_point": fp}))
     codegen.write_header(p, tmp_path / "again.h")
     assert (tmp_path / "again.h").read_text() == gen.text
 

@@ -4,7 +4,7 @@ For every test model (tests/test_codegen_models.py) the header must compile warn
 the host and for the Cortex-M4; a harness built with AddressSanitizer + UBSan evaluates it on
 seeded runs (random walks and jumps, every range corner, one LSB inside and outside every
 range, faults and recoveries, absurd codes) and must match ``codegen.fixed`` bit for bit; on
-the all-valid runs the float64 model of host/terms.py, fed the same quantised inputs, must
+the all-valid runs the float64 model of contract/terms.py, fed the same quantised inputs, must
 agree within the bound the generator claims (measured and claimed are printed).
 """
 
@@ -26,7 +26,8 @@ from test_codegen_models import MODELS, model
 
 import codegen
 from codegen.fixed import FixedModel
-from host.terms import Term, design_matrix
+from contract.terms import Term
+from host.fitting import design_matrix
 
 ROOT = Path(__file__).resolve().parents[1]
 INCLUDE = ROOT / "firmware" / "include"
@@ -253,7 +254,7 @@ def _harness_input(runs: list[Run]) -> str:
 
 
 def _float_model_um(m: dict, r: Run) -> np.ndarray:
-    """host/terms.py's float model on the quantised inputs (code/128 degC), [n, axes] um."""
+    """contract/terms.py's float model on the quantised inputs (code/128 degC), [n, axes] um."""
     cols = {c["sensor"]: r.codes[:, c["channel"]] / 128.0 for c in m["channels"]}
     cols.update({a["name"]: r.aux[:, a["input"]].astype(float) for a in m.get("aux", [])})
     if not cols:

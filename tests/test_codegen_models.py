@@ -1,6 +1,6 @@
 """Model dicts (schema thermal-model/1) for the codegen tests, built the way `host train` does.
 
-Parameters the box stores quantised (alpha, ref_c) come from host.terms' make_* helpers, so
+Parameters the box stores quantised (alpha, ref_c) come from contract.terms' make_* helpers, so
 they are exactly what a trained model.json holds. Together the models cover: 1-5 terms per
 axis, 1-3 axes, every term kind, large and tiny coefficients, negative intercepts, an
 all-negative channel range, a wide (-200..1300 degC) range, a model without channels, a
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import copy
 
-from host.terms import make_lag, make_rate, make_speed, make_square, make_temp, make_time
+from contract.terms import make_lag, make_rate, make_speed, make_square, make_temp, make_time
 
 
 def term(t, coef: float) -> dict:

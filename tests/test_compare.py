@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
+from host.analysis import MethodResult, best_methods, best_subset, compare_methods
 from host.cli import main
-from host.compare import MethodResult, best_methods, best_subset, compare_methods
-from host.data import Run, write_run
+from host.io import Run, write_run
 
 
 def _run(path: str, n: int, seed: int, scale: float) -> Run:

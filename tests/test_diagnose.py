@@ -16,10 +16,10 @@ import math
 import numpy as np
 import pytest
 
+from contract.model_file import write_model
+from host.analysis import DiagnoseError, check_sensor, diagnose, load_for_diagnosis, summary_lines
 from host.cli import main
-from host.data import Run, write_run
-from host.diagnose import DiagnoseError, check_sensor, diagnose, load_for_model, summary_lines
-from host.model_io import write_model
+from host.io import Run, write_run
 from host.train import train_model
 
 DT = 60.0
@@ -175,7 +175,7 @@ def test_run_without_the_axis_still_checks_sensors(model, tmp_path):
     run = machine_run(9)
     path = tmp_path / "nodisp.csv"
     write_run(path, run.time_s, {n: run.column(n) for n in [*run.sensor_names, "spindle_rpm"]})
-    loaded = load_for_model(model, path)
+    loaded = load_for_diagnosis(model, path)
     doc = diagnose(model, loaded)
     assert doc["axes"] == {} and doc["axes_without_measurement"] == ["dz_um"]
     assert any("not measured" in line for line in summary_lines(doc))

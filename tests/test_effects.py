@@ -1,4 +1,4 @@
-"""Effect search (host/effects.py) on synthetic runs whose hidden effect we wrote ourselves.
+"""Effect search (host/effects/) on synthetic runs whose hidden effect we wrote ourselves.
 
 Each synthetic machine has a spindle node, a slow structure node and the shop air, read by a
 few thermocouples; the displacement is linear in what the sensors see plus one hidden effect
@@ -15,7 +15,7 @@ import re
 import numpy as np
 import pytest
 
-from host.data import Run
+from contract.terms import make_lag, make_rate, make_speed, make_temp, make_time
 from host.effects import (
     Candidate,
     EffectsError,
@@ -23,7 +23,6 @@ from host.effects import (
     GramScorer,
     Rule,
     Scored,
-    add_effects,
     find_ambient,
     fixed_point_refusal,
     generate_candidates,
@@ -35,13 +34,15 @@ from host.effects import (
     state_quantisation_um,
     tau_grid,
 )
-from host.terms import design_matrix, make_lag, make_rate, make_speed, make_temp, make_time
+from host.fitting import design_matrix
+from host.io import Run
+from host.train import axis_with_effects
 
 DT = 60.0
 
 
 def lowpass(x: np.ndarray, tau: float, dt: float = DT) -> np.ndarray:
-    """First-order lag written out as a loop (independent of host.terms' lfilter)."""
+    """First-order lag written out as a loop (independent of host.fitting.features' lfilter)."""
     a = 1.0 - math.exp(-dt / tau)
     y = np.empty_like(x)
     y[0] = x[0]
@@ -403,7 +404,7 @@ def test_add_effects_hook_keeps_the_axis_contract():
     axis = {"unit": "um", "intercept": 0.0,
             "terms": [{**t.to_json(), "coef": 0.0} for t in BASELINE],
             "selection": {"groups": [["T1", "T2"], ["T3", "T4", "T_amb"]]}}
-    out = add_effects(axis, runs=[run], target="dz_um", period_s=DT)
+    out = axis_with_effects(axis, runs=[run], target="dz_um", period_s=DT)
     assert out["effects"][0]["kind"] == "speed"
     assert {"speed", "speed2"} >= {t["kind"] for t in out["terms"]} - {"temp"}
     assert out["metrics"]["validation_rmse_um"] == pytest.approx(out["validation_rmse_um"],
@@ -422,7 +423,7 @@ def test_cli_no_effects_and_ambient_option(tmp_path):
     import json
 
     from host.cli import main
-    from host.data import write_run
+    from host.io import write_run
 
     run = synth_run("speed", 9, hours=8.0)
     path = tmp_path / "run.csv"

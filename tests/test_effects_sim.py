@@ -24,11 +24,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contract.terms import Term
 from host.cli import main
-from host.data import load_run
 from host.effects import state_quantisation_um
-from host.simulator import load_truth
-from host.terms import Term, design_matrix
+from host.fitting import design_matrix
+from host.io import load_run
+from host.sim import load_truth
 
 TRAIN = ["--protocol", "step", "--hours", "6", "--cool-hours", "4", "--dt", "60"]
 TEST = ["--protocol", "random", "--hours", "6", "--cool-hours", "4", "--dt", "60"]

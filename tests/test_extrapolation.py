@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contract.model_file import ModelFormatError, read_model
+from host.analysis import diagnose, evaluate_model, summary_lines
 from host.cli import main
-from host.data import load_run, write_run
-from host.diagnose import diagnose, summary_lines
-from host.evaluate import evaluate_model
-from host.extrapolation import describe, outside_training
-from host.model_io import ModelFormatError, read_model
+from host.io import load_run, write_run
+from host.train import describe, outside_training
 
 ROOT = Path(__file__).resolve().parents[1]
 FL = ROOT / "examples" / "fl_thermal_steps.csv"

@@ -1,5 +1,5 @@
 """The real firmware on the native board (ASan + UBSan build), driven over stdin and its pty,
-every line judged by host/protocol.py. Expectations come from the host: codegen.fixed for the
+every line judged by contract/protocol.py. Expectations come from the host: codegen.fixed for the
 model, firmware/test/gen_test_model.py's documented output rules for hold/slew/clamp/status.
 """
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from firmware_support import Box, box_defaults, build, load_generator
 
-from host import protocol as p
+from contract import protocol as p
 
 gen = load_generator()
 

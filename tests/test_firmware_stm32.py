@@ -11,7 +11,7 @@ import time
 import pytest
 from firmware_support import FIRMWARE, build, load_generator
 
-from host import protocol as p
+from contract import protocol as p
 
 gen = load_generator()
 ARM = shutil.which("arm-none-eabi-gcc")

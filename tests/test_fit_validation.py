@@ -4,9 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from host.data import Run
-from host.fit import condition_number, fit_linear, variance_inflation
-from host.validation import fold_groups, out_of_fold_predictions, validation_rmse
+from host.fitting import (
+    condition_number,
+    fit_linear,
+    fold_groups,
+    out_of_fold_predictions,
+    validation_rmse,
+    variance_inflation,
+)
+from host.io import Run
 
 
 def test_fit_recovers_exact_linear_relation():

@@ -21,13 +21,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contract.protocol import decode, encode_sample
 from hil import replay as hil_replay
 from hil.build import build_firmware
 from hil.checks import judge
 from hil.example_model import default_terms, fit_example_model, fl_thermal_model, write_model
 from hil.runner import Capture
-from host.protocol import decode, encode_sample
-from host.split import split_file
+from host.io import split_file
 from host.train import train_model
 
 REPO = Path(__file__).resolve().parents[1]
@@ -228,9 +228,9 @@ def test_cli_exit_code_1_when_the_firmware_disagrees(fl_setup, tmp_path):
 
 
 def test_a_model_larger_than_the_firmware_capacity_is_refused_up_front(tmp_path):
+    from contract.terms import make_temp
     from hil.example_model import fit_example_model as fit
     from hil.expect import OutputConfig
-    from host.terms import make_temp
 
     sensors = [f"T{i:02d}" for i in range(1, 10)]  # 9 channels; box_config.h allows 8
     model = write_model(fit(FL, {"ch1_um": [make_temp(s) for s in sensors]}),

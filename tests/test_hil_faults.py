@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from firmware_support import prepare_fl_head
 
+from contract.protocol import decode
 from hil import replay as hil_replay
 from hil.build import build_firmware
 from hil.expect import (
@@ -37,7 +38,6 @@ from hil.expect import (
     output_stage,
 )
 from hil.runner import ChipFault, CodeOverride, Restart, SerialNoise
-from host.protocol import decode
 
 pytestmark = pytest.mark.skipif(
     shutil.which("gcc") is None or shutil.which("make") is None,

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from host.box import Monitor, render
 from host.cli import main as host_main
-from host.monitor import Monitor, render
 
 
 def wire(payload: str) -> bytes:

@@ -1,4 +1,4 @@
-"""host/protocol.py against docs/protocol.md: lines built here by hand (CRC from binascii) decode
+"""contract.protocol vs docs/protocol.md: lines built here by hand (CRC from binascii) decode
 to the right records, every malformation is refused with a message naming the problem."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import re
 
 import pytest
 
-from host import protocol as p
+from contract import protocol as p
 
 
 def framed(payload: str) -> bytes:

@@ -8,9 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from host.cli import main
-from host.data import load_run
-from host.protocols import (
+from host.analysis import (
     PRODUCTION,
     ProtocolComparisonError,
     combine,
@@ -19,6 +17,8 @@ from host.protocols import (
     simulate_runs,
     write_outputs,
 )
+from host.cli import main
+from host.io import load_run
 
 AXES = ["dx_um", "dz_um"]
 

@@ -13,9 +13,9 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
+from host.analysis.report import ReportError, build_report, load_protocols
 from host.cli import main as host_main
-from host.data import load_run, write_run
-from host.report import ReportError, build_report, load_protocols
+from host.io import load_run, write_run
 
 ROOT = Path(__file__).resolve().parents[1]
 FL = ROOT / "examples" / "fl_thermal_steps.csv"
@@ -26,7 +26,7 @@ PERIOD_S = 60.0
 
 
 def lag(x: np.ndarray, alpha: float) -> np.ndarray:
-    """Explicit first-order lag, written out here rather than taken from host.terms."""
+    """Explicit first-order lag, written out here rather than taken from contract.terms."""
     y = np.empty_like(x)
     y[0] = x[0]
     for n in range(1, len(x)):

@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
+from host.fitting import validation_rmse
 from host.selection import (
     GramCache,
     ec_reduction,
@@ -15,8 +16,7 @@ from host.selection import (
     select_sensors,
     sequential_selection,
 )
-from host.sklearn_selector import ThermalSensorSelector
-from host.validation import validation_rmse
+from host.selection.estimator import ThermalSensorSelector
 
 
 def _lstsq_rmse(X: np.ndarray, y: np.ndarray) -> float:

@@ -9,19 +9,19 @@ import json
 import numpy as np
 import pytest
 
-from host.data import load_run
-from host.fit import fit_linear, rmse
-from host.simulator import (
+from contract.terms import make_lag, make_square, make_time
+from host.fitting import fit_linear, rmse, term_values
+from host.io import load_run
+from host.sim import (
     EFFECTS,
     SimConfig,
     SimulationError,
+    build_program,
     parse_effects,
     simulate,
     truth_path,
     write_simulation,
 )
-from host.spindle_programs import build_program
-from host.terms import make_lag, make_square, make_time, term_values
 
 AXES = ("dx_um", "dy_um", "dz_um")
 DT = 60.0
@@ -225,7 +225,7 @@ def test_without_effects_a_static_model_is_at_the_noise_floor():
 def test_every_node_link_and_effect_is_documented():
     from pathlib import Path
 
-    from host.machine_model import LINKS, NODES, SOURCES
+    from host.sim import LINKS, NODES, SOURCES
 
     doc = (Path(__file__).parents[1] / "docs" / "simulator.md").read_text()
     for node in NODES:

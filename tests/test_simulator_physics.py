@@ -9,10 +9,16 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from host.machine_model import LINKS, NODES, SOURCES, Machine
-from host.simulator import simulate_nodes
-from host.spindle_programs import build_program
-from host.thermal_network import OperatingPoint, ThermalNetwork
+from host.sim import (
+    LINKS,
+    NODES,
+    SOURCES,
+    Machine,
+    OperatingPoint,
+    ThermalNetwork,
+    build_program,
+    simulate_nodes,
+)
 
 T_AMB = 20.0
 

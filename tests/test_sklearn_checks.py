@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from host.sklearn_selector import ThermalSensorSelector
+from host.selection.estimator import ThermalSensorSelector
 
 
 @parametrize_with_checks([ThermalSensorSelector()])

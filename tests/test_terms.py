@@ -6,7 +6,9 @@ import math
 
 import numpy as np
 
-from host.terms import Term, first_order_lag, make_lag, make_square, quantise_alpha, term_values
+from contract.fixed_point import quantise_alpha
+from contract.terms import Term, make_lag, make_square
+from host.fitting import first_order_lag, term_values
 
 
 def test_lag_matches_explicit_recursion():

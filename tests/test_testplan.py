@@ -8,8 +8,7 @@ import pytest
 from pygcode import Line
 
 from host.cli import main
-from host.spindle_programs import build_program
-from host.testplan import PlanError, ThermalTestPlan, parse_duration
+from host.sim import PlanError, ThermalTestPlan, build_program, parse_duration
 
 
 def execute(text: str, dialect: str = "rs274") -> dict:

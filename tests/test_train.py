@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contract.model_file import ModelFormatError, read_model, write_model
+from host.analysis import evaluate_model, predict
 from host.cli import main
-from host.data import Run, load_run, write_run
-from host.evaluate import evaluate_model, predict
-from host.model_io import ModelFormatError, read_model, write_model
+from host.io import Run, load_run, write_run
 from host.train import TrainingError, train_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -182,15 +182,15 @@ def test_cli_errors_are_clear(runs, tmp_path, capsys):
 
 
 def test_fast_csv_path_reads_exactly_what_the_careful_reader_reads(tmp_path, monkeypatch):
-    import host.data
+    import host.io.runs as runs_module
 
     path = tmp_path / "r.csv"
     rng = np.random.default_rng(9)
     write_run(path, np.arange(50.0), {"T1": rng.normal(size=50) * 1e3, "T2": rng.normal(size=50),
                                       "dz_um": np.linspace(-1, 1, 50)}, precision=17)
-    fast = host.data.read_table(path)
-    monkeypatch.setattr(host.data, "_read_plain_table", lambda p: None)
-    slow = host.data.read_table(path)
+    fast = runs_module.read_table(path)
+    monkeypatch.setattr(runs_module, "_read_plain_table", lambda p: None)
+    slow = runs_module.read_table(path)
     assert fast[0] == slow[0]
     np.testing.assert_array_equal(fast[1], slow[1])
     np.testing.assert_array_equal(fast[2], slow[2])
@@ -223,9 +223,9 @@ def test_end_to_end_fl_thermal_split_train_evaluate(tmp_path, capsys):
 
 def test_end_to_end_simulated_machine_other_speed_profile(tmp_path, capsys):
     """Select and fit on a constant-speed run, judge on a random-speed run of the same
-    simulated machine (host.simulator); the residual must be near the probes' noise."""
-    sim = pytest.importorskip("host.simulator")
-    programs = pytest.importorskip("host.spindle_programs")
+    simulated machine (host.sim.simulator); the residual must be near the probes' noise."""
+    sim = pytest.importorskip("host.sim.simulator")
+    programs = pytest.importorskip("host.sim.spindle_programs")
     paths = {}
     for name, seed in (("constant", 1), ("random", 2)):
         run = sim.simulate(programs.build_program(name, hours=6, cool_hours=6, seed=seed),

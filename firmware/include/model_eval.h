@@ -1,5 +1,5 @@
 /*
- * model_eval.h -- fixed-point evaluation of a generated thermal model (runtime format 1).
+ * model_eval.h -- fixed-point evaluation of a generated thermal model (TCM_RUNTIME_FORMAT below).
  *
  * The model itself is a generated header (`host codegen model.json -o model.h`) holding one
  * `static const tcm_model_t tcm_model`; exactly one firmware file includes it. This runtime

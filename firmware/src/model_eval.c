@@ -1,5 +1,5 @@
 /*
- * model_eval.c -- integer-only evaluation of a generated thermal model (runtime format 1).
+ * model_eval.c -- integer-only evaluation of a generated thermal model (TCM_RUNTIME_FORMAT below).
  *
  * The Python twin codegen/fixed.py performs exactly the same operations; tests compare the
  * two bit for bit. Contract: docs/fixed-point.md; proofs of the bounds below: docs/codegen.md.

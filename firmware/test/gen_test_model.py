@@ -3,7 +3,7 @@
 Usage: gen_test_model.py OUT_DIR --clamp-nm N --slew-nm-per-s N --cold-start-slew 0|1
 
 The expectations come from the host, never from the firmware: the model is built with
-host.terms and rendered by codegen; the per-sample model outputs come from ``codegen.fixed``
+contract.terms and rendered by codegen; the per-sample model outputs come from ``codegen.fixed``
 (the integer twin of the runtime); channel validity, status bits and the hold / slew / clamp
 output stage are computed here from the rules in docs/firmware.md and docs/protocol.md.
 
@@ -25,7 +25,7 @@ import numpy as np
 
 import codegen
 from codegen.fixed import FixedModel
-from host.terms import make_lag, make_rate, make_speed, make_square, make_temp, make_time
+from contract.terms import make_lag, make_rate, make_speed, make_square, make_temp, make_time
 
 N_SAMPLES = 400
 N_CHANNELS = 8

@@ -5,11 +5,11 @@ TEST_BUILD := build/test
 TEST_CC ?= gcc
 SANITIZE := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
 TEST_CFLAGS := $(WARN) -Wno-missing-prototypes -O1 -g $(SANITIZE) -D_DEFAULT_SOURCE \
-               $(INCLUDES) -Ihal/native -Itest
+               $(INCLUDES) -Ihal/native -Iemul -Itest
 TEST_LIBS := -lcmocka
 
 # module -> its sources (the test file provides the fakes it needs)
-TEST_SRC_max31856   := src/max31856.c hal/native/max31856_sim.c
+TEST_SRC_max31856   := src/max31856.c emul/max31856_sim.c
 TEST_SRC_axis_output := src/axis_output.c
 TEST_SRC_cmd        := src/cmd.c
 TEST_SRC_line       := src/line.c src/crc16.c
@@ -19,7 +19,7 @@ UNIT_BINS := $(addprefix $(TEST_BUILD)/test_,$(UNIT_TESTS))
 
 .SECONDEXPANSION:
 
-$(TEST_BUILD)/test_%: test/test_%.c $$(TEST_SRC_$$*) $(wildcard include/*.h hal/*.h hal/native/*.h)
+$(TEST_BUILD)/test_%: test/test_%.c $$(TEST_SRC_$$*) $(wildcard include/*.h hal/*.h hal/native/*.h emul/*.h)
 	@mkdir -p $(TEST_BUILD)
 	$(TEST_CC) $(TEST_CFLAGS) $< $(TEST_SRC_$*) $(TEST_LIBS) -o $@
 
@@ -29,11 +29,11 @@ $(TEST_BUILD)/test_%: test/test_%.c $$(TEST_SRC_$$*) $(wildcard include/*.h hal/
 MODEL_DIR := $(TEST_BUILD)/model
 TEST_APP_CFG := -DBOX_MAX_CORRECTION_NM=40000 -DBOX_SLEW_NM_PER_S=700 -DBOX_COLD_START_SLEW=1
 GEN_ARGS := --clamp-nm 40000 --slew-nm-per-s 700 --cold-start-slew 1
-APP_TEST_SRC := $(filter-out src/model_binding.c,$(APP_SRC)) hal/native/max31856_sim.c \
+APP_TEST_SRC := $(filter-out src/model_binding.c,$(APP_SRC)) emul/max31856_sim.c \
                 test/fake_board.c
 
 $(MODEL_DIR)/vectors.h: test/gen_test_model.py $(wildcard ../codegen/*.py ../codegen/templates/*) \
-                        ../host/terms.py
+                        ../contract/terms.py
 	@test -x $(PYTHON) || { echo "make test: $(PYTHON) not found: run 'make setup' at the top level (the application tests generate their model with codegen)." >&2; exit 2; }
 	$(PYTHON) test/gen_test_model.py $(MODEL_DIR) $(GEN_ARGS)
 

@@ -26,8 +26,7 @@ def run(args: argparse.Namespace) -> int:
 
     max_error = codegen.DEFAULT_MAX_ERROR_UM if args.max_error_um is None else args.max_error_um
     out = args.output or args.model.with_name("model.h")
-    codegen.write_header(args.model, out, max_error_um=max_error)
-    block = json.loads(args.model.read_text(encoding="utf-8"))["fixed_point"]
+    block = codegen.write_header(args.model, out, max_error_um=max_error).fixed_point
     if args.json:
         print(json.dumps(block, indent=2))
         return 0

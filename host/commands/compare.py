@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import json
 
+from contract.box import BOX_CHANNELS
+from contract.errors import InputError
+from contract.model_file import jsonable
+from host.analysis import DEFAULT_K_CORRELATED, EXHAUSTIVE_LIMIT, compare_methods
 from host.commands.train import add_data_arguments, add_selection_arguments
-from host.compare import DEFAULT_K_CORRELATED, EXHAUSTIVE_LIMIT, compare_methods
-from host.data import load_runs
-from host.model_io import jsonable
-from host.split import window
-from host.train import MAX_CHANNELS
+from host.io import load_runs, window
 
 NAME = "compare"
 HELP = ("train our selection (validated, refined, paper-exact) and peer methods; "
@@ -57,7 +57,7 @@ def print_table(doc: dict) -> None:
         if best:
             print(f"  best on this test: {best['method']} ({_fmt(best['test_rmse_um'])} um)")
         if in_box and in_box != best:
-            print(f"  best the box can read (<= {MAX_CHANNELS} sensors): {in_box['method']} "
+            print(f"  best the box can read (<= {BOX_CHANNELS} sensors): {in_box['method']} "
                   f"({_fmt(in_box['test_rmse_um'])} um)")
 
 
@@ -66,13 +66,13 @@ def run(args: argparse.Namespace) -> int:
                      min_samples=4)
     if args.split_at_h is not None:
         if args.test:
-            raise ValueError("give either --test or --split-at-h, not both")
+            raise InputError("give either --test or --split-at-h, not both")
         at = args.split_at_h * 3600.0
         train = [window(r, None, at) for r in runs]
         test = [window(r, at, None) for r in runs]
     else:
         if not args.test:
-            raise ValueError("give test runs with --test (or --split-at-h H)")
+            raise InputError("give test runs with --test (or --split-at-h H)")
         train = runs
         test = load_runs(args.test, args.target, args.sensors, args.aux, args.fill_gaps)
     engineering = [s.strip() for s in args.engineering.split(",") if s.strip()] \

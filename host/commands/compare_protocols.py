@@ -7,7 +7,8 @@ import json
 import tempfile
 from pathlib import Path
 
-from host.protocols import (
+from contract.errors import InputError
+from host.analysis import (
     AXES,
     combine,
     compare_protocols,
@@ -16,8 +17,7 @@ from host.protocols import (
     simulate_runs,
     write_outputs,
 )
-from host.simulator import parse_effects
-from host.spindle_programs import PROTOCOLS
+from host.sim import PROTOCOLS, parse_effects
 
 NAME = "compare-protocols"
 HELP = ("train a model on each test protocol and test it on runs of every other protocol "
@@ -65,9 +65,9 @@ def run(args: argparse.Namespace) -> int:
     targets = args.target or list(AXES)
     quiet = args.json
     if args.repeats < 1:
-        raise ValueError(f"--repeats must be at least 1 (got {args.repeats})")
+        raise InputError(f"--repeats must be at least 1 (got {args.repeats})")
     if args.runs and args.repeats > 1:
-        raise ValueError("--repeats applies to simulated runs; with --runs give more runs")
+        raise InputError("--repeats applies to simulated runs; with --runs give more runs")
     train = dict(sensors=args.sensors, aux=args.aux, max_sensors=args.max_sensors,
                  groups=args.groups, fit_effects=args.fit_effects, quiet=quiet)
     with tempfile.TemporaryDirectory(prefix="compare-protocols-") as tmp:

@@ -6,10 +6,11 @@ from __future__ import annotations
 import argparse
 import json
 
-from host.diagnose import diagnose, load_for_model, summary_lines
-from host.extrapolation import input_units
-from host.model_io import jsonable, read_model
-from host.validation import DEFAULT_BLOCKS
+from contract.errors import InputError
+from contract.model_file import jsonable, read_model
+from host.analysis import diagnose, load_for_diagnosis, summary_lines
+from host.fitting import DEFAULT_BLOCKS
+from host.train import input_units
 
 NAME = "diagnose"
 HELP = ("a model on a new run: its error, the candidate effect that explains what remains, and "
@@ -32,9 +33,9 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.blocks < 2:
-        raise ValueError(f"--blocks must be >= 2 (got {args.blocks})")
+        raise InputError(f"--blocks must be >= 2 (got {args.blocks})")
     model = read_model(args.model)
-    data = load_for_model(model, args.run, args.fill_gaps)
+    data = load_for_diagnosis(model, args.run, args.fill_gaps)
     doc = {"model": args.model, **diagnose(model, data, ambient=args.ambient,
                                            n_blocks=args.blocks)}
     if args.json:

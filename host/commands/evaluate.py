@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from host.evaluate import evaluate_model, load_for_model
-from host.extrapolation import describe, input_units
-from host.model_io import jsonable, read_model
+from contract.model_file import jsonable, read_model
+from host.analysis import evaluate_model, load_for_model
+from host.train import describe, input_units
 
 NAME = "evaluate"
 HELP = "evaluate a model.json on a run: residual RMSE, peak, raw drift and reduction per axis"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from host.monitor import Monitor, MonitorError
+from host.box import Monitor, MonitorError
 
 NAME = "monitor"
 HELP = "show a box's live corrections, temperatures and status flags; check its model hash"
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     expected, windows = None, {}
     if args.model:
         from codegen import generate, model_hash
-        from host.model_io import read_model
+        from contract.model_file import read_model
 
         model = read_model(args.model)
         expected = model_hash(model)

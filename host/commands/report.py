@@ -27,7 +27,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from host.report import build_report  # matplotlib: imported only when a report is made
+    from host.analysis.report import build_report
 
     report = build_report(args.model, args.runs, args.out, protocols=args.protocols,
                           peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json,

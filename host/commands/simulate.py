@@ -7,9 +7,17 @@ import json
 
 import numpy as np
 
-from host.machine_model import AXES
-from host.simulator import EFFECTS, SimConfig, parse_effects, simulate, write_simulation
-from host.spindle_programs import PROTOCOLS, build_program
+from contract.errors import InputError
+from host.sim import (
+    AXES,
+    EFFECTS,
+    PROTOCOLS,
+    SimConfig,
+    build_program,
+    parse_effects,
+    simulate,
+    write_simulation,
+)
 
 NAME = "simulate"
 HELP = "simulate a thermal test run of a vertical machining center (CSV + truth sidecar)"
@@ -56,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     program = build_program(args.protocol, args.max_rpm, args.hours, args.cool_hours,
                             seed=args.seed, rpm=args.rpm)
     if not 3 <= args.precision <= 17:
-        raise ValueError(f"--precision must be 3..17 significant digits (got {args.precision})")
+        raise InputError(f"--precision must be 3..17 significant digits (got {args.precision})")
     config = SimConfig(n_sensors=args.sensors, dt_s=args.dt, seed=args.seed,
                        machine_seed=args.machine_seed, effects=parse_effects(args.effects),
                        ambient_c=args.ambient_c, start_hour=args.start_hour)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from host.split import split_file
+from host.io import split_file
 
 NAME = "split"
 HELP = "cut a run into consecutive parts at given hours (e.g. train/test cycles)"

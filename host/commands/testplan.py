@@ -7,8 +7,7 @@ import json
 import sys
 
 from host.commands.simulate import add_program_arguments
-from host.spindle_programs import build_program
-from host.testplan import DIALECTS, ThermalTestPlan, parse_duration
+from host.sim import DIALECTS, ThermalTestPlan, build_program, parse_duration
 
 NAME = "testplan"
 HELP = "write the G-code program that runs a thermal test (speed schedule + measurement stops)"

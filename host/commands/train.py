@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-from host.model_io import jsonable, write_model
+from contract.box import BOX_CHANNELS
+from contract.errors import InputError
+from contract.model_file import jsonable, write_model, write_text_atomic
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
-from host.train import MAX_CHANNELS, summary, train_model
+from host.train import summary, train_model
 
 NAME = "train"
 HELP = "select sensors (paper 000), fit and validate the thermal model; write model.json"
@@ -61,7 +62,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channel", action="append", type=parse_channel, default=[],
                         metavar="SENSOR=INDEX", help="wire a sensor to a box channel "
                         "(default 0..k-1 in column order)")
-    parser.add_argument("--max-channels", type=int, default=MAX_CHANNELS, metavar="N",
+    parser.add_argument("--max-channels", type=int, default=BOX_CHANNELS, metavar="N",
                         help="thermocouple channels the box has, shared by all axes (default "
                         "%(default)s); when the axes' choices exceed it, every axis is "
                         "re-selected from the sensors most axes chose")
@@ -114,16 +115,6 @@ def print_effects(doc: dict) -> None:
             print(f"  {name} unexplained: {a['unexplained']['message']}")
 
 
-def run_codegen(model_path: Path, header_path: Path) -> str | None:
-    """Write the C header; None if codegen is not installed yet (reported, not an error)."""
-    try:
-        from codegen import write_header  # type: ignore[attr-defined]
-    except ImportError:
-        return None
-    write_header(model_path, header_path)
-    return str(header_path)
-
-
 def run(args: argparse.Namespace) -> int:
     model = train_model(args.runs, args.target, sensors=args.sensors, aux=args.aux,
                         max_sensors=args.max_sensors, groups=args.groups,
@@ -135,18 +126,22 @@ def run(args: argparse.Namespace) -> int:
                         quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"
+    header = None
+    if not args.no_codegen:  # train owns its model.json: the fixed_point block goes in with it
+        import codegen
+
+        try:
+            gen = codegen.generate(model)
+        except ValueError as exc:
+            write_model(model, model_path)
+            raise InputError(f"{model_path} written, but codegen refused it: {exc}") from None
+        model["fixed_point"] = gen.fixed_point
+        header = out / "model.h"
     write_model(model, model_path)
     doc = summary(model, str(model_path))
-    if not args.no_codegen:
-        try:
-            header = run_codegen(model_path, out / "model.h")
-        except ValueError as exc:
-            raise ValueError(f"{model_path} written, but codegen refused it: {exc}") from None
-        if header is None:
-            print("host train: codegen is not available; wrote model.json only",
-                  file=sys.stderr)
-        else:
-            doc["header"] = header
+    if header is not None:
+        write_text_atomic(header, gen.text)
+        doc["header"] = str(header)
     if args.json:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
     else:

@@ -5,10 +5,10 @@
 # only the board file (clock, SPI, ADC, time) is replaced. Included by ../../Makefile.
 
 QEMU_BOARD_SRC := hal/stm32f405/startup.c hal/stm32f405/uart.c hal/stm32f405/watchdog.c \
-                  hal/native/max31856_sim.c $(wildcard hal/qemu_uartfeed/*.c)
+                  emul/max31856_sim.c $(wildcard hal/qemu_uartfeed/*.c)
 
 $(BUILD)/qemu_uartfeed.elf: $(APP_SRC) $(QEMU_BOARD_SRC) hal/stm32f405/stm32f405.ld \
-                            $(wildcard include/*.h hal/*.h hal/stm32f405/*.h hal/native/*.h) \
+                            $(wildcard include/*.h hal/*.h hal/stm32f405/*.h emul/*.h) \
                             $(MODEL_ABS) $(BUILD)/flags
-	$(ARM_CC) $(ARM_CFLAGS) -Ihal/native $(MODEL_DEF) $(APP_SRC) $(QEMU_BOARD_SRC) \
+	$(ARM_CC) $(ARM_CFLAGS) -Iemul $(MODEL_DEF) $(APP_SRC) $(QEMU_BOARD_SRC) \
 	    $(ARM_LDFLAGS) -o $@

@@ -1,7 +1,7 @@
 /* Board variant `qemu_uartfeed`: the STM32F405 image under `qemu-system-arm -M netduinoplus2`
  * (docs/hil.md). QEMU's SPI1 has nothing attached, so the lowest HAL takes the samples from a
  * second UART instead: USART2 carries the native board's feed (`S <aux0> <code0> ...`,
- * `F <ch> <sr_hex>`), each S loads the simulated MAX31856 chips (hal/native/max31856_sim.c,
+ * `F <ch> <sr_hex>`), each S loads the simulated MAX31856 chips (emul/max31856_sim.c,
  * register level, so the real driver still talks SPI to them) and advances a virtual clock by
  * one sample period, exactly like the native board. USART1 (the protocol), the startup code,
  * the watchdog and everything above the HAL are the STM32F405 board's and the application's

@@ -1,0 +1,355 @@
+"""The box's serial wire protocol (docs/protocol.md): decode its lines, encode commands.
+
+One decoder shared by the HIL runner and ``host monitor``, so both judge the box by the same
+rules. Decoding is strict: a line is accepted only if its CRC-16/CCITT-FALSE matches *and*
+every field has the declared form; anything else raises :class:`ProtocolError` naming the
+field and quoting the line, because a half-understood line could move a machine axis.
+The encoders (``encode_*``) build lines exactly as the firmware does; tests use them to check
+the decoder independently of the firmware, and the firmware against the decoder.
+"""
+
+from __future__ import annotations
+
+import binascii
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from enum import IntFlag
+
+from contract.errors import InputError
+
+CMD_MAX_LEN = 64
+RATE_MIN, RATE_MAX = 1, 3600
+ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG")
+TC_TYPES = ("K", "J")
+
+
+class Status(IntFlag):
+    """The status word of sample and STATUS lines."""
+
+    MODEL_BAD = 1 << 0
+    HOLD = 1 << 1
+    SLEW = 1 << 2
+    CLAMP = 1 << 3
+    RANGE = 1 << 4
+    OPEN = 1 << 5
+    TC_FAULT = 1 << 6
+    AUX_FAULT = 1 << 7
+    WDT_RESET = 1 << 8
+    NO_DATA = 1 << 9
+    EXTRAP = 1 << 10  # a valid reading beyond its training window: advice, still corrected
+
+
+STATUS_BITS = tuple(s.name for s in Status)  # bit order: STATUS_BITS[i] is bit i
+
+
+class ChannelFault(IntFlag):
+    """Per-channel fault word of the STATUS line: the MAX31856 SR bits, then the box's own."""
+
+    OPEN = 0x01
+    OVUV = 0x02
+    TCLOW = 0x04
+    TCHIGH = 0x08
+    CJLOW = 0x10
+    CJHIGH = 0x20
+    TCRANGE = 0x40
+    CJRANGE = 0x80
+    RANGE = 1 << 8  # code outside the channel's valid range
+    NO_RESPONSE = 1 << 9  # bus error or the chip did not read its configuration back
+
+
+class ProtocolError(InputError):
+    """A line that is not a valid protocol line; the message says what and quotes the line."""
+
+
+class CrcError(ProtocolError):
+    """The line's CRC does not match its payload (corrupted in transit)."""
+
+
+def status_names(status: int) -> list[str]:
+    """Names of the bits set in a status word, in bit order."""
+    return [name for i, name in enumerate(STATUS_BITS) if status >> i & 1]
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One entry of the INFO channel map."""
+
+    channel: int
+    sensor: str
+    tc_type: str
+
+
+@dataclass(frozen=True)
+class Info:
+    """``$I``: firmware and model identity."""
+
+    fw_version: str
+    model_hash: str
+    crc_ok: bool
+    period_ms: int
+    axes: tuple[str, ...]
+    channels: tuple[Channel, ...]
+
+
+@dataclass(frozen=True)
+class Sample:
+    """``$C``: one sample period's output."""
+
+    seq: int
+    status: int
+    corrections_nm: tuple[int, ...]
+    temp_codes: tuple[int, ...]
+
+    @property
+    def flags(self) -> Status:
+        return Status(self.status)
+
+
+@dataclass(frozen=True)
+class StatusReport:
+    """``$S``: answer to STATUS."""
+
+    status: int
+    seq: int
+    uptime_s: int
+    channel_faults: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Ack:
+    """``$OK``: a command was accepted (``$OK,RATE,<n>``)."""
+
+    command: str
+    value: int
+
+
+@dataclass(frozen=True)
+class ErrorReply:
+    """``$E``: a command was refused."""
+
+    reason: str
+
+
+Message = Info | Sample | StatusReport | Ack | ErrorReply
+
+_LINE_RE = re.compile(rb"\$([\x20-\x7e]*)\*([0-9A-F]{4})(\r?\n)?")
+_DEC_RE = re.compile(r"-?(0|[1-9][0-9]*)")
+_UDEC_RE = re.compile(r"0|[1-9][0-9]*")
+_HEX4_RE = re.compile(r"[0-9A-F]{4}")
+_NAME_RE = re.compile(r"[A-Za-z0-9_.+-]*")
+
+
+def crc16(payload: bytes) -> int:
+    """CRC-16/CCITT-FALSE of the bytes between ``$`` and ``*``."""
+    return binascii.crc_hqx(payload, 0xFFFF)
+
+
+def _show(raw: bytes) -> str:
+    text = repr(raw[:120])
+    return text + ("..." if len(raw) > 120 else "")
+
+
+class _Fields:
+    """Cursor over a line's comma-separated fields, producing errors that name the field."""
+
+    def __init__(self, kind: str, fields: list[str], raw: bytes) -> None:
+        self.kind, self.fields, self.raw, self.pos = kind, fields, raw, 0
+
+    def fail(self, what: str) -> ProtocolError:
+        return ProtocolError(f"${self.kind} line, field {self.pos + 1}: {what}: {_show(self.raw)}")
+
+    def take(self, name: str) -> str:
+        if self.pos >= len(self.fields):
+            raise ProtocolError(f"${self.kind} line: missing field {self.pos + 1} ({name}): "
+                                f"{_show(self.raw)}")
+        self.pos += 1
+        return self.fields[self.pos - 1]
+
+    def _match(self, name: str, regex: re.Pattern[str], form: str) -> str:
+        text = self.take(name)
+        if not regex.fullmatch(text):
+            self.pos -= 1
+            raise self.fail(f"{name} {text!r} is not {form}")
+        return text
+
+    def dec(self, name: str, lo: int | None = None, hi: int | None = None) -> int:
+        value = int(self._match(name, _DEC_RE, "a decimal integer"))
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            self.pos -= 1
+            raise self.fail(f"{name} {value} outside {lo}..{hi}")
+        return value
+
+    def udec(self, name: str, hi: int | None = None, lo: int = 0) -> int:
+        value = int(self._match(name, _UDEC_RE, "an unsigned decimal integer"))
+        if value < lo or (hi is not None and value > hi):
+            self.pos -= 1
+            raise self.fail(f"{name} {value} outside {lo}..{hi if hi is not None else ''}")
+        return value
+
+    def hex4(self, name: str) -> int:
+        return int(self._match(name, _HEX4_RE, "4 upper-case hex digits"), 16)
+
+    def name_list(self, name: str) -> list[str]:
+        text = self.take(name)
+        return [] if text == "" else text.split(";")
+
+    def end(self) -> None:
+        if self.pos != len(self.fields):
+            raise ProtocolError(f"${self.kind} line: {len(self.fields) - self.pos} unexpected "
+                                f"field(s) after field {self.pos}: {_show(self.raw)}")
+
+
+def _decode_sample(f: _Fields) -> Sample:
+    seq = f.udec("seq", 2**32 - 1)
+    status = f.hex4("status")
+    n_axes = f.udec("n_axes", 32)
+    corr = tuple(f.dec(f"corr_nm[{a}]", -(2**31), 2**31 - 1) for a in range(n_axes))
+    n_ch = f.udec("n_ch", 32)
+    codes = tuple(f.dec(f"temp_code[{c}]", -(2**18), 2**18 - 1) for c in range(n_ch))
+    f.end()
+    return Sample(seq, status, corr, codes)
+
+
+def _decode_info(f: _Fields) -> Info:
+    fw = f.take("fw_version")
+    model_hash = f.take("model_hash")
+    crc = f.take("crc")
+    if crc not in ("OK", "BAD"):
+        f.pos -= 1
+        raise f.fail(f"crc {crc!r} is neither OK nor BAD")
+    period = f.udec("period_ms")
+    axes = f.name_list("axes")
+    channels = []
+    for item in f.name_list("channel map"):
+        parts = item.split(":")
+        if (len(parts) != 3 or not _UDEC_RE.fullmatch(parts[0])
+                or not _NAME_RE.fullmatch(parts[1]) or parts[2] not in TC_TYPES):
+            f.pos -= 1
+            raise f.fail(f"channel map entry {item!r} is not <ch>:<sensor>:<K|J>")
+        channels.append(Channel(int(parts[0]), parts[1], parts[2]))
+    f.end()
+    return Info(fw, model_hash, crc == "OK", period, tuple(axes), tuple(channels))
+
+
+def _decode_status(f: _Fields) -> StatusReport:
+    status = f.hex4("status")
+    seq = f.udec("seq", 2**32 - 1)
+    uptime = f.udec("uptime_s")
+    faults = []
+    for item in f.name_list("channel faults"):
+        if not _HEX4_RE.fullmatch(item):
+            f.pos -= 1
+            raise f.fail(f"channel fault word {item!r} is not 4 upper-case hex digits")
+        faults.append(int(item, 16))
+    f.end()
+    return StatusReport(status, seq, uptime, tuple(faults))
+
+
+def _decode_ok(f: _Fields) -> Ack:
+    command = f.take("command")
+    if command != "RATE":
+        f.pos -= 1
+        raise f.fail(f"acknowledged command {command!r} is not RATE")
+    value = f.udec("n", RATE_MAX, RATE_MIN)
+    f.end()
+    return Ack(command, value)
+
+
+def _decode_error(f: _Fields) -> ErrorReply:
+    reason = f.take("reason")
+    if reason not in ERROR_REASONS:
+        f.pos -= 1
+        raise f.fail(f"reason {reason!r} is not one of {', '.join(ERROR_REASONS)}")
+    f.end()
+    return ErrorReply(reason)
+
+
+_DECODERS = {"C": _decode_sample, "I": _decode_info, "S": _decode_status, "OK": _decode_ok,
+             "E": _decode_error}
+
+
+def decode(raw: bytes | str) -> Message:
+    """Decode one line (with or without its ``\\r\\n``) into a typed record.
+
+    Raises :class:`CrcError` when the check fails and :class:`ProtocolError` for any other
+    malformation (the message names the field and quotes the line).
+    """
+    if isinstance(raw, str):
+        try:
+            raw = raw.encode("ascii")
+        except UnicodeEncodeError:
+            raise ProtocolError(f"line contains non-ASCII characters: {raw[:120]!r}") from None
+    m = _LINE_RE.fullmatch(raw)
+    if m is None:
+        if not raw.startswith(b"$"):
+            raise ProtocolError(f"line does not start with '$': {_show(raw)}")
+        if any(b < 0x20 or b > 0x7E for b in raw.rstrip(b"\r\n")):
+            raise ProtocolError(f"line contains bytes outside printable ASCII: {_show(raw)}")
+        raise ProtocolError(f"line does not end in '*' and 4 upper-case hex digits: {_show(raw)}")
+    payload, crc_text = m.group(1), m.group(2)
+    expected = crc16(payload)
+    if int(crc_text, 16) != expected:
+        raise CrcError(f"CRC mismatch (line says {crc_text.decode()}, payload gives "
+                       f"{expected:04X}): {_show(raw)}")
+    kind, *fields = payload.decode("ascii").split(",")
+    decoder = _DECODERS.get(kind)
+    if decoder is None:
+        raise ProtocolError(f"unknown line type {kind!r} (known: {', '.join(_DECODERS)}): "
+                            f"{_show(raw)}")
+    return decoder(_Fields(kind, fields, raw))
+
+
+parse_line = decode
+
+
+# ---- encoders ---------------------------------------------------------------------------
+
+def encode_line(kind: str, fields: Iterable[object]) -> bytes:
+    """``$<kind>,<fields...>*<CRC>\\r\\n`` exactly as the box writes it."""
+    payload = ",".join([kind, *(str(f) for f in fields)]).encode("ascii")
+    return b"$" + payload + b"*" + f"{crc16(payload):04X}".encode() + b"\r\n"
+
+
+def encode_sample(seq: int, status: int, corrections_nm: Sequence[int],
+                  temp_codes: Sequence[int]) -> bytes:
+    return encode_line("C", [seq, f"{status:04X}", len(corrections_nm), *corrections_nm,
+                             len(temp_codes), *temp_codes])
+
+
+def encode_info(info: Info) -> bytes:
+    channels = ";".join(f"{c.channel}:{c.sensor}:{c.tc_type}" for c in info.channels)
+    return encode_line("I", [info.fw_version, info.model_hash, "OK" if info.crc_ok else "BAD",
+                             info.period_ms, ";".join(info.axes), channels])
+
+
+def encode_status(report: StatusReport) -> bytes:
+    faults = ";".join(f"{w:04X}" for w in report.channel_faults)
+    return encode_line("S", [f"{report.status:04X}", report.seq, report.uptime_s, faults])
+
+
+def encode(message: Message) -> bytes:
+    """Encode any decoded record back into its line (decode(encode(m)) == m)."""
+    if isinstance(message, Sample):
+        return encode_sample(message.seq, message.status, message.corrections_nm,
+                             message.temp_codes)
+    if isinstance(message, Info):
+        return encode_info(message)
+    if isinstance(message, StatusReport):
+        return encode_status(message)
+    if isinstance(message, Ack):
+        return encode_line("OK", [message.command, message.value])
+    if isinstance(message, ErrorReply):
+        return encode_line("E", [message.reason])
+    raise TypeError(f"not a protocol message: {message!r}")
+
+
+def encode_command(command: str, arg: int | None = None) -> bytes:
+    """A command line for the box: ``INFO``, ``STATUS`` or ``RATE <n>``, CR LF terminated."""
+    if command in ("INFO", "STATUS") and arg is None:
+        return command.encode() + b"\r\n"
+    if command == "RATE" and arg is not None:
+        if not RATE_MIN <= arg <= RATE_MAX:
+            raise InputError(f"RATE {arg} outside {RATE_MIN}..{RATE_MAX}")
+        return f"RATE {arg}\r\n".encode()
+    raise InputError(f"unknown command {command!r} (INFO, STATUS or RATE <n>)")

@@ -1,0 +1,85 @@
+"""`host evaluate`: how much of a run's thermal drift a model removes (on a run it never saw).
+
+Per axis: ``rmse_um`` and ``max_abs_um`` of the residual (measured - predicted),
+``raw_rms_um`` and ``raw_peak_um`` of the measured displacement itself (what the machine does
+without compensation) and ``reduction_pct`` = 100 * (1 - rmse / raw_rms). Per run: the inputs
+that leave their training range (host.train.ranges), where a larger error is to be expected.
+Predictions use host.fitting.design_matrix with each axis's terms, so dynamic and auxiliary terms
+evaluate exactly as in training (lag filters start cold at the run's first sample, like the box
+at power-up).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from contract.errors import InputError
+from contract.model_file import model_aux, model_sensors
+from host.fitting import axis_terms, design_matrix, rmse
+from host.io import Run, load_run
+from host.train import outside_training
+
+DYNAMIC_KINDS = ("lag", "rate", "time")
+PERIOD_TOLERANCE = 0.01
+
+
+class EvaluationError(InputError):
+    """The run cannot be evaluated with this model (missing column, other sample period)."""
+
+
+def load_for_model(path: str | Path, model: dict, fill_gaps: int = 0,
+                   axes: list[str] | None = None) -> Run:
+    """Load a run with exactly the columns the model needs."""
+    axes = list(model["axes"]) if axes is None else axes
+    return load_run(path, axes, model_sensors(model), model_aux(model), fill_gaps)
+
+
+def _check_period(model: dict, run: Run) -> None:
+    dynamic = any(t["kind"] in DYNAMIC_KINDS for a in model["axes"].values() for t in a["terms"])
+    period = float(model["sample_period_s"])
+    if dynamic and run.n_samples > 1 and abs(run.period_s - period) > PERIOD_TOLERANCE * period:
+        raise EvaluationError(f"{run.path}: sample period {run.period_s:g} s, the model's dynamic "
+                              f"terms were fitted at {period:g} s; resample the run")
+
+
+def predict(model: dict, run: Run) -> dict[str, np.ndarray]:
+    """Predicted displacement (um) per axis over the run."""
+    _check_period(model, run)
+    columns = run.columns()
+    out = {}
+    for axis in model["axes"]:
+        terms, coefs, intercept = axis_terms(model, axis)
+        try:
+            X = design_matrix(terms, columns, float(model["sample_period_s"]))
+        except KeyError as exc:
+            raise EvaluationError(f"{run.path}: axis {axis}: {exc.args[0]}") from None
+        out[axis] = X @ coefs + intercept if len(terms) else np.full(run.n_samples, intercept)
+    return out
+
+
+def axis_metrics(measured: np.ndarray, predicted: np.ndarray) -> dict:
+    residual = measured - predicted
+    raw = rmse(measured)
+    err = rmse(residual)
+    return {
+        "rmse_um": err,
+        "max_abs_um": float(np.max(np.abs(residual))),
+        "raw_rms_um": raw,
+        "raw_peak_um": float(np.max(np.abs(measured))),
+        "reduction_pct": 100.0 * (1.0 - err / raw) if raw > 0 else float("nan"),
+        "n_samples": int(measured.size),
+    }
+
+
+def evaluate_model(model: dict, run: Run) -> dict:
+    """``{"run": path, "axes": {axis: metrics}}`` for every model axis the run measures."""
+    missing = [a for a in model["axes"] if a not in run.target_names]
+    if missing:
+        raise EvaluationError(f"{run.path}: no measured column for axis "
+                              f"{', '.join(missing)}")
+    preds = predict(model, run)
+    return {"run": run.path,
+            "axes": {a: axis_metrics(run.target(a), p) for a, p in preds.items()},
+            "outside_training_range": outside_training(model, run)}

@@ -1,0 +1,700 @@
+"""`host report`: one self-contained HTML page (plus the PNGs) that tells the model's story.
+
+Why a static page: it opens anywhere without a server or network (images are embedded as data
+URIs, the same PNGs are written beside it for slides), and it is reproducible from the model
+file and the runs alone. The figures follow paper 000 (sensor plane, EC curve) and add what the
+papers do not show: unseen runs, peers, the effects added to close the loop, the heating and
+cooling paths and the fixed-point error bound. Figures are drawn in ``host.analysis.plots``.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import json
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from contract.errors import InputError
+from contract.model_file import read_model
+from contract.terms import Term
+from host.analysis import plots
+from host.fitting import design_matrix, fit_linear
+from host.io import Run, load_run
+from host.progress import progress
+from host.train import TOLERANCE_SHARE, outside_training, training_ranges
+
+
+class ReportError(InputError):
+    """Input the report cannot use (the message names the file and what is wrong)."""
+
+
+# ---------------------------------------------------------------- model and predictions
+
+def axis_terms(axis: dict) -> tuple[list[Term], np.ndarray]:
+    terms = [Term.from_json(t) for t in axis["terms"]]
+    coefs = np.array([float(t["coef"]) for t in axis["terms"]], dtype=float)
+    return terms, coefs
+
+
+def predict(intercept: float, term_dicts: list[dict], run: Run, period_s: float) -> np.ndarray:
+    """Float prediction of one axis on a whole run (filters start at the run's first sample)."""
+    terms = [Term.from_json(t) for t in term_dicts]
+    coefs = np.array([float(t["coef"]) for t in term_dicts], dtype=float)
+    X = design_matrix(terms, run.columns(), period_s)
+    return float(intercept) + (X @ coefs if coefs.size else 0.0)
+
+
+def sensor_contributions(axis: dict, run: Run, period_s: float) -> dict[str, np.ndarray]:
+    """Each sensor's summed contribution (µm) over the run, from all its terms."""
+    terms, coefs = axis_terms(axis)
+    out: dict[str, np.ndarray] = {}
+    columns = run.columns()
+    for term, coef in zip(terms, coefs, strict=True):
+        if term.source is None or term.source not in run.sensor_names:
+            continue
+        value = coef * design_matrix([term], columns, period_s)[:, 0]
+        out[term.source] = out.get(term.source, 0.0) + value
+    return out
+
+
+def most_important_sensor(axis: dict, run: Run, period_s: float) -> str | None:
+    """The sensor whose contribution varies most over the run: the temperature that drives it."""
+    contrib = sensor_contributions(axis, run, period_s)
+    if not contrib:
+        return None
+    return max(contrib, key=lambda s: float(np.std(contrib[s])))
+
+
+# ---------------------------------------------------------------- inputs
+
+def _header(path: Path) -> list[str]:
+    if not path.is_file():
+        raise ReportError(f"{path}: run file not found")
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        row = next(csv.reader(fh), None)
+    if not row:
+        raise ReportError(f"{path}: empty file (no header row)")
+    return [h.strip() for h in row]
+
+
+def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0) -> list[Run]:
+    """Load each run with the model's axes it has, every temperature and the model's aux."""
+    training = model.get("training", {})
+    sensors = training.get("sensors", "T*")
+    aux_names = [a["name"] for a in model.get("aux", [])]
+    needed = {c["sensor"] for c in model["channels"]}
+    runs = []
+    for p in paths:
+        path = Path(p)
+        header = _header(path)
+        targets = [a for a in model["axes"] if a in header]
+        if not targets:
+            raise ReportError(f"{path}: none of the model's axes "
+                              f"({', '.join(model['axes'])}) is a column of this run")
+        missing = sorted(needed - set(header))
+        if missing:
+            raise ReportError(f"{path}: missing sensor column(s) the model uses: "
+                              f"{', '.join(missing)}")
+        run = load_run(path, targets, sensors, aux_names, fill_gaps=fill_gaps)
+        absent = sorted(needed - set(run.sensor_names))
+        if absent:  # the model's sensors may lie outside the training glob: add them
+            run = load_run(path, targets, sorted(set(run.sensor_names) | needed), aux_names,
+                           fill_gaps=fill_gaps)
+        runs.append(run)
+    return runs
+
+
+@dataclass
+class ProtocolMatrix:
+    train: list[str]
+    test: list[str]
+    values: np.ndarray
+    metric: str
+
+
+def load_protocols(path: str | Path) -> ProtocolMatrix:
+    """A train × test error matrix from `host compare-protocols` (JSON or CSV).
+
+    JSON: ``{"metric": ..., "train": [...], "test": [...], "matrix": [[...]]}`` or a list of
+    rows ``{"train": .., "test": .., <metric>: ..}``; CSV: rows with train, test and a value.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ReportError(f"{path}: protocol comparison file not found")
+    if path.suffix.lower() == ".csv":
+        with path.open(newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        return _matrix_from_rows(path, rows, None)
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: not valid JSON (line {exc.lineno}): {exc.msg}") from None
+    if isinstance(data, dict) and "matrix" in data:
+        train = [str(x) for x in data.get("train") or data.get("rows") or []]
+        test = [str(x) for x in data.get("test") or data.get("columns") or []]
+        values = np.array([[math.nan if v is None else float(v) for v in row]
+                           for row in data["matrix"]], dtype=float)
+        if values.shape != (len(train), len(test)):
+            raise ReportError(f"{path}: matrix is {values.shape[0]}×{values.shape[1]} but there "
+                              f"are {len(train)} train and {len(test)} test labels")
+        return ProtocolMatrix(train, test, values, str(data.get("metric", "RMSE (µm)")))
+    rows = data.get("results", data.get("rows")) if isinstance(data, dict) else data
+    if not isinstance(rows, list):
+        raise ReportError(f"{path}: expected a 'matrix' or a list of result rows")
+    metric = data.get("metric") if isinstance(data, dict) else None
+    return _matrix_from_rows(path, rows, metric)
+
+
+def _matrix_from_rows(path: Path, rows: list, metric: str | None) -> ProtocolMatrix:
+    if not rows:
+        raise ReportError(f"{path}: no rows")
+    keys = list(rows[0])
+    train_key = next((k for k in keys if k.lower() in ("train", "trained_on", "train_protocol")),
+                     None)
+    test_key = next((k for k in keys if k.lower() in ("test", "judged_on", "test_protocol")),
+                    None)
+    if train_key is None or test_key is None:
+        raise ReportError(f"{path}: rows need 'train' and 'test' fields (have: {', '.join(keys)})")
+    if metric is None or metric not in keys:
+        candidates = [k for k in keys if "rmse" in k.lower()] or \
+                     [k for k in keys if k not in (train_key, test_key)]
+        metric = candidates[0]
+    train = list(dict.fromkeys(str(r[train_key]) for r in rows))
+    test = list(dict.fromkeys(str(r[test_key]) for r in rows))
+    values = np.full((len(train), len(test)), math.nan)
+    for n, r in enumerate(rows, start=2):
+        try:
+            v = float(r[metric])
+        except (TypeError, ValueError):
+            raise ReportError(f"{path}: row {n}: '{metric}' is not a number: "
+                              f"{r.get(metric)!r}") from None
+        values[train.index(str(r[train_key])), test.index(str(r[test_key]))] = v
+    unit = " (µm)" if metric.endswith("_um") else ""
+    return ProtocolMatrix(train, test, values, metric + unit)
+
+
+def load_hil(path: str | Path) -> dict:
+    """A `python -m hil replay --json` result: the box's own output on a replayed run."""
+    path = Path(path)
+    if not path.is_file():
+        raise ReportError(f"{path}: HIL result file not found")
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ReportError(f"{path}: not valid JSON (line {exc.lineno}): {exc.msg}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("axes"), dict):
+        raise ReportError(f"{path}: not a HIL replay result (no 'axes')")
+    return {"file": str(path), **doc}
+
+
+# ---------------------------------------------------------------- report
+
+@dataclass
+class Figure:
+    key: str
+    section: str
+    title: str
+    caption: str
+    file: str
+
+
+@dataclass
+class Report:
+    out_dir: Path
+    figures: list[Figure] = field(default_factory=list)
+    summary: dict = field(default_factory=dict)
+
+    @property
+    def index(self) -> Path:
+        return self.out_dir / "index.html"
+
+
+SECTIONS = [
+    ("selection", "1. Sensor selection (paper 000, Fig. 7)"),
+    ("ec", "2. How many sensors (paper 000, Fig. 8)"),
+    ("runs", "3. Prediction on each run"),
+    ("effects", "4. Effects added to close the loop"),
+    ("hysteresis", "5. Heating and cooling paths (pseudo-hysteresis)"),
+    ("protocols", "6. Which test protocol to run"),
+    ("window", "7. Inside or beyond the training range"),
+]
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
+
+
+def _save(fig, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    fig.savefig(tmp, format="png", dpi=100)
+    tmp.replace(path)
+
+
+def _fmt(value, digits: int = 2, unit: str = "") -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "—"
+    return f"{value:.{digits}f}{unit}"
+
+
+def summary_rows(model: dict) -> list[dict]:
+    """Row per axis: what the box stores and how well it did in validation (item 7)."""
+    fixed = (model.get("fixed_point") or {}).get("axes", {})
+    rows = []
+    for name, axis in model["axes"].items():
+        metrics = axis.get("metrics", {})
+        sensors = sorted({t["source"] for t in axis["terms"]
+                          if t.get("source") in {c["sensor"] for c in model["channels"]}})
+        channels = sorted(c["channel"] for c in model["channels"] if c["sensor"] in sensors)
+        val = metrics.get("validation_rmse_um")
+        raw = metrics.get("raw_rms_um")
+        reduction = (1.0 - val / raw) * 100.0 if val is not None and raw else None
+        rows.append({
+            "axis": name, "sensors": sensors, "channels": channels,
+            "coefficients": len(axis["terms"]) + 1,
+            "error_bound_um": (fixed.get(name) or {}).get("bound_um"),
+            "validation_rmse_um": val, "raw_rms_um": raw, "reduction_pct": reduction,
+            "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
+            "effects": [e.get("name", "?") for e in axis.get("effects", [])],
+            "validation": metrics.get("validation"),
+        })
+    return rows
+
+
+def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: str | Path,
+                 protocols: str | Path | None = None, peers: bool = True,
+                 fill_gaps: int = 0, quiet: bool = False,
+                 hil: list[str | Path] | None = None) -> Report:
+    """Render every figure and write ``out_dir/index.html``; inputs are all checked first."""
+    model = read_model(model_path)
+    runs = load_report_runs(model, list(run_paths), fill_gaps)
+    matrix = load_protocols(protocols) if protocols else None
+    hil_results = [load_hil(p) for p in hil or []]
+    period = float(model["sample_period_s"])
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    report = Report(out)
+    peer_models = peer_predictions(model, runs) if peers else {}
+
+    jobs: list[tuple] = []
+    for axis_name, axis in model["axes"].items():
+        if axis.get("selection"):
+            jobs.append(("selection", axis_name, None))
+            if axis["selection"].get("ec_curve"):
+                jobs.append(("ec", axis_name, None))
+    for run in runs:
+        for axis_name in run.target_names:
+            jobs.append(("runs", axis_name, run))
+            if model["axes"][axis_name].get("effects"):
+                jobs.append(("effects", axis_name, run))
+            jobs.append(("hysteresis", axis_name, run))
+    if matrix is not None:
+        jobs.append(("protocols", None, None))
+    ranges = training_ranges(model)
+    if ranges:
+        jobs += [("window", None, run) for run in runs]
+
+    run_table: dict[str, dict] = {}
+    for kind, axis_name, run in progress(jobs, "report figures", quiet=quiet):
+        axis = model["axes"][axis_name] if axis_name else None
+        fig_obj = None
+        if kind == "selection":
+            fig_obj, title, caption = _selection_figure(axis_name, axis)
+            file = f"selection_{_slug(axis_name)}.png"
+        elif kind == "ec":
+            sel = axis["selection"]
+            rule = "ec" if sel.get("count_rule", "smallest EC_i") == "smallest EC_i" else "min"
+            fig_obj = plots.ec_curve(axis_name, sel["ec_curve"], int(sel.get("chosen_count", 0)),
+                                     sel.get("ec_subsets"), sel.get("ec_errors_um"), rule)
+            title = f"{axis_name}: evaluation criterion"
+            caption = ("EC<sub>i</sub> = (S<sub>i</sub>/S<sub>1</sub>)·(i/c) trades the error "
+                       "of the best i-sensor model against its size. The circled point fixes "
+                       "how many sensors the box reads: "
+                       + ("the smallest EC (paper 000)." if rule == "ec" else
+                          "the smallest out-of-fold error S<sub>i</sub> (an error on data the "
+                          "fit did not see already rises when a model is too big)."))
+            swaps = sel.get("refinement") or []
+            if swaps:
+                caption += " Group refinement then swapped " + ", ".join(
+                    f"{html.escape(w['removed'])} → {html.escape(w['added'])} "
+                    f"({w['error_before_um']:.3g} → {w['error_after_um']:.3g} µm)"
+                    for w in swaps) + "."
+            file = f"ec_{_slug(axis_name)}.png"
+        elif kind == "runs":
+            measured = run.target(axis_name)
+            preds = {"our model": predict(axis["intercept"], axis["terms"], run, period)}
+            for peer_name, per_run in peer_models.items():
+                if (run.path, axis_name) in per_run:
+                    preds[peer_name] = per_run[(run.path, axis_name)]
+            fig_obj = plots.run_fit(run.name, axis_name, run.time_s, measured, preds)
+            entry = run_table.setdefault(run.name, {})
+            entry[axis_name] = {
+                "raw_rms_um": plots.rms(measured),
+                "residual_rms_um": {k: plots.rms(measured - v) for k, v in preds.items()},
+                "in_training": _in_training(model, run),
+            }
+            title = f"{run.name}, {axis_name}"
+            caption = ("Top: the measured displacement and what each model predicts from what "
+                       "the box measures. Bottom: what is left (RMS in the legend)."
+                       + (" This run was used for training." if entry[axis_name]["in_training"]
+                          else " The model never saw this run."))
+            file = f"run_{_slug(run.name)}_{_slug(axis_name)}.png"
+        elif kind == "window":
+            assert ranges is not None
+            used = {n: r for n, r in ranges.items()
+                    if n in run.sensor_names or n in run.aux_names}
+            fig_obj = plots.training_window(
+                run.name, run.time_s, {n: run.column(n) for n in used},
+                {n: (r["min"], r["max"]) for n, r in used.items()}, TOLERANCE_SHARE)
+            title = f"{run.name}: inputs against their training range"
+            caption = ("Each input the model reads, scaled so that 0 and 1 are the lowest and "
+                       "highest value it had in training. Inside the green band the model "
+                       "interpolates; beyond the dashed lines (5 % of the range further) it "
+                       "extrapolates (for a thermocouple the box raises EXTRAP there)."
+                       + (" The model never saw this run." if not _in_training(model, run)
+                          else " This run was used for training, so it stays inside."))
+            file = f"window_{_slug(run.name)}.png"
+        elif kind == "effects":
+            stages = effect_stages(axis, axis_name, run, period)
+            if len(stages) < 2:
+                continue
+            fig_obj = plots.residual_steps(run.name, axis_name, run.time_s,
+                                           [(s["label"], s["residual"]) for s in stages])
+            run_table[run.name][axis_name]["stages_rms_um"] = [
+                {"stage": s["label"], "rms_um": plots.rms(s["residual"])} for s in stages]
+            title = f"{run.name}, {axis_name}: effects added to close the loop"
+            caption = ("Residual of the temperature-only baseline and after each effect the "
+                       "close-the-loop step added (RMS on this run in the legend). Why each was "
+                       "added: " + "; ".join(f"<b>{html.escape(s['label'][2:])}</b>: "
+                                             f"{html.escape(s['evidence'])}" for s in stages[1:])
+                       + ".")
+            unexplained = axis.get("unexplained") or {}
+            if unexplained.get("message"):
+                caption += " Still unexplained: " + html.escape(str(unexplained["message"]))
+            file = f"effects_{_slug(run.name)}_{_slug(axis_name)}.png"
+        elif kind == "hysteresis":
+            sensor = most_important_sensor(axis, run, period)
+            if sensor is None:
+                continue
+            measured = run.target(axis_name)
+            residual = measured - predict(axis["intercept"], axis["terms"], run, period)
+            fig_obj = plots.hysteresis(run.name, axis_name, sensor, run.column(sensor),
+                                       measured, residual, period)
+            title = f"{run.name}, {axis_name} against {sensor}"
+            caption = (f"{sensor} contributes most to the {axis_name} prediction on this run. "
+                       "Heating (red) and cooling (blue) follow different paths before "
+                       "compensation; after it the loop should collapse towards zero.")
+            file = f"hysteresis_{_slug(run.name)}_{_slug(axis_name)}.png"
+        else:  # protocols
+            fig_obj = plots.protocol_matrix(matrix.train, matrix.test, matrix.values,
+                                            matrix.metric)
+            title = "Protocol comparison"
+            caption = ("Each cell: a model trained on the row's protocol, judged on the "
+                       "column's. A row that stays low everywhere is the protocol to run.")
+            file = "protocols.png"
+        _save(fig_obj, out / file)
+        report.figures.append(Figure(kind, kind, title, caption, file))
+
+    report.summary = {
+        "model": str(model_path),
+        "model_hash": _model_hash(model),
+        "axes": summary_rows(model),
+        "runs": run_table,
+        "outside_training": {run.name: outside_training(model, run) for run in runs},
+        "figures": [f.file for f in report.figures],
+    }
+    if hil_results:
+        report.summary["hil"] = hil_results
+    if matrix is not None:
+        report.summary["protocols"] = {"train": matrix.train, "test": matrix.test,
+                                       "values": matrix.values.tolist(), "metric": matrix.metric}
+    _write_atomic(out / "summary.json", json.dumps(report.summary, indent=2, default=_json_num))
+    _write_atomic(report.index, render_html(model, report))
+    return report
+
+
+def _json_num(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(type(value))
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _model_hash(model: dict) -> str | None:
+    try:
+        from codegen import model_hash  # lands with the code generator
+    except ImportError:
+        return None
+    return model_hash(model)
+
+
+def _in_training(model: dict, run: Run) -> bool:
+    names = {Path(p).stem for p in model.get("training", {}).get("runs", [])}
+    return run.name in names
+
+
+def _selection_figure(axis_name: str, axis: dict):
+    sel = axis["selection"]
+    names = list(sel.get("correlations", {}))
+    delays = [float(sel.get("delays_s", {}).get(n, math.nan)) for n in names]
+    corr = [float(sel["correlations"][n]) for n in names]
+    labels = [int(sel.get("labels", {}).get(n, 0)) for n in names]
+    chosen = sel.get("sensors", [])
+    # sensors the box's channel budget left out of the shared pool: drawn as group -1
+    outside = sel.get("channel_budget", {}).get("outside_pool", {}).get(axis_name, {})
+    for n, r in outside.get("correlations", {}).items():
+        names.append(n)
+        corr.append(float(r))
+        delays.append(float(outside.get("delays_s", {}).get(n, math.nan)))
+        labels.append(-1)
+    fig = plots.selection_plane(axis_name, names, delays, corr, labels, chosen)
+    title = f"{axis_name}: sensors by delay and correlation"
+    caption = (f"Each dot is a thermocouple: how strongly it correlates with {axis_name} and how "
+               "far it lags behind it. Colours are the c-means groups; one representative per "
+               f"group is tried, and the circled ones ({html.escape(', '.join(chosen))}) "
+               f"are read by the box. Method: {html.escape(str(sel.get('method', '?')))}.")
+    return fig, title, caption
+
+
+def effect_evidence(effect: dict) -> str:
+    """The numbers that justified an effect, in one phrase."""
+    parts = []
+    before, after = effect.get("rmse_before_um"), effect.get("rmse_after_um")
+    if before is not None and after is not None:
+        parts.append(f"validation RMSE {before:.2f} → {after:.2f} µm")
+    ev = effect.get("evidence") or {}
+    if ev.get("improvement_pct") is not None:
+        parts.append(f"{ev['improvement_pct']:.0f} % better")
+    if ev.get("folds_improved"):
+        parts.append(f"better in {ev['folds_improved']} folds")
+    if ev.get("residual_corr") is not None:
+        parts.append(f"residual correlation {ev['residual_corr']:+.2f}")
+    return ", ".join(parts)
+
+
+def effect_stages(axis: dict, axis_name: str, run: Run, period: float) -> list[dict]:
+    """Residual of the baseline model and after each effect, in the order they were added.
+
+    Each effect records the model it produced (``intercept`` and ``terms``) and the axis keeps
+    the ``baseline`` it started from (host/effects/), so every stage is re-evaluated here on
+    this run, seen or unseen.
+    """
+    measured = run.target(axis_name)
+    stages = []
+    baseline = axis.get("baseline")
+    if baseline and "terms" in baseline:
+        stages.append({"label": "baseline (temperatures only)", "evidence": "",
+                       "residual": measured - predict(baseline["intercept"], baseline["terms"],
+                                                      run, period)})
+    for effect in axis.get("effects", []):
+        if "terms" in effect and "intercept" in effect:
+            stages.append({"label": f"+ {effect.get('name', effect.get('kind', '?'))}",
+                           "evidence": effect_evidence(effect),
+                           "residual": measured - predict(effect["intercept"], effect["terms"],
+                                                          run, period)})
+    return stages
+
+
+K_CORRELATED = 4  # paper 002's four most correlated sensors
+
+
+def _abs_correlation(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    Xc, yc = X - X.mean(axis=0), y - y.mean()
+    den = np.sqrt((Xc ** 2).sum(axis=0) * (yc ** 2).sum())
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(den > 0, (Xc.T @ yc) / den, 0.0)
+    return np.abs(r)
+
+
+def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, str], np.ndarray]]:
+    """Predictions of the static peers `host compare` also fits (OLS on all sensors, OLS on the
+    k most correlated), trained on the model's own training runs so the comparison is fair.
+
+    Empty when the training runs are not readable here (the report then shows our model only).
+    """
+    training = model.get("training", {})
+    paths = [Path(p) for p in training.get("runs", [])]
+    axes = [a for a in model["axes"] if any(a in r.target_names for r in runs)]
+    if not paths or not all(p.is_file() for p in paths) or not axes:
+        return {}
+    try:
+        train_runs = [load_run(p, [a for a in axes if a in _header(p)],
+                               training.get("sensors", "T*")) for p in paths]
+    except ValueError:
+        return {}
+    names = train_runs[0].sensor_names
+    if any(r.sensor_names != names for r in train_runs) or \
+            not all(set(names) <= set(r.sensor_names) for r in runs):
+        return {}
+    k = min(K_CORRELATED, len(names))
+    labels = ("OLS, all sensors", f"{k} most correlated (paper 002)")
+    out: dict[str, dict[tuple[str, str], np.ndarray]] = {label: {} for label in labels}
+    for axis in axes:
+        have = [r for r in train_runs if axis in r.target_names]
+        if not have:
+            continue
+        X = np.vstack([r.temperatures for r in have])
+        y = np.concatenate([r.target(axis) for r in have])
+        top = np.argsort(-_abs_correlation(X, y), kind="stable")[:k]
+        for label, idx in zip(labels, (np.arange(len(names)), top), strict=True):
+            fit = fit_linear(X[:, idx], y)
+            cols = [names[i] for i in idx]
+            for run in runs:
+                if axis in run.target_names:
+                    Xr = np.column_stack([run.column(c) for c in cols])
+                    out[label][(run.path, axis)] = fit.predict(Xr)
+    return out
+
+
+# ---------------------------------------------------------------- HTML
+
+CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:2em auto;
+max-width:1100px;padding:0 1em;color:#222;line-height:1.45}
+h1{font-size:1.7em;margin-bottom:.2em}h2{margin-top:2em;border-bottom:1px solid #ccc}
+table{border-collapse:collapse;margin:1em 0;font-size:.92em}
+th,td{border:1px solid #bbb;padding:.3em .6em;text-align:right}
+th{background:#f0f0f0}td.l,th.l{text-align:left}
+figure{margin:1.5em 0}figure img{max-width:100%;border:1px solid #ddd}
+figcaption{font-size:.92em;color:#444;max-width:900px}.meta{color:#666;font-size:.9em}
+"""
+
+
+def _status_counts_text(counts: dict | None) -> str:
+    if not counts:
+        return ""
+    text = " Status bits the box raised: " + html.escape(", ".join(
+        f"{name} on {n} sample{'s' if n != 1 else ''}" for name, n in counts.items())) + "."
+    if "EXTRAP" in counts:
+        text += (" EXTRAP: a reading beyond its training window, so the correction is an "
+                 "extrapolation (still applied).")
+    return text
+
+
+def _beyond_text(rows: list[dict] | None) -> str:
+    if rows is None:
+        return "not stored in this model"
+    if not rows:
+        return "none"
+    return ", ".join(
+        f"{r['input']} {'+' if r['run_max'] > r['train_max'] else '−'}"
+        + (f"{100 * r['beyond_share']:.0f} %" if r["beyond_share"] is not None
+           else f"{r['beyond']:.3g}")
+        + f" ({r['samples_outside_pct']:.0f} % of the run)" for r in rows)
+
+
+def _cell(value, left: bool = False) -> str:
+    cls = ' class="l"' if left else ""
+    return f"<td{cls}>{value}</td>"
+
+
+def _th(text: str, left: bool = False) -> str:
+    cls = ' class="l"' if left else ""
+    return f"<th{cls}>{text}</th>"
+
+
+def render_html(model: dict, report: Report) -> str:
+    e = html.escape
+    summary = report.summary
+    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+             '<meta name="viewport" content="width=device-width, initial-scale=1">',
+             "<title>Thermal compensation report</title>", f"<style>{CSS}</style></head><body>",
+             "<h1>Thermal-error compensation report</h1>",
+             f'<p class="meta">Model <code>{e(str(summary["model"]))}</code>'
+             + (f', hash <code>{e(summary["model_hash"])}</code>' if summary["model_hash"] else "")
+             + f', sample period {model["sample_period_s"]:g} s, '
+             f'{len(model["channels"])} channel(s), axes {e(", ".join(model["axes"]))}. '
+             f'Trained on: {e(", ".join(model.get("training", {}).get("runs", [])) or "?")}.</p>']
+
+    parts.append("<h2>Summary</h2><table><tr>"
+                 + "".join(_th(h, left=i < 2 or i == 9) for i, h in enumerate(
+                     ["axis", "sensors", "channels", "coefficients", "fixed-point bound (µm)",
+                      "validation RMSE before effects (µm)", "validation RMSE (µm)",
+                      "raw RMS (µm)", "reduction (%)", "effects"]))
+                 + "</tr>")
+    for row in summary["axes"]:
+        parts.append("<tr>" + _cell(e(row["axis"]), True) + _cell(e(", ".join(row["sensors"])),
+                                                                    True)
+                     + _cell(e(", ".join(str(c) for c in row["channels"])))
+                     + _cell(row["coefficients"]) + _cell(_fmt(row["error_bound_um"], 4))
+                     + _cell(_fmt(row["baseline_validation_rmse_um"]))
+                     + _cell(_fmt(row["validation_rmse_um"])) + _cell(_fmt(row["raw_rms_um"]))
+                     + _cell(_fmt(row["reduction_pct"], 1))
+                     + _cell(e(", ".join(row["effects"])) or "—", True) + "</tr>")
+    parts.append("</table>")
+    validations = {r["validation"] for r in summary["axes"] if r.get("validation")}
+    if validations:
+        parts.append(f'<p class="meta">Validation: {e(", ".join(sorted(validations)))}. '
+                     "Coefficients include the intercept. The bound is the largest difference "
+                     "between the box's integer arithmetic and the float model.</p>")
+
+    if summary["runs"]:
+        models = list(dict.fromkeys(m for per in summary["runs"].values() for a in per.values()
+                                    for m in a["residual_rms_um"]))
+        parts.append("<h2>Error on each run, before and after compensation</h2><table><tr>"
+                     '<th class="l">run</th><th class="l">axis</th><th>seen in training</th>'
+                     "<th>raw RMS (µm)</th>"
+                     + "".join(f"<th>{e(m)} RMS (µm)</th>" for m in models)
+                     + '<th class="l">inputs beyond their training range</th></tr>')
+        beyond = summary.get("outside_training", {})
+        for run_name, per in summary["runs"].items():
+            for axis_name, row in per.items():
+                parts.append("<tr>" + _cell(e(run_name), True) + _cell(e(axis_name), True)
+                             + _cell("yes" if row["in_training"] else "no")
+                             + _cell(_fmt(row["raw_rms_um"]))
+                             + "".join(_cell(_fmt(row["residual_rms_um"].get(m)))
+                                       for m in models)
+                             + _cell(e(_beyond_text(beyond.get(run_name))), True) + "</tr>")
+        parts.append("</table>")
+        parts.append('<p class="meta">Beyond its training range (by more than 5 % of the span) '
+                     "the model extrapolates: expect larger errors there. Figures: how far "
+                     "beyond, as a share of the input's training span, and the share of the "
+                     "run's samples out there.</p>")
+
+    for hil in summary.get("hil", []):
+        label = hil.get("data") or hil["file"]
+        checks = hil.get("checks", {})
+        parts.append(f"<h2>The box itself: HIL replay ({e(str(label))})</h2>"
+                     f'<p class="meta">The firmware built from this model ran on the native '
+                     f"board and was fed {hil.get('samples', '?')} samples; "
+                     f"{hil.get('mismatches', '?')} of its outputs differ from the integer twin, "
+                     f"{hil.get('lost', '?')} lines were lost, {hil.get('bad_lines', '?')} bad. "
+                     "Checks: " + e(", ".join(f"{k} {'passed' if v else 'FAILED'}"
+                                              for k, v in checks.items()) or "—") + "."
+                     + _status_counts_text(hil.get("status_counts")) + "</p>")
+        parts.append("<table><tr>" + "".join(_th(h, left=i == 0) for i, h in enumerate(
+            ["axis", "raw RMS (µm)", "box-compensated RMS (µm)", "max |box − float| (nm)",
+             "bound (nm)", "mismatches"])) + "</tr>")
+        for axis_name, a in hil["axes"].items():
+            diff, bound = a.get("float_max_diff_um"), a.get("bound_um")
+            parts.append("<tr>" + _cell(e(axis_name), True) + _cell(_fmt(a.get("raw_rms_um")))
+                         + _cell(_fmt(a.get("compensated_rms_um")))
+                         + _cell(_fmt(None if diff is None else diff * 1000, 3))
+                         + _cell(_fmt(None if bound is None else bound * 1000, 3))
+                         + _cell(a.get("mismatches", "—")) + "</tr>")
+        parts.append("</table>")
+
+    for key, heading in SECTIONS:
+        figs = [f for f in report.figures if f.section == key]
+        if not figs:
+            continue
+        parts.append(f"<h2>{e(heading)}</h2>")
+        for fig in figs:
+            data = base64.b64encode((report.out_dir / fig.file).read_bytes()).decode("ascii")
+            parts.append(f'<figure id="{e(Path(fig.file).stem)}">'
+                         f'<img src="data:image/png;base64,{data}" alt="{e(fig.title)}">'
+                         f"<figcaption><b>{e(fig.title)}.</b> {fig.caption} "
+                         f'(<a href="{e(fig.file)}">{e(fig.file)}</a>)</figcaption></figure>')
+    parts.append("</body></html>")
+    return "\n".join(parts) + "\n"

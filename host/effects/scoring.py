@@ -1,0 +1,370 @@
+"""Scoring candidates out of fold, and the rule that accepts one (material and stable).
+
+Part of closing the loop (docs/effects.md); host.effects.search drives the steps.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from contract.terms import Term
+from host.effects.candidates import Candidate
+from host.effects.residual import rounded
+from host.fitting import fit_linear, rmse, term_values
+from host.io import Run
+
+MIN_GAIN = 0.10  # an effect must lower the validation RMSE by at least 10 %
+MIN_FOLD_GAIN = 0.0  # ... and every fold's held-out RMSE lower
+ACTIVE_SHARE = 0.1  # a fold exercises an effect if its contribution varies there (SD >= 10 %)
+MAX_IDLE_LOSS = 0.05  # a fold that does not exercise it may get at most 5 % worse
+MAX_FOLD_SPREAD = 1.0  # the effect fitted without a fold keeps its shape (RMS change < size)
+PARSIMONY = 0.01  # a candidate with fewer terms within 1 % of the best is preferred
+MAX_SEARCH_ROWS = 20_000  # the search scores at most about this many samples (search_stride)
+
+
+
+
+def search_stride(runs: Sequence[Run], max_rows: int = MAX_SEARCH_ROWS) -> int:
+    """Every how-many-th sample the search scores, so it sees at most about ``max_rows``.
+
+    Thermal signals change over minutes; a 24 h run at 1 s has far more rows than the
+    comparison of candidates needs, and scoring ~1000 candidate columns at full rate costs
+    gigabytes. Features are still computed at the full rate (filters run on every sample, as
+    on the box) and the final model is refitted on every sample (host.train.fit_axis).
+    """
+    return max(1, math.ceil(sum(r.n_samples for r in runs) / max_rows))
+
+
+def every_nth(runs: Sequence[Run], stride: int, values: np.ndarray) -> np.ndarray:
+    """Keep every ``stride``-th row of each run within stacked per-sample ``values``."""
+    keep, offset = [], 0
+    for r in runs:
+        keep.append(offset + np.arange(0, r.n_samples, stride))
+        offset += r.n_samples
+    return values[np.concatenate(keep)]
+
+
+class FeatureCache:
+    """Term values on every run, stacked, each computed once (filters run per whole run)."""
+
+    def __init__(self, runs: Sequence[Run], period_s: float, stride: int = 1) -> None:
+        self.columns = [r.columns() for r in runs]
+        self.period_s = period_s
+        self.stride = stride
+        self._cache: dict[Term, np.ndarray] = {}
+
+    def column(self, term: Term) -> np.ndarray:
+        if term not in self._cache:
+            self._cache[term] = np.concatenate(
+                [term_values(term, cols, self.period_s)[::self.stride] for cols in self.columns])
+        return self._cache[term]
+
+    def matrix(self, terms: Sequence[Term]) -> np.ndarray:
+        n = sum(len(c["time_s"][::self.stride]) for c in self.columns)
+        if not terms:
+            return np.empty((n, 0))
+        return np.column_stack([self.column(t) for t in terms])
+
+
+@dataclass(frozen=True)
+class Rule:
+    """When an effect is material and stable enough to add.
+
+    ``min_gain``: validation RMSE (all out-of-fold predictions) at least this much lower;
+    ``min_fold_gain``: and every fold's held-out RMSE lower by more than this -- every fold
+    that exercises the effect (its contribution's SD there is at least ``ACTIVE_SHARE`` of
+    its SD overall; at least two folds must): a fold without it (the spindle-speed term while
+    the spindle stands still) is no evidence either way and may only not get materially worse
+    (``max_idle_loss``);
+    ``max_fold_spread``: and the effect fitted without any one fold the same effect (its
+    contribution changes by at most this fraction, RMS).
+    """
+
+    min_gain: float = MIN_GAIN
+    min_fold_gain: float = MIN_FOLD_GAIN
+    max_fold_spread: float = MAX_FOLD_SPREAD
+    max_idle_loss: float = MAX_IDLE_LOSS
+
+    def describe(self) -> str:
+        fold = ("lower" if self.min_fold_gain <= 0
+                else f"at least {self.min_fold_gain:.0%} lower")
+        return (f">= {self.min_gain:.0%} lower validation RMSE, {fold} held-out RMSE in every "
+                f"fold that exercises the effect (at least 2; others at most "
+                f"{self.max_idle_loss:.0%} worse), and the same effect in every fold "
+                f"(contribution spread <= {self.max_fold_spread:.0%})")
+
+
+@dataclass
+class Scored:
+    """A model's out-of-fold performance (a candidate's, or the current model's)."""
+
+    candidate: Candidate | None
+    validation_rmse_um: float
+    fold_rmse_um: np.ndarray
+    residual_corr: float = math.nan
+    fold_spread: float = 0.0  # RMS change of the effect's contribution without a fold
+    fold_active: np.ndarray | None = None  # folds in which the effect varies at all
+    codegen: str | None = None  # why the box cannot run it, if it cannot
+    # a re-selected input family: the same re-selected sensors without the family, which it
+    # must beat by the same rule (so a better sensor choice is never credited to the input)
+    sensors_only: Scored | None = None
+
+    def gain_over(self, ref: Scored) -> float:
+        """Relative validation RMSE reduction against ``ref`` (0.1 = 10 % lower)."""
+        if not ref.validation_rmse_um > 0:
+            return 0.0
+        return 1.0 - self.validation_rmse_um / ref.validation_rmse_um
+
+    def folds_improved(self, ref: Scored) -> int:
+        return int(np.sum(self.fold_rmse_um < ref.fold_rmse_um))
+
+    def fold_gains(self, ref: Scored) -> np.ndarray:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(ref.fold_rmse_um > 0, 1.0 - self.fold_rmse_um / ref.fold_rmse_um, 0.0)
+
+    def active(self) -> np.ndarray:
+        n = len(self.fold_rmse_um)
+        return np.ones(n, dtype=bool) if self.fold_active is None else self.fold_active
+
+    def passes(self, ref: Scored, rule: Rule | None = None) -> bool:
+        """The acceptance rule (see ``Rule``); a re-selected input family must pass it both
+        against the current model and against its re-selected sensors alone."""
+        rule = rule or Rule()
+        if self.sensors_only is not None and not self._passes(self.sensors_only, rule):
+            return False
+        return self._passes(ref, rule)
+
+    def _passes(self, ref: Scored, rule: Rule) -> bool:
+        gains, active = self.fold_gains(ref), self.active()
+        return (self.gain_over(ref) >= rule.min_gain
+                and int(active.sum()) >= min(2, active.size)
+                and bool(np.all(gains[active] > rule.min_fold_gain))
+                and bool(np.all(gains[~active] > -rule.max_idle_loss))
+                and self.fold_spread <= rule.max_fold_spread)
+
+    def evidence(self, ref: Scored) -> dict:
+        more = {}
+        if self.sensors_only is not None:
+            more = {"sensors_only_rmse_um": rounded(self.sensors_only.validation_rmse_um, 4),
+                    "improvement_over_sensors_only_pct":
+                        rounded(100.0 * self.gain_over(self.sensors_only), 2),
+                    "folds_improved_over_sensors_only":
+                        f"{self.folds_improved(self.sensors_only)}/{len(ref.fold_rmse_um)}"}
+        return {
+            "residual_corr": rounded(self.residual_corr, 4),
+            "folds_improved": f"{self.folds_improved(ref)}/{len(ref.fold_rmse_um)}",
+            "folds_exercised": f"{int(self.active().sum())}/{len(ref.fold_rmse_um)}",
+            "improvement_pct": rounded(100.0 * self.gain_over(ref), 2),
+            "fold_rmse_before_um": [rounded(v, 4) for v in ref.fold_rmse_um],
+            "fold_rmse_after_um": [rounded(v, 4) for v in self.fold_rmse_um],
+            "fold_spread": rounded(self.fold_spread, 4),
+            **more,
+        }
+
+
+def score(X: np.ndarray, y: np.ndarray, groups: np.ndarray, candidate: Candidate | None = None,
+          n_new: int = 0) -> tuple[Scored, np.ndarray]:
+    """Out-of-fold RMSE (overall and per fold) of a design, and its out-of-fold residual.
+
+    The last ``n_new`` columns are the candidate's: their contribution fitted without each fold
+    is compared with the all-data fit (``fold_spread``, the same effect in every fold?).
+    """
+    residual = np.empty_like(y, dtype=float)
+    fold_coefs = []
+    for g in np.unique(groups):
+        test = groups == g
+        fit = fit_linear(X[~test], y[~test])
+        residual[test] = y[test] - fit.predict(X[test])
+        fold_coefs.append(fit.coef[X.shape[1] - n_new:])
+    folds = np.array([rmse(residual[groups == g]) for g in np.unique(groups)])
+    scored = Scored(candidate, rmse(residual), folds)
+    if n_new:
+        Z = X[:, X.shape[1] - n_new:]
+        Z = Z - Z.mean(axis=0)
+        full = Z @ fit_linear(X, y).coef[X.shape[1] - n_new:]
+        size = rmse(full)
+        scored.fold_spread = (max(rmse(Z @ c - full) for c in fold_coefs) / size if size > 0
+                              else math.inf)
+        scored.fold_active = np.array([float(np.std(full[groups == g])) >= ACTIVE_SHARE * size
+                                       for g in np.unique(groups)])
+    return scored, residual
+
+
+def partial_correlation(residual: np.ndarray, Z: np.ndarray, X: np.ndarray) -> float:
+    """Correlation of the residual with the new columns Z once the current design X is removed.
+
+    One column: signed Pearson r. Several: the multiple correlation R (>= 0).
+    """
+    base = np.column_stack([np.ones(len(residual)), X])
+    proj, *_ = np.linalg.lstsq(base, Z, rcond=None)
+    Zp = Z - base @ proj
+    r = residual - residual.mean()
+    if Zp.shape[1] == 1:
+        z = Zp[:, 0]
+        den = math.sqrt(float(z @ z) * float(r @ r))
+        return float(z @ r) / den if den > 0 else 0.0
+    coef, *_ = np.linalg.lstsq(Zp, r, rcond=None)
+    ss = float(r @ r)
+    return math.sqrt(max(0.0, 1.0 - float(np.sum((r - Zp @ coef) ** 2)) / ss)) if ss > 0 else 0.0
+
+
+class GramScorer:
+    """Out-of-fold least squares of any subset of columns from per-fold Gram matrices.
+
+    The same numbers as ``score`` (refit without each fold, predict it) for hundreds of
+    candidates at the cost of one pass over the data: columns are standardised once (global
+    mean and SD; an intercept column keeps every fit's offset free) and each candidate only
+    solves a few small normal-equation systems.
+    """
+
+    def __init__(self, A: np.ndarray, y: np.ndarray, groups: np.ndarray) -> None:
+        A = np.asarray(A, dtype=float)
+        y = np.asarray(y, dtype=float)
+        n, p = A.shape
+        sd = A.std(axis=0)
+        sd[sd == 0] = 1.0
+        self.D = np.empty((n, p + 1))
+        self.D[:, 0] = 1.0
+        np.subtract(A, A.mean(axis=0), out=self.D[:, 1:])
+        self.D[:, 1:] /= sd
+        self.y0 = y - y.mean()
+        self.groups = np.asarray(groups)
+        self.fold_ids = np.unique(self.groups)
+        self.rows = [self.groups == g for g in self.fold_ids]
+        self.n_f = np.array([int(r.sum()) for r in self.rows])
+        self.M_f = np.array([self.D[r].T @ self.D[r] for r in self.rows])
+        self.v_f = np.array([self.D[r].T @ self.y0[r] for r in self.rows])
+        self.s_f = np.array([float(self.y0[r] @ self.y0[r]) for r in self.rows])
+        self.M = self.M_f.sum(axis=0)
+        self.v = self.v_f.sum(axis=0)
+        self.n = n
+
+    @staticmethod
+    def _solve(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+        try:
+            beta = np.linalg.solve(M, v)
+            if np.all(np.isfinite(beta)) and np.allclose(M @ beta, v, rtol=1e-8,
+                                                         atol=1e-10 * max(1.0, abs(v).max())):
+                return beta
+        except np.linalg.LinAlgError:
+            pass
+        return np.linalg.lstsq(M, v, rcond=None)[0]  # rank deficient: minimum norm
+
+    def _fold_betas(self, idx: np.ndarray) -> list[np.ndarray]:
+        ix = np.ix_(idx, idx)
+        return [self._solve(self.M[ix] - Mf[ix], self.v[idx] - vf[idx])
+                for Mf, vf in zip(self.M_f, self.v_f, strict=True)]
+
+    def fold_sse(self, idx: np.ndarray, betas: list[np.ndarray]) -> np.ndarray:
+        ix = np.ix_(idx, idx)
+        return np.array([max(float(s - 2 * b @ vf[idx] + b @ Mf[ix] @ b), 0.0)
+                         for b, Mf, vf, s in zip(betas, self.M_f, self.v_f, self.s_f,
+                                                 strict=True)])
+
+    def residual(self, cols: Sequence[int]) -> np.ndarray:
+        """Out-of-fold residual of the columns ``cols`` (indices into A)."""
+        idx = np.array([0, *(c + 1 for c in cols)], dtype=int)
+        out = np.empty(self.n)
+        for b, r in zip(self._fold_betas(idx), self.rows, strict=True):
+            out[r] = self.y0[r] - self.D[r][:, idx] @ b
+        return out
+
+    def score(self, cols: Sequence[int], new: Sequence[int],
+              candidate: Candidate | None = None) -> Scored:
+        """Like ``score``: columns ``cols`` of A, of which ``new`` are the candidate's."""
+        idx = np.array([0, *(c + 1 for c in cols)], dtype=int)
+        betas = self._fold_betas(idx)
+        sse = self.fold_sse(idx, betas)
+        scored = Scored(candidate, math.sqrt(sse.sum() / self.n), np.sqrt(sse / self.n_f))
+        if new:
+            pos = np.array([list(cols).index(c) + 1 for c in new])
+            nz = np.array([c + 1 for c in new])
+            C = self.M[np.ix_(nz, nz)] / self.n  # covariance of the (centred) new columns
+            full = self._solve(self.M[np.ix_(idx, idx)], self.v[idx])[pos]
+            size = math.sqrt(max(float(full @ C @ full), 0.0))
+            if size > 0:
+                spread = max(math.sqrt(max(float((b[pos] - full) @ C @ (b[pos] - full)), 0.0))
+                             for b in betas)
+                scored.fold_spread = spread / size
+                active = []
+                for Mf, nf in zip(self.M_f, self.n_f, strict=True):
+                    mean = float(Mf[0, nz] @ full) / nf
+                    var = float(full @ Mf[np.ix_(nz, nz)] @ full) / nf - mean * mean
+                    active.append(math.sqrt(max(var, 0.0)) >= ACTIVE_SHARE * size)
+                scored.fold_active = np.array(active)
+            else:
+                scored.fold_spread = math.inf
+        return scored
+
+    def partial_correlation(self, residual: np.ndarray, q: np.ndarray, base: Sequence[int],
+                            new: Sequence[int]) -> float:
+        """``partial_correlation`` from the Gram matrix; ``q`` = D.T @ residual (once a step)."""
+        b = np.array([0, *(c + 1 for c in base)], dtype=int)
+        z = np.array([c + 1 for c in new], dtype=int)
+        G = self.M
+        P = self._solve(G[np.ix_(b, b)], G[np.ix_(b, z)])
+        zr = q[z] - P.T @ q[b]
+        zz = G[np.ix_(z, z)] - G[np.ix_(z, b)] @ P
+        rr = float(residual @ residual) - residual.size * float(residual.mean()) ** 2
+        if rr <= 0:
+            return 0.0
+        if z.size == 1:
+            den = math.sqrt(max(float(zz[0, 0]), 0.0) * rr)
+            return float(zr[0]) / den if den > 0 else 0.0
+        r2 = float(zr @ self._solve(zz, zr)) / rr
+        return math.sqrt(min(max(r2, 0.0), 1.0))
+
+
+def score_candidates(cache: FeatureCache, y: np.ndarray, groups: np.ndarray,
+                     current: Sequence[Term], candidates: Sequence[Candidate]
+                     ) -> tuple[Scored, np.ndarray, list[Scored]]:
+    """The current model's out-of-fold score and residual, and every candidate's score,
+    sorted best (lowest validation RMSE) first."""
+    terms: list[Term] = list(current)
+    for cand in candidates:
+        terms += [t for t in cand.add if t not in terms]
+    index = {t: i for i, t in enumerate(terms)}
+    gram = GramScorer(cache.matrix(terms), y, groups)
+    base = [index[t] for t in current]
+    ref = gram.score(base, [])
+    residual = gram.residual(base)
+    q = gram.D.T @ residual
+    scored = []
+    for cand in candidates:
+        cols = [index[t] for t in cand.apply(current)]
+        new = [index[t] for t in cand.effect_terms]
+        s = gram.score(cols, new, cand)
+        if cand.family:
+            s.sensors_only = gram.score([c for c in cols if c not in new], [])
+        s.residual_corr = gram.partial_correlation(residual, q, base, new)
+        scored.append(s)
+    scored.sort(key=lambda s: s.validation_rmse_um)
+    return ref, residual, scored
+
+
+def preferred(passing: Sequence[Scored]) -> list[Scored]:
+    """Order passing candidates: within PARSIMONY of the best, fewer terms first; then RMSE."""
+    if not passing:
+        return []
+    best = min(s.validation_rmse_um for s in passing)
+
+    def key(s: Scored) -> tuple:
+        assert s.candidate is not None
+        near = s.validation_rmse_um <= best * (1.0 + PARSIMONY)
+        return (not near, s.candidate.n_terms if near else 0, s.validation_rmse_um)
+
+    return sorted(passing, key=key)
+
+
+def candidate_row(s: Scored, ref: Scored) -> dict:
+    assert s.candidate is not None
+    row = {"kind": s.candidate.kind, "feature": s.candidate.feature,
+           "validation_rmse_um": rounded(s.validation_rmse_um, 4), **s.evidence(ref),
+           "passes": s.passes(ref)}
+    if s.codegen:
+        row["codegen_refused"] = s.codegen
+    return row

@@ -1,0 +1,241 @@
+"""Close the loop (issue 7): find what the validation residual lacks and add it, validated.
+
+A static model delta = C0 + sum Ci*Ti (paper 000) cannot represent thermal lag (pseudo-
+hysteresis), ambient drift, speed-dependent growth, a slow trend or a nonlinear rise. Each of
+those has a small family of extra terms the box computes causally (contract/terms.py, all in the
+fixed-point contract). Starting from the baseline selection, ``search_effects``:
+
+1. takes the *out-of-fold* residual of the current model (leave-one-run-out, or contiguous
+   time blocks of one run: host/fitting/validation.py), never the training residual alone;
+2. scores every candidate family: its partial correlation with that residual (evidence only)
+   and the out-of-fold RMSE of the current terms plus the family, per fold and overall; the
+   families of a measured input (shop air, spindle speed) are also scored with the sensors
+   re-selected given that input, because a static selection picks stand-ins for an input
+   (``reselected_candidates``), and must then also beat the re-selected sensors alone;
+3. adds the best candidate only if it is material and stable (the rule, ``passes``): at least
+   ``MIN_GAIN`` (10 %) lower validation RMSE *and* a lower held-out RMSE in every fold. The
+   thresholds are fixed a priori for unseen runs, not tuned to a dataset;
+4. refuses a candidate the box could not run within the codegen error bound (the lag state
+   quantisation bound grows as 1/alpha, so long time constants with large coefficients can
+   break the 0.01 um default) and takes the next passing one instead;
+5. refits and repeats, at most ``MAX_EFFECTS`` (3) times.
+
+When no candidate passes and the residual is still structured (lag-1 autocorrelation well
+above white noise *and* RMSE well above the measurement noise floor), the report says so
+(``unexplained``) instead of forcing a term. docs/effects.md explains every choice.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from contract.terms import Term, term_sensors
+from host.effects.box_limits import MAX_ERROR_UM, fixed_point_refusal
+from host.effects.candidates import (
+    TAU_GRID_S,
+    Candidate,
+    EffectsError,
+    find_ambient,
+    generate_candidates,
+    start_reference,
+    tau_grid,
+)
+from host.effects.reselection import Reselection, reselected_candidates
+from host.effects.residual import NOISE_MULTIPLE, noise_floor, residual_structure, rounded
+from host.effects.scoring import (
+    FeatureCache,
+    Rule,
+    Scored,
+    candidate_row,
+    every_nth,
+    preferred,
+    score_candidates,
+    search_stride,
+)
+from host.fitting import DEFAULT_BLOCKS, fit_linear, fold_groups
+from host.io import Run
+from host.selection import DEFAULT_MAX_SENSORS
+
+EFFECT_KINDS = ("lag", "rate", "ambient", "speed", "drift", "nonlinear")
+MAX_EFFECTS = 3
+TOP_RECORDED = 5  # candidates kept per step in the report
+
+
+
+
+@dataclass
+class EffectsResult:
+    """Final terms and fit, and the report that goes into model.json's axis."""
+
+    terms: list[Term]
+    coefs: np.ndarray
+    intercept: float
+    report: dict = field(default_factory=dict)
+
+
+def _terms_json(terms: Sequence[Term], coefs: Sequence[float]) -> list[dict]:
+    return [{**t.to_json(), "coef": float(c)} for t, c in zip(terms, coefs, strict=True)]
+
+
+def _unexplained_message(structure: dict, n_added: int, best: dict | None,
+                         max_reached: bool, rule: Rule) -> str:
+    head = (f"after {n_added} effect{'s' if n_added != 1 else ''} " if n_added else "")
+    msg = (f"{head}the validation residual is still structured (lag-1 autocorrelation "
+           f"{structure['lag1_autocorr']:.2f}, white noise would stay below "
+           f"{structure['white_noise_limit']:.2f}; RMSE {structure['residual_rmse_um']:.3g} um "
+           f"vs a noise floor of {structure['noise_floor_um']:.3g} um)")
+    if max_reached:
+        return msg + f"; the limit of {MAX_EFFECTS} effects was reached"
+    if best is None:
+        return msg + ", and no candidate effect applies"
+    return (msg + "; no candidate effect explains it: the best, "
+            f"{best['kind']} {best['feature']}, lowers the validation RMSE by "
+            f"{best['improvement_pct']:.1f} % with {best['folds_improved']} folds improved "
+            f"(needs >= {rule.min_gain:.0%} and every fold that exercises it better)")
+
+
+def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], period_s: float,
+                   *, ambient: str | None = None, aux: Sequence[str] | None = None,
+                   max_effects: int = MAX_EFFECTS, n_blocks: int = DEFAULT_BLOCKS,
+                   rule: Rule | None = None, max_error_um: float = MAX_ERROR_UM,
+                   taus: Iterable[float] = TAU_GRID_S, kinds: Iterable[str] = EFFECT_KINDS,
+                   selection: Mapping | None = None, max_sensors: int = DEFAULT_MAX_SENSORS,
+                   max_new_sensors: int | None = None, channels_in_use: Iterable[str] = ()
+                   ) -> EffectsResult:
+    """Add up to ``max_effects`` validated effects to the ``baseline`` terms of one axis.
+
+    ``ambient`` is the ambient sensor (default: a sensor named like *amb*, if any); ``aux`` the
+    aux columns speed terms may use (default: every aux column of the runs). ``selection``
+    (the baseline's selection trace) and ``max_sensors`` say how an input's family re-selects
+    the sensors; ``max_new_sensors`` (default ``max_effects``: host.train's channel budget
+    counts on at most one new sensor per effect) caps the sensors outside the baseline's and
+    ``channels_in_use`` (sensors another axis already wires, which cost no channel).
+    """
+    runs = list(runs)
+    rule = rule or Rule()
+    if not runs:
+        raise EffectsError("no runs")
+    kinds = set(kinds)
+    unknown = kinds - set(EFFECT_KINDS)
+    if unknown:
+        raise EffectsError(f"unknown effect kind(s) {sorted(unknown)} (known: "
+                           f"{', '.join(EFFECT_KINDS)})")
+    sensors = list(runs[0].sensor_names)
+    aux_names = list(runs[0].aux_names if aux is None else aux)
+    for name in aux_names:
+        if name not in runs[0].aux_names:
+            raise EffectsError(f"aux column '{name}' is not in {runs[0].path}")
+    ambient = find_ambient(sensors, ambient)
+    shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
+    taus = tau_grid(period_s, shortest, taus)
+    stride = search_stride(runs)
+    groups_full, scheme = fold_groups(runs, n_blocks)
+    y_full = np.concatenate([r.target(target) for r in runs])
+    floor = noise_floor(y_full, groups_full)
+    groups, y = every_nth(runs, stride, groups_full), every_nth(runs, stride, y_full)
+    cache = FeatureCache(runs, period_s, stride)
+    refs = {s: start_reference(runs, s) for s in sensors}
+
+    run_ids = every_nth(runs, stride, np.concatenate([np.full(r.n_samples, i)
+                                                      for i, r in enumerate(runs)]))
+    how = Reselection.from_trace(selection, max_sensors)
+    allowed_new = max_effects if max_new_sensors is None else int(max_new_sensors)
+    baseline_sources = set(term_sensors(baseline)) | set(channels_in_use)
+
+    def fits_budget(c: Candidate) -> bool:
+        return len(set(term_sensors(c.apply(terms))) - baseline_sources) <= allowed_new
+
+    terms = list(baseline)
+    base_fit = fit_linear(cache.matrix(terms), y)
+    added: list[dict] = []
+    steps: list[dict] = []
+    n_tested = 0
+    last_best: dict | None = None
+    max_reached = False
+    baseline_score: Scored | None = None
+    residual = np.zeros_like(y)
+    while True:
+        cands = [c for c in generate_candidates(terms, sensors, aux_names, ambient, period_s,
+                                                taus, refs) if c.kind in kinds]
+        cands += reselected_candidates(cands, cache, y, groups, run_ids, terms, sensors,
+                                       ambient, period_s, scheme, how, allowed_new,
+                                       baseline_sources)
+        cands = [c for c in cands if fits_budget(c)]
+        ref, residual, scored = score_candidates(cache, y, groups, terms, cands)
+        if baseline_score is None:
+            baseline_score = ref
+        if len(added) >= max_effects:
+            max_reached = True
+            break
+        if not residual_structure(residual, y, groups, floor)["above_noise"]:
+            break  # the residual is at the gauge's noise: no effect to look for
+        n_tested += len(scored)
+        chosen: Scored | None = None
+        for s in preferred([s for s in scored if s.passes(ref, rule)]):
+            assert s.candidate is not None
+            trial = s.candidate.apply(terms)
+            fit = fit_linear(cache.matrix(trial), y)
+            s.codegen = fixed_point_refusal(trial, fit.coef, max_error_um)
+            if s.codegen is None:
+                chosen = s
+                break
+        top = [candidate_row(s, ref) for s in scored[:TOP_RECORDED]]
+        refused = [candidate_row(s, ref) for s in scored[TOP_RECORDED:] if s.codegen]
+        steps.append({"validation_rmse_um": rounded(ref.validation_rmse_um, 4),
+                      "candidates": len(scored), "best": top + refused,
+                      "added": None if chosen is None else chosen.candidate.feature})
+        last_best = top[0] if top else None
+        if chosen is None:
+            break
+        assert chosen.candidate is not None
+        terms = chosen.candidate.apply(terms)
+        fit = fit_linear(cache.matrix(terms), y)
+        added.append({
+            "kind": chosen.candidate.kind,
+            "feature": chosen.candidate.feature,
+            "name": chosen.candidate.feature,
+            "added": [t.to_json() for t in chosen.candidate.add],
+            **({"reselected": True} if chosen.candidate.family else {}),
+            **({"removed": [t.to_json() for t in chosen.candidate.remove]}
+               if chosen.candidate.remove else {}),
+            "evidence": chosen.evidence(ref),
+            "rmse_before_um": rounded(ref.validation_rmse_um, 4),
+            "rmse_after_um": rounded(chosen.validation_rmse_um, 4),
+            "intercept": float(fit.intercept),
+            "terms": _terms_json(terms, fit.coef),
+        })
+
+    assert baseline_score is not None
+    final = fit_linear(cache.matrix(terms), y)
+    structure = residual_structure(residual, y, groups, floor)
+    unexplained = None
+    if structure["structured"]:
+        unexplained = {k: structure[k] for k in ("lag1_autocorr", "white_noise_limit",
+                                                  "residual_rmse_um", "noise_floor_um")}
+        unexplained["message"] = _unexplained_message(structure, len(added), last_best,
+                                                      max_reached, rule)
+    report = {
+        "baseline_validation_rmse_um": rounded(baseline_score.validation_rmse_um, 6),
+        "validation_rmse_um": rounded(ref.validation_rmse_um, 6),
+        "effects": added,
+        "unexplained": unexplained,
+        "baseline": {"intercept": float(base_fit.intercept),
+                     "terms": _terms_json(baseline, base_fit.coef)},
+        "effects_search": {
+            "rule": (f"{rule.describe()}; searched only while the residual RMSE exceeds "
+                     f"{NOISE_MULTIPLE:g}x the gauge noise; at most {max_effects} effects; the "
+                     f"box's error bound must hold (<= {max_error_um:g} um)"),
+            "validation": scheme,
+            "kinds": [k for k in EFFECT_KINDS if k in kinds],
+            "ambient": ambient,
+            "aux": aux_names,
+            "tau_grid_s": taus,
+            "candidates_tested": n_tested,
+            "residual": structure,
+            "steps": steps,
+        },
+    }
+    return EffectsResult(terms, final.coef, float(final.intercept), report)

@@ -1,0 +1,33 @@
+"""The fitting engine: float features of model terms, least squares, and out-of-fold validation.
+"""
+
+from __future__ import annotations
+
+from host.fitting.features import axis_terms, design_matrix, first_order_lag, term_values
+from host.fitting.linear import condition_number, fit_linear, r_squared, rmse, variance_inflation
+from host.fitting.validation import (
+    DEFAULT_BLOCKS,
+    common_period,
+    fold_groups,
+    out_of_fold_predictions,
+    stack,
+    validation_rmse,
+)
+
+__all__ = [
+    "DEFAULT_BLOCKS",
+    "axis_terms",
+    "common_period",
+    "condition_number",
+    "design_matrix",
+    "first_order_lag",
+    "fit_linear",
+    "fold_groups",
+    "out_of_fold_predictions",
+    "r_squared",
+    "rmse",
+    "stack",
+    "term_values",
+    "validation_rmse",
+    "variance_inflation",
+]

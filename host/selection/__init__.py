@@ -1,0 +1,40 @@
+"""Sensor selection, paper 000: correlation and time delay, hard c-means, sequential selection, EC.
+
+The scikit-learn estimator (``ThermalSensorSelector``) is ``host.selection.estimator``, imported
+on its own so that training does not pay for scikit-learn.
+"""
+
+from __future__ import annotations
+
+from host.selection.clustering import hard_c_means, standardise
+from host.selection.correlation import cross_correlation, pearson_r, thermal_parameters
+from host.selection.selector import (
+    DEFAULT_BLOCKS,
+    DEFAULT_GROUPS,
+    DEFAULT_MAX_SENSORS,
+    METHODS,
+    GramCache,
+    ec_reduction,
+    fold_labels,
+    group_refinement,
+    select_sensors,
+    sequential_selection,
+)
+
+__all__ = [
+    "DEFAULT_BLOCKS",
+    "DEFAULT_GROUPS",
+    "DEFAULT_MAX_SENSORS",
+    "GramCache",
+    "METHODS",
+    "cross_correlation",
+    "ec_reduction",
+    "fold_labels",
+    "group_refinement",
+    "hard_c_means",
+    "pearson_r",
+    "select_sensors",
+    "sequential_selection",
+    "standardise",
+    "thermal_parameters",
+]

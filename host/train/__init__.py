@@ -1,0 +1,27 @@
+"""The training pipeline: selection, the channel budget, effects, one refit; the model dict.
+"""
+
+from __future__ import annotations
+
+from host.train.pipeline import TrainingError, axis_with_effects, train_model
+from host.train.ranges import (
+    TOLERANCE_SHARE,
+    describe,
+    input_units,
+    outside_training,
+    training_ranges,
+)
+from host.train.summary import axis_sensors, summary
+
+__all__ = [
+    "TOLERANCE_SHARE",
+    "TrainingError",
+    "axis_sensors",
+    "axis_with_effects",
+    "describe",
+    "input_units",
+    "outside_training",
+    "summary",
+    "train_model",
+    "training_ranges",
+]

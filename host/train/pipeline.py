@@ -1,0 +1,311 @@
+"""`host train`: select sensors per axis, fit the linear model, validate it, build model.json.
+
+``train_model`` is the library entry point (the CLI, the demo, `host compare` and the tests use
+it). Per target axis it runs the selection (host.selection: paper 000's method, ``validated``
+or ``paper``), fits eq. 4 on the chosen sensors with host.fitting, reports training and out-of-fold
+metrics (host.fitting.validation), then hands the baseline to the effects step (issue 7). The model
+dict follows docs/model-json.md.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from contract import __version__
+from contract.box import BOX_CHANNELS, CHANNEL_MAX_C, CHANNEL_MIN_C
+from contract.errors import InputError
+from contract.model_file import SCHEMA
+from contract.terms import AUX_KINDS, TEMPERATURE_KINDS, Term, make_temp, term_sensors
+from host.effects import search_effects, sensor_reference
+from host.fitting import (
+    common_period,
+    condition_number,
+    fit_linear,
+    fold_groups,
+    r_squared,
+    rmse,
+    stack,
+    validation_rmse,
+    variance_inflation,
+)
+from host.io import Run, load_runs
+from host.progress import progress
+from host.selection import (
+    DEFAULT_BLOCKS,
+    DEFAULT_GROUPS,
+    DEFAULT_MAX_SENSORS,
+    METHODS,
+    select_sensors,
+)
+from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
+from host.train.ranges import add_training_ranges
+
+TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
+DEFAULT_TC_TYPE = "K"
+
+
+class TrainingError(InputError):
+    """Training inputs are inconsistent (unknown target, bad channel map, ...)."""
+
+
+def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str | list[str],
+             aux: list[str], fill_gaps: int) -> list[Run]:
+    """Load paths; restrict already-loaded runs to the requested sensors."""
+    if not runs:
+        raise TrainingError("no training runs given")
+    if all(isinstance(r, (str, Path)) for r in runs):
+        return load_runs(list(runs), targets, sensors, aux, fill_gaps, min_samples=4)
+    out = []
+    for run in runs:
+        if not isinstance(run, Run):
+            raise TrainingError("runs must be all paths or all host.io.runs.Run objects")
+        for t in targets:
+            if t not in run.target_names:
+                raise TrainingError(f"{run.path}: no target column '{t}'")
+        if isinstance(sensors, str):
+            names = [n for n in run.sensor_names if fnmatch.fnmatchcase(n, sensors)]
+        else:
+            names = list(sensors)
+        missing = [n for n in names if n not in run.sensor_names]
+        if missing or not names:
+            raise TrainingError(f"{run.path}: sensors {missing or sensors!r} not in the run")
+        idx = [run.sensor_names.index(n) for n in names]
+        out.append(Run(run.path, run.time_s, names, run.temperatures[:, idx],
+                       list(run.target_names), run.displacements, list(run.aux_names), run.aux,
+                       run.filled_cells))
+    first = out[0].sensor_names
+    for run in out[1:]:
+        if run.sensor_names != first:
+            raise TrainingError(f"{run.path}: sensor columns differ from {out[0].path}")
+    return out
+
+
+def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
+             n_blocks: int = DEFAULT_BLOCKS) -> dict:
+    """Fit ``target`` on fixed terms; the axis dict (unit, intercept, terms, metrics).
+
+    The validation RMSE refits the coefficients without each fold (run, or time block of a
+    single run) and predicts it; the terms themselves are taken as given.
+    """
+    st = stack(runs, terms, target, period_s, n_blocks)
+    fit = fit_linear(st.X, st.y)
+    residual = st.y - fit.predict(st.X)
+    vif = variance_inflation(st.X)
+    metrics = {
+        "train_rmse_um": rmse(residual),
+        "validation_rmse_um": validation_rmse(st.X, st.y, st.groups) if st.n_folds >= 2
+        else math.nan,
+        "raw_rms_um": rmse(st.y),
+        "r2": r_squared(st.y, st.y - residual),
+        "max_abs_um": float(np.max(np.abs(residual))),
+        "condition_number": condition_number(st.X),
+        "vif": {t.name: float(v) for t, v in zip(terms, vif, strict=True)},
+        "validation": st.scheme,
+        "n_samples": int(st.y.size),
+    }
+    return {
+        "unit": "um",
+        "intercept": float(fit.intercept),
+        "terms": [{**t.to_json(), "coef": float(c)} for t, c in zip(terms, fit.coef, strict=True)],
+        "metrics": metrics,
+    }
+
+
+def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: float,
+                      n_blocks: int = DEFAULT_BLOCKS, ambient: str | None = None,
+                      max_sensors: int = DEFAULT_MAX_SENSORS,
+                      channels_in_use: Sequence[str] = ()) -> dict:
+    """The baseline axis dict plus the validated effects (host.effects.search_effects).
+
+    The final terms are fitted once, at the full rate, with the baseline's metrics; the axis
+    gains ``effects``, ``unexplained``, ``baseline``, ``effects_search`` and
+    ``sensor_reference`` (used by ``host diagnose``).
+    """
+    baseline = [Term.from_json(t) for t in axis["terms"]]
+    found = search_effects(runs, target, baseline, period_s, ambient=ambient, n_blocks=n_blocks,
+                           selection=axis.get("selection"), max_sensors=max_sensors,
+                           channels_in_use=channels_in_use)
+    out = dict(axis)
+    out.update(fit_axis(list(runs), target, found.terms, period_s, n_blocks))
+    out.update(found.report)
+    out["sensor_reference"] = sensor_reference(runs, term_sensors(found.terms),
+                                               axis.get("selection"))
+    return out
+
+
+def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapping[str, int],
+              tc_type: str) -> list[dict]:
+    """One channel per sensor any axis uses; defaults 0..k-1 in data-column order."""
+    used = {t["source"] for a in axes.values() for t in a["terms"]
+            if t["kind"] in TEMPERATURE_KINDS}
+    ordered = [s for s in sensor_order if s in used]
+    for name, ch in overrides.items():
+        if name not in used:
+            raise TrainingError(f"--channel {name}={ch}: no axis uses sensor '{name}' "
+                                f"(used: {', '.join(ordered) or 'none'})")
+        if not isinstance(ch, int) or ch < 0:
+            raise TrainingError(f"--channel {name}={ch}: channel must be an integer >= 0")
+    taken = list(overrides.values())
+    if len(set(taken)) != len(taken):
+        raise TrainingError(f"--channel: two sensors on one channel ({dict(overrides)})")
+    free = (i for i in range(len(ordered) + len(taken)) if i not in set(taken))
+    mapping = {s: overrides[s] if s in overrides else next(free) for s in ordered}
+    return [{"channel": mapping[s], "sensor": s, "tc_type": tc_type, "min_c": CHANNEL_MIN_C,
+             "max_c": CHANNEL_MAX_C} for s in sorted(ordered, key=lambda s: mapping[s])]
+
+
+def _aux(axes: Mapping[str, dict], runs: list[Run]) -> list[dict]:
+    """Aux inputs any term uses; declared range = observed range widened to include 0, +25 %."""
+    used = [n for n in runs[0].aux_names
+            if any(t["kind"] in AUX_KINDS and t["source"] == n
+                   for a in axes.values() for t in a["terms"])]
+    out = []
+    for i, name in enumerate(used):
+        values = np.concatenate([r.column(name) for r in runs])
+        lo, hi = float(np.min(values)), float(np.max(values))
+        out.append({"input": i, "name": name, "min": math.floor(min(0.0, lo * 1.25)),
+                    "max": math.ceil(max(0.0, hi * 1.25))})
+    return out
+
+
+def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
+                sensors: str | list[str] = "T*", aux: Sequence[str] | None = None,
+                max_sensors: int = DEFAULT_MAX_SENSORS, groups: int = DEFAULT_GROUPS,
+                effects: bool = True, ambient: str | None = None,
+                channels: Mapping[str, int] | None = None,
+                selection: str = "validated", max_delay_s: float | None = None,
+                n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
+                tc_type: str = DEFAULT_TC_TYPE, max_channels: int = BOX_CHANNELS,
+                quiet: bool = True) -> dict:
+    """Select, fit and validate a model for every target; returns the model.json dict.
+
+    ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
+    (representatives and EC subset by out-of-fold error, default) or ``"paper"`` (paper 000
+    exactly: by training error). ``channels`` maps sensor -> box channel (others get the
+    free indices in data-column order). ``max_delay_s`` limits the delay search.
+    ``max_channels`` is the box's thermocouple budget shared by all axes
+    (see fit_channel_budget).
+    """
+    targets = list(targets)
+    if not targets:
+        raise TrainingError("give at least one --target")
+    if len(set(targets)) != len(targets):
+        raise TrainingError(f"a target is given twice: {targets}")
+    if selection not in METHODS:
+        raise TrainingError(f"unknown --selection '{selection}' (known: {', '.join(METHODS)})")
+    if n_blocks < 2:
+        raise TrainingError(f"need at least 2 validation blocks (got {n_blocks})")
+    if not 1 <= max_channels <= BOX_CHANNELS:
+        raise TrainingError(f"--max-channels must be 1..{BOX_CHANNELS} (the box has "
+                            f"{BOX_CHANNELS} thermocouple inputs), got {max_channels}")
+    if max_sensors > max_channels:
+        raise TrainingError(f"--max-sensors {max_sensors} exceeds --max-channels {max_channels}")
+    if tc_type not in ("K", "J"):
+        raise TrainingError(f"thermocouple type must be K or J (got {tc_type!r})")
+    aux = list(aux or [])
+    runs = _as_runs(runs, targets, sensors, aux, fill_gaps)
+    period_s = common_period(runs)
+    names = runs[0].sensor_names
+    n_min = min(r.n_samples for r in runs)
+    if len(runs) == 1 and n_min < 2 * n_blocks:
+        raise TrainingError(f"{runs[0].path}: {n_min} samples is too few for {n_blocks} "
+                            "validation blocks")
+    X = np.vstack([r.temperatures for r in runs])
+    run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
+    folds, scheme = fold_groups(runs, n_blocks)
+
+    ys = {t: np.concatenate([r.target(t) for r in runs]) for t in targets}
+
+    def select(target: str, pool: list[str] | None = None) -> tuple[list[Term], dict]:
+        cols = list(range(len(names))) if pool is None else [names.index(n) for n in pool]
+        result = select_sensors(X[:, cols], ys[target], run_ids, folds, period_s,
+                                n_groups=groups, max_sensors=max_sensors, method=selection,
+                                max_delay_s=max_delay_s, seed=seed, scheme=scheme)
+        pool_names = [names[i] for i in cols]
+        return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
+
+    def vrmse(target: str, terms: list[Term]) -> float:
+        st = stack(runs, terms, target, period_s, n_blocks)
+        return validation_rmse(st.X, st.y, st.groups)
+
+    selected = {t: select(t) for t in progress(targets, "selecting sensors", quiet=quiet)}
+    selected, budget = fit_channel_budget(
+        selected, max_channels, vrmse,
+        reselect=lambda pool: {t: select(t, pool) for t in targets})
+    for _terms, trace in selected.values():
+        if budget:  # the axes together wanted more channels than the box has
+            trace["channel_budget"] = budget
+
+    axes: dict[str, dict] = {}
+    for target in progress(targets, "fitting axes and effects", quiet=quiet):
+        terms, trace = selected[target]
+        axis = fit_axis(runs, target, terms, period_s, n_blocks)
+        axis["selection"] = trace
+        baseline_validation = axis["metrics"]["validation_rmse_um"]
+        axis["baseline_validation_rmse_um"] = baseline_validation
+        axis["effects"] = []
+        # sensors other axes already wire cost no channel; new ones are settled below
+        others = channels_of({k: [Term.from_json(t) for t in a["terms"]]
+                               for k, a in axes.items()})
+        if effects:
+            axis = axis_with_effects(axis, runs=runs, target=target, period_s=period_s,
+                                     n_blocks=n_blocks, ambient=ambient,
+                                     max_sensors=max_sensors, channels_in_use=sorted(others))
+        # on long runs the search scores a thinned-out copy; the baseline figure is full-rate
+        axis["baseline_validation_rmse_um"] = baseline_validation
+        axes[target] = axis
+
+    # Effects may have brought in sensors (the shop-air sensor, re-selected ones): if all axes
+    # together now need more channels than the box has, give up the cheapest sensors again.
+    final = {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()}
+    if len(channels_of(final)) > max_channels:
+        kept, dropped = drop_to_budget(final, vrmse, max_channels)
+        for target, axis in axes.items():
+            if kept[target] != final[target]:
+                gone = {t.name for t in final[target]} - {t.name for t in kept[target]}
+                axis.update(fit_axis(runs, target, kept[target], period_s, n_blocks))
+                axis["channel_budget_after_effects"] = {
+                    "max_channels": max_channels, "dropped_sensors": dropped,
+                    "dropped_terms": sorted(gone)}
+                for effect in axis.get("effects", []):
+                    if any(t.get("source") in dropped for t in effect.get("added", [])):
+                        effect["dropped_for_channels"] = True
+    used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
+    if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
+        raise TrainingError(f"model needs {len(used)} thermocouple channels "
+                            f"({', '.join(sorted(used))}), the box has {max_channels}")
+
+    wired = _channels(axes, names, dict(channels or {}), tc_type)
+    aux_inputs = _aux(axes, runs)
+    add_training_ranges(wired, aux_inputs, runs)
+    return {
+        "schema": SCHEMA,
+        "tool_version": __version__,
+        "sample_period_s": float(period_s),
+        "channels": wired,
+        "aux": aux_inputs,
+        "time_max_s": TIME_MAX_S,
+        "axes": axes,
+        "training": {
+            "runs": [r.path for r in runs],
+            "targets": targets,
+            "sensors": sensors if isinstance(sensors, str) else list(sensors),
+            "aux": aux,
+            "selection": selection,
+            "max_sensors": int(max_sensors),
+            "groups": int(groups),
+            "max_delay_s": max_delay_s,
+            "validation": scheme,
+            "seed": int(seed),
+            "effects": bool(effects),
+            "ambient": ambient,
+            "max_channels": int(max_channels),
+        },
+    }
+
+

@@ -1,0 +1,38 @@
+"""The ``host train --json`` document: what each axis uses and how well it did."""
+
+from __future__ import annotations
+
+from contract.terms import TEMPERATURE_KINDS
+
+
+def axis_sensors(axis: dict) -> list[str]:
+    """Temperature sources of an axis's terms, in term order, each once."""
+    out: list[str] = []
+    for t in axis["terms"]:
+        if t["kind"] in TEMPERATURE_KINDS and t["source"] not in out:
+            out.append(t["source"])
+    return out
+
+
+def summary(model: dict, model_path: str) -> dict:
+    """The ``host train --json`` document (issue 2's fixed shape plus a few extras)."""
+    axes = {}
+    for name, axis in model["axes"].items():
+        m = axis["metrics"]
+        axes[name] = {
+            "sensors": axis_sensors(axis),
+            "train_rmse_um": m["train_rmse_um"],
+            "validation_rmse_um": m["validation_rmse_um"],
+            "raw_rms_um": m["raw_rms_um"],
+            "r2": m.get("r2"),
+            "max_abs_um": m.get("max_abs_um"),
+            "condition_number": m.get("condition_number"),
+            "validation": m.get("validation"),
+            # issue 7: before/after the effects, what was added and what is still unexplained
+            "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
+            "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
+                                               "rmse_after_um")}
+                        for e in axis.get("effects", [])],
+            "unexplained": axis.get("unexplained"),
+        }
+    return {"model": model_path, "axes": axes}

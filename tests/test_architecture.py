@@ -1,0 +1,132 @@
+"""The import rule of docs/architecture.md: each floor imports only the floors below it.
+
+Read from the source (ast), not from what happens to be imported at run time, so a new import
+anywhere (also inside a function) that runs back up fails here. Also: no circles between
+modules, and no module imports another module's private (``_``) names.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("contract", "codegen", "hil", "host")
+
+# unit -> the units it may import (besides itself). Mirrors the table in docs/architecture.md.
+BELOW = {
+    "contract": set(),
+    "codegen": {"contract"},
+    "host.progress": set(),
+    "host.io": {"contract"},
+    "host.fitting": {"contract", "host.io"},
+    "host.sim": {"contract", "host.io", "host.fitting", "host.progress"},
+    "host.selection": {"contract", "host.io", "host.fitting", "host.progress"},
+    "host.effects": {"contract", "host.io", "host.fitting", "host.selection", "host.progress"},
+    "host.train": {"contract", "host.io", "host.fitting", "host.selection", "host.effects",
+                   "host.progress"},
+    "host.analysis": {"contract", "codegen", "host.io", "host.fitting", "host.selection",
+                      "host.effects", "host.train", "host.sim", "host.progress"},
+    "host.box": {"contract", "codegen"},
+    "hil": {"contract", "codegen", "host.io", "host.fitting", "host.progress"},
+}
+TOP = ("host.cli", "host.commands", "host.demo", "host.__main__", "host")  # may import any wing
+UNITS = sorted(BELOW, key=len, reverse=True)
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def unit_of(module: str) -> str | None:
+    for unit in UNITS:
+        if module == unit or module.startswith(unit + "."):
+            return unit
+    return None
+
+
+def imports() -> dict[str, set[tuple[str, str | None]]]:
+    """module -> {(imported module, imported name or None)} over every import statement."""
+    out: dict[str, set[tuple[str, str | None]]] = defaultdict(set)
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            me = module_name(path)
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Import):
+                    out[me] |= {(a.name, None) for a in node.names}
+                elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+                    out[me] |= {(node.module, a.name) for a in node.names}
+    return out
+
+
+def _project(module: str) -> bool:
+    return module.split(".")[0] in PACKAGES
+
+
+def test_every_module_belongs_to_a_floor():
+    for me in imports():
+        assert unit_of(me) or me in TOP or me.startswith("host.commands"), me
+
+
+def upward(deps_of: dict[str, set[tuple[str, str | None]]]) -> list[str]:
+    """Imports that run against the floors."""
+    bad = []
+    for me, deps in deps_of.items():
+        mine = unit_of(me)
+        if mine is None:  # cli, commands, demo: the top floor
+            continue
+        for module, name in deps:
+            if not _project(module):
+                continue
+            target = unit_of(f"{module}.{name}" if name else module) or unit_of(module) or module
+            if target != mine and target not in BELOW[mine]:
+                bad.append(f"{me} imports {module}{'.' + name if name else ''} ({target})")
+    return sorted(bad)
+
+
+def test_no_import_runs_back_up():
+    bad = upward(imports())
+    assert not bad, "imports against docs/architecture.md:\n" + "\n".join(bad)
+
+
+def test_no_module_imports_a_private_name_of_another():
+    bad = [f"{me}: from {module} import {name}" for me, deps in imports().items()
+           for module, name in deps
+           if name and name.startswith("_") and not name.startswith("__") and _project(module)
+           and module != me]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_import_circles_between_modules():
+    graph = {me: {m for m, _ in deps if _project(m)} | {f"{m}.{n}" for m, n in deps
+                                                        if n and _project(m)}
+             for me, deps in imports().items()}
+    graph = {me: {d for d in deps if d in graph and d != me} for me, deps in graph.items()}
+    done: set[str] = set()
+
+    def visit(node: str, stack: list[str]) -> None:
+        if node in stack:
+            cycle = stack[stack.index(node):] + [node]
+            # a package importing its own submodules is not a circle unless they import it back
+            raise AssertionError("import circle: " + " -> ".join(cycle))
+        if node in done:
+            return
+        for dep in sorted(graph.get(node, ())):
+            if dep.startswith(node + "."):
+                continue  # a face re-exporting its own modules
+            visit(dep, [*stack, node])
+        done.add(node)
+
+    for module in sorted(graph):
+        visit(module, [])
+
+
+def test_the_rule_can_fail():
+    """The checker flags an upward import and a contract that reaches into host."""
+    deps = imports()
+    deps["host.effects.search"] = deps["host.effects.search"] | {("host.train", "train_model")}
+    deps["contract.terms"] = deps["contract.terms"] | {("host.io.runs", None)}
+    assert upward(deps) == ["contract.terms imports host.io.runs (host.io)",
+                            "host.effects.search imports host.train.train_model (host.train)"]
