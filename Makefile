@@ -2,6 +2,7 @@
 #   make demo   set up, train on the example runs, build the firmware (STM32F405 + native),
 #               replay a run through the native firmware over a pty, write the report
 #   make test   every test suite: Python (host, codegen, HIL) and C (firmware, cmocka)
+#   make cnc    replay a run through the box into a headless LinuxCNC (external offsets)
 #   make flash  flash the STM32F405 with build/model.h through OpenOCD (ST-LINK)
 
 PY      := .venv/bin/python
@@ -17,7 +18,7 @@ DEMO_TEST  := $(EXAMPLES)/sim_random.csv
 DEMO_TARGETS := --target dx_um --target dy_um --target dz_um
 
 .PHONY: setup system-deps test test-python test-firmware lint demo train firmware firmware-native \
-        firmware-stm32 hil flash bench examples report clean
+        firmware-stm32 hil flash bench examples report clean cnc
 
 setup: $(STAMP)
 
@@ -32,7 +33,7 @@ $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	touch $(STAMP)
 
 lint: $(STAMP)
-	$(PY) -m ruff check host codegen hil tests bench
+	$(PY) -m ruff check host codegen hil tests bench cnc
 
 test: $(STAMP) lint test-firmware test-python
 
@@ -66,6 +67,10 @@ flash: $(STAMP)
 
 report: $(STAMP)
 	$(HOST) report $(MODEL_JSON) --runs $(DEMO_TRAIN) $(DEMO_TEST) -o report
+
+# The box's corrections through a headless LinuxCNC on external offsets (docs/linuxcnc.md).
+cnc: $(STAMP)
+	$(PY) -m cnc
 
 bench: $(STAMP)
 	$(PY) -m bench

@@ -1,0 +1,425 @@
+#!/usr/bin/python3
+"""Headless LinuxCNC session for `make cnc` and the CI test: LinuxCNC's [DISPLAY] program.
+
+LinuxCNC starts this as its user interface (``<this> -ini <file>``); it exits with this
+program's status. It plays the operator and the machine's surroundings, and records:
+
+- starts the native firmware (the box) and sits on the box's serial line as a *tap*: the box's
+  pty on one side, a second pty (symlinked at the component's configured port) on the other,
+  so the component reads a real pty exactly like /dev/ttyUSB0 while every byte the box sent is
+  kept, independently of the component, for the comparison;
+- puts the machine on, homes it, moves to a start position and feeds the run sample by sample
+  (the box's feed channel, docs/native-board.md), with the faults of the plan: an open
+  thermocouple (``F <ch> 01``), a stale stream (feeding pauses), a corrupted line (the tap
+  flips one digit), machine off/on, ZERO (``thermalcomp.zero``);
+- after each sample waits until the component has taken the line and LinuxCNC's external
+  offset has settled, then reads ``axis.L.eoffset``, ``joint.N.motor-pos-cmd`` and the
+  component's status pins through HAL;
+- optionally runs an NC program in AUTO and records the spindle speed, orient and trigger pins.
+
+It judges nothing: it writes everything to the plan's results file; cnc/session.py compares.
+Runs under Debian's /usr/bin/python3 (``linuxcnc`` and ``hal`` modules) with the standard
+library only, plus the project's stdlib-only wire-protocol decoder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import subprocess
+import sys
+import threading
+import time
+import traceback
+import tty
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import hal  # noqa: E402  (LinuxCNC's modules: /usr/bin/python3 only)
+import linuxcnc  # noqa: E402
+
+try:  # noqa: E402
+    from contract import protocol
+except ImportError:  # pragma: no cover - the pre-split layout
+    from host import protocol  # type: ignore[no-redef]
+
+COMP = "thermalcomp"
+# LinuxCNC's offset planner stops within a few hundredths of a nanometre of the request
+SETTLED_MM = 1e-7
+
+
+class DriverError(RuntimeError):
+    """The session could not be carried out (names the step)."""
+
+
+class Tap:
+    """The box's serial line with a recorder in the middle (box pty <-> component pty)."""
+
+    def __init__(self, box_pty: str, link_path: Path) -> None:
+        self.box_fd = os.open(box_pty, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(self.box_fd)
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)  # no echo, no CR/LF mangling before the component opens it
+        self.link_path = link_path
+        if link_path.is_symlink() or link_path.exists():
+            link_path.unlink()
+        link_path.symlink_to(os.ttyname(self.slave))
+        self.samples: list[dict] = []  # every $C line the box sent, decoded, in order
+        self.replies: list[str] = []  # every other line the box sent
+        self.commands: list[str] = []  # every line the component sent
+        self.corrupt_next = False
+        self.cond = threading.Condition()
+        self.stop = False
+        self._from_box = bytearray()
+        self._from_comp = bytearray()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop:
+            ready, _, _ = select.select([self.box_fd, self.master], [], [], 0.05)
+            for fd in ready:
+                try:
+                    data = os.read(fd, 65536)
+                except OSError:
+                    self.stop = True
+                    break
+                if fd == self.box_fd:
+                    self._box_bytes(data)
+                else:
+                    self._from_comp += data
+                    *done, rest = bytes(self._from_comp).split(b"\n")
+                    self._from_comp = bytearray(rest)
+                    with self.cond:
+                        self.commands += [d.rstrip(b"\r").decode(errors="replace") for d in done]
+                    os.write(self.box_fd, data)
+
+    def _box_bytes(self, data: bytes) -> None:
+        self._from_box += data
+        *done, rest = bytes(self._from_box).split(b"\n")
+        self._from_box = bytearray(rest)
+        out = bytearray()
+        for line in done:
+            raw = line.rstrip(b"\r")
+            sent = line + b"\n"
+            record: dict | None = None
+            if raw.startswith(b"$C,"):
+                msg = protocol.decode(raw)  # the box's own line: it must decode
+                record = {"seq": msg.seq, "status": msg.status,
+                          "corr_nm": list(msg.corrections_nm), "corrupted": False,
+                          "t": time.monotonic()}
+                if self.corrupt_next:
+                    self.corrupt_next = False
+                    record["corrupted"] = True
+                    sent = _corrupt(line) + b"\n"
+            out += sent
+            with self.cond:
+                if record is not None:
+                    self.samples.append(record)
+                else:
+                    self.replies.append(raw.decode(errors="replace"))
+                self.cond.notify_all()
+        if out:
+            os.write(self.master, bytes(out))
+
+    def wait(self, pred, timeout: float, what: str):
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while not pred():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise DriverError(f"timed out after {timeout:g} s waiting for {what}")
+                self.cond.wait(min(left, 0.05))
+
+    def close(self) -> None:
+        self.stop = True
+        self.thread.join(2.0)
+        for fd in (self.box_fd, self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        if self.link_path.is_symlink():
+            self.link_path.unlink()
+
+
+def _corrupt(line: bytes) -> bytes:
+    """Flip the last digit of the line's first correction (the CRC no longer matches)."""
+    fields = line.split(b",")
+    f = bytearray(fields[4])  # $C,seq,status,n_axes,corr0,...
+    i = len(f) - 1 if f[-1:].isdigit() else len(f) - 2
+    f[i] = ord("1") if f[i] != ord("1") else ord("2")
+    fields[4] = bytes(f)
+    return b",".join(fields)
+
+
+class Box:
+    """The native firmware process: feed on stdin, UART on the pty it announces."""
+
+    def __init__(self, binary: str) -> None:
+        self.proc = subprocess.Popen([binary], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, bufsize=0)
+        assert self.proc.stdout is not None
+        ready, _, _ = select.select([self.proc.stdout], [], [], 10.0)
+        first = self.proc.stdout.readline().decode(errors="replace") if ready else ""
+        if not first.startswith("PTY "):
+            self.proc.kill()
+            raise DriverError(f"{binary}: expected 'PTY <path>' on stdout, got {first!r}")
+        self.pty = first.split()[1]
+
+    def feed(self, text: str) -> None:
+        assert self.proc.stdin is not None
+        try:
+            self.proc.stdin.write(text.encode("ascii"))
+        except BrokenPipeError:
+            raise DriverError(f"the box exited (code {self.proc.poll()}) while being fed: "
+                              f"{self.stderr()}") from None
+
+    def stderr(self) -> str:
+        if self.proc.poll() is None or self.proc.stderr is None:
+            return ""
+        return self.proc.stderr.read().decode(errors="replace").strip()[-500:]
+
+    def stop(self) -> int:
+        try:
+            self.feed("Q\n")
+            self.proc.stdin.close()  # type: ignore[union-attr]
+        except (DriverError, OSError):
+            pass
+        try:
+            return self.proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            return self.proc.wait()
+
+
+class Machine:
+    """LinuxCNC through its Python interface, plus HAL reads and writes."""
+
+    def __init__(self, letters: list[str]) -> None:
+        self.cmd, self.stat = linuxcnc.command(), linuxcnc.stat()
+        self.letters = letters
+        self.joint = {"x": 0, "y": 1, "z": 2}
+        self.probe = hal.component("tcdriver")  # hal.get_value needs a component of ours
+        self.probe.ready()
+
+    def poll(self):
+        self.stat.poll()
+        return self.stat
+
+    def wait(self, pred, timeout: float, what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while not pred():
+            if time.monotonic() > deadline:
+                raise DriverError(f"timed out after {timeout:g} s waiting for {what}")
+            time.sleep(0.002)
+
+    def on(self) -> None:
+        self.cmd.state(linuxcnc.STATE_ESTOP_RESET)
+        self.cmd.wait_complete()
+        self.cmd.state(linuxcnc.STATE_ON)
+        self.cmd.wait_complete()
+        self.wait(lambda: self.poll().task_state == linuxcnc.STATE_ON, 10, "machine on")
+
+    def off(self) -> None:
+        self.cmd.state(linuxcnc.STATE_OFF)
+        self.cmd.wait_complete()
+        # after OFF task_state reads ESTOP_RESET, never OFF: wait for "not on"
+        self.wait(lambda: self.poll().task_state != linuxcnc.STATE_ON, 10, "machine off")
+
+    def home(self) -> None:
+        self.cmd.mode(linuxcnc.MODE_MANUAL)
+        self.cmd.wait_complete()
+        self.cmd.home(-1)
+        self.cmd.wait_complete()
+        self.wait(lambda: all(self.poll().homed[:3]), 20, "homing")
+
+    def mdi(self, line: str) -> None:
+        self.cmd.mode(linuxcnc.MODE_MDI)
+        self.cmd.wait_complete()
+        self.cmd.mdi(line)
+        self.cmd.wait_complete(30)
+        self.wait(lambda: self.poll().interp_state == linuxcnc.INTERP_IDLE, 30, f"MDI {line}")
+
+    def get(self, pin: str):
+        return hal.get_value(pin)
+
+    def setp(self, pin: str, value: object) -> None:
+        subprocess.run(["halcmd", "setp", pin, str(value)], check=True)
+
+    def settled(self) -> bool:
+        """The offsets have reached their requests and the joints stand still (5 ms)."""
+        if not all(abs(self.get(f"axis.{a}.eoffset") - self.get(f"axis.{a}.eoffset-request"))
+                   < SETTLED_MM for a in self.letters):
+            return False
+        before = [self.get(f"joint.{self.joint[a]}.motor-pos-cmd") for a in self.letters]
+        time.sleep(0.005)
+        return before == [self.get(f"joint.{self.joint[a]}.motor-pos-cmd")
+                          for a in self.letters]
+
+    def snapshot(self) -> dict:
+        snap = {"eoffset_mm": {a: self.get(f"axis.{a}.eoffset") for a in self.letters},
+                "request_mm": {a: self.get(f"axis.{a}.eoffset-request") for a in self.letters},
+                "pos_cmd_mm": {a: self.get(f"joint.{self.joint[a]}.motor-pos-cmd")
+                               for a in self.letters},
+                "comp_offset_mm": {a: self.get(f"{COMP}.{a}.offset") for a in self.letters}}
+        for pin in ("holding", "fault", "stale", "walking", "extrapolating", "referenced",
+                    "active", "seq", "bad-lines", "lost-lines", "holds", "zero-acks",
+                    "age-s", "status"):
+            snap[pin] = self.get(f"{COMP}.{pin}")
+        return snap
+
+
+def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
+    """Feed every sample, apply the plan's events, record what LinuxCNC does after each."""
+    feed = Path(plan["feed"]).read_text().splitlines()
+    ev = plan.get("events", {})
+    open_tc, stale, bad = ev.get("open"), ev.get("stale"), ev.get("bad_line")
+    off, zero = ev.get("machine_off"), ev.get("zero")
+    records: list[dict] = []
+    start_mdi = plan["start_mdi"]
+    timeout = float(plan.get("timeout_s", 10.0))
+    for k, line in enumerate(feed):
+        phase = "track"
+        if open_tc and k == open_tc["at"]:
+            box.feed(f"F {open_tc['channel']} 01\n")
+        if open_tc and k == open_tc["stop"]:
+            box.feed(f"F {open_tc['channel']} 00\n")
+        if open_tc and open_tc["at"] <= k < open_tc["stop"]:
+            phase = "open"
+        if stale and k == stale["at"]:
+            # the box goes quiet: nothing is fed for pause_s of wall time
+            before = machine.snapshot()
+            time.sleep(float(stale["pause_s"]))
+            during = machine.snapshot()
+            records.append({"sample": k, "phase": "stale_pause", "before": before,
+                            "during": during})
+        if bad and k == bad["at"]:
+            tap.corrupt_next = True
+            phase = "bad_line"
+        if off and k == off["at"]:
+            machine.off()
+        if off and off["at"] <= k < off["at"] + off["samples"]:
+            phase = "machine_off"
+        if zero and k == zero["at"]:
+            acks = machine.get(f"{COMP}.zero-acks")
+            machine.setp(f"{COMP}.zero", 1)
+            tap.wait(lambda: any(r.startswith("$OK,ZERO") or r.startswith("$E")
+                                 for r in tap.replies), timeout, "the box's reply to ZERO")
+            machine.setp(f"{COMP}.zero", 0)
+            reply = next(r for r in tap.replies if r.startswith(("$OK,ZERO", "$E")))
+            records.append({"sample": k, "phase": "zero_sent", "reply": reply,
+                            "zero_acks_before": acks})
+            phase = "zero"
+        n_before = len(tap.samples)
+        bad_before = machine.get(f"{COMP}.bad-lines")
+        box.feed(line + "\n")
+        tap.wait(lambda n=n_before: len(tap.samples) > n, timeout, f"the box's line of sample "
+                 f"{k}")
+        box_line = tap.samples[n_before]
+        if box_line["corrupted"]:
+            machine.wait(lambda b=bad_before: machine.get(f"{COMP}.bad-lines") > b, timeout,
+                         f"the component to refuse the corrupted line of sample {k}")
+        else:
+            seq = box_line["seq"]
+            machine.wait(lambda s=seq: machine.get(f"{COMP}.seq") == s, timeout,
+                         f"the component to take seq {seq} (sample {k})")
+        if off and k == off["at"] + off["samples"] - 1:
+            machine.on()
+            # LinuxCNC put the old offset into the program position at machine-off; the next
+            # move (here: back to the start position) takes it out again
+            machine.wait(lambda: machine.get(f"{COMP}.active"), timeout,
+                         "the component to resynchronise after machine-on")
+            machine.mdi(start_mdi)
+            phase = "machine_on"
+        if machine.poll().task_state == linuxcnc.STATE_ON:
+            time.sleep(0.003)  # let motion pick up a counts change written this instant
+            machine.wait(machine.settled, timeout, f"the external offset to settle after "
+                         f"sample {k}")
+        records.append({"sample": k, "phase": phase, "box": box_line, **machine.snapshot()})
+    return records
+
+
+def run_program(plan: dict, machine: Machine) -> dict:
+    """Run an NC program in AUTO and record the spindle and trigger pins against wall time."""
+    prog = plan["program"]
+    pins = {"speed": "spindle.0.speed-out", "orient": "spindle.0.orient",
+            "on": "spindle.0.on", "trigger": prog["trigger_pin"]}
+    machine.cmd.mode(linuxcnc.MODE_AUTO)
+    machine.cmd.wait_complete()
+    machine.cmd.program_open(prog["path"])
+    machine.cmd.wait_complete()
+    events: list[dict] = []
+    last: dict[str, object] = {}
+    machine.cmd.auto(linuxcnc.AUTO_RUN, 0)
+    t0 = time.monotonic()
+    deadline = t0 + float(prog["timeout_s"])
+    started = False
+    while True:
+        now = time.monotonic()
+        for name, pin in pins.items():
+            value = machine.get(pin)
+            if last.get(name) != value:
+                events.append({"t": now - t0, "pin": name, "value": value})
+                last[name] = value
+        s = machine.poll()
+        if s.interp_state != linuxcnc.INTERP_IDLE:
+            started = True
+        elif started or now - t0 > 2.0:
+            break
+        if now > deadline:
+            raise DriverError(f"the program {prog['path']} did not finish within "
+                              f"{prog['timeout_s']} s")
+        time.sleep(0.002)
+    return {"events": events, "elapsed_s": time.monotonic() - t0,
+            "error": machine.poll().state == linuxcnc.RCS_ERROR}
+
+
+def main(argv: list[str]) -> int:
+    ini_path = argv[argv.index("-ini") + 1] if "-ini" in argv else None
+    if ini_path is None:
+        print("driver: started without -ini <file> (LinuxCNC passes it)", file=sys.stderr)
+        return 2
+    ini = linuxcnc.ini(ini_path)
+    plan_path = Path(ini_path).resolve().parent / ini.find("THERMALCOMP", "DRIVER_PLAN")
+    plan = json.loads(plan_path.read_text())
+    out: dict = {"ok": False, "error": "", "records": [], "program": None}
+    box = tap = None
+    t_start = time.monotonic()
+    try:
+        letters = [a["letter"] for a in plan["axes"]]
+        machine = Machine(letters)
+        box = Box(plan["firmware"])
+        tap = Tap(box.pty, Path(plan["port_link"]))
+        machine.wait(lambda: machine.get(f"{COMP}.connected"), 20,
+                     "the component to open the port and read INFO")
+        machine.on()
+        machine.home()
+        machine.mdi(plan["start_mdi"])
+        out["base_pos_mm"] = {a: machine.get(f"joint.{machine.joint[a]}.motor-pos-cmd")
+                              for a in letters}
+        out["records"] = replay(plan, machine, box, tap)
+        if plan.get("program"):
+            out["program"] = run_program(plan, machine)
+        out["ok"] = True
+    except Exception as exc:  # the session reports why it stopped; session.py fails it
+        out["error"] = f"{type(exc).__name__}: {exc}"
+        out["traceback"] = traceback.format_exc()
+    finally:
+        if tap is not None:
+            out["box_samples"] = tap.samples
+            out["box_replies"] = tap.replies
+            out["commands"] = tap.commands
+            tap.close()
+        if box is not None:
+            out["box_exit"] = box.stop()
+            out["box_stderr"] = box.stderr()
+        out["elapsed_s"] = time.monotonic() - t_start
+        Path(plan["results"]).write_text(json.dumps(out))
+    return 0 if out["ok"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

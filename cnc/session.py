@@ -1,0 +1,413 @@
+"""`make cnc`: the box's corrections through a real, headless LinuxCNC, judged per sample.
+
+Steps: fit a small 3-axis model on a simulated run and build the native firmware for it (the
+HIL's own machinery, hil.replay.prepare); stage the LinuxCNC configuration of cnc/config with
+the component, the driver, the decoder, the firmware and the feed in a directory the
+unprivileged LinuxCNC user can read (rtapi_app refuses root: as root, a user is created and
+LinuxCNC runs as it); run ``linuxcnc`` with cnc/driver.py as its display; then judge what the
+driver recorded against the box's own sample lines, decoded by the project's decoder:
+
+- tracking: LinuxCNC's commanded external offset (``axis.L.eoffset``) and the joint's commanded
+  position (``joint.N.motor-pos-cmd`` − its start) equal sign × the box's correction within one
+  count, on every sample where neither the box nor the component holds;
+- an open thermocouple: every offset stays at its value before the fault while the box says
+  HOLD, then walks back no faster than the component's limit;
+- a stale stream (feeding pauses): ``stale`` and ``holding`` rise, the offsets do not move;
+- a corrupted line (one digit flipped by the tap): refused (``bad-lines``), offsets unchanged;
+- machine off/on: after machine-on (and the next move) the offset is the box's value again;
+- ZERO: the first sample after it is 0 on the box and in LinuxCNC.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import pwd
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG_DIR = ROOT / "cnc" / "config"
+USER = os.environ.get("THERMAL_CNC_USER", "thermal-cnc")
+LOCK = Path(tempfile.gettempdir()) / "thermal-cnc-linuxcnc.lock"
+LINUXCNC = "/usr/bin/linuxcnc"
+SYSTEM_PYTHON = "/usr/bin/python3"
+AXES = [("x", "dx_um"), ("y", "dy_um"), ("z", "dz_um")]  # as cnc/config/thermalcomp.conf
+SIGN = -1
+START_MDI = "G90 G0 X0 Y0 Z-50"
+HOLD_BITS = (1 << 0) | (1 << 1) | (1 << 9) | (1 << 12)  # MODEL_BAD, HOLD, NO_DATA, IMPLAUSIBLE
+MOVED_NM = 0.01  # "did not move": LinuxCNC's planner settles within hundredths of a nm
+TRAIN_RUN = ROOT / "examples" / "sim_step.csv"
+REPLAY_RUN = ROOT / "examples" / "sim_random.csv"
+
+
+class CncError(RuntimeError):
+    """LinuxCNC is missing, could not be run, or the session did not complete."""
+
+
+@dataclass
+class Scenario:
+    """What the session injects, by sample index of the replayed run."""
+
+    n_samples: int = 961
+    open_at: int = 200
+    open_stop: int = 260
+    open_channel: int = 0
+    stale_at: int = 350
+    bad_at: int = 420
+    off_at: int = 500
+    off_samples: int = 5
+    zero_at: int | None = None  # ZERO needs the firmware of issue 13 (box-safety)
+    stale_period_s: float = 0.1  # the component's stale clock in the time-compressed replay
+    stale_periods: float = 3.0
+    program: dict | None = None  # {"path": NC file, "trigger_pin": ..., "timeout_s": ...}
+
+    def events(self) -> dict:
+        ev: dict = {"open": {"at": self.open_at, "stop": self.open_stop,
+                             "channel": self.open_channel},
+                    "stale": {"at": self.stale_at,
+                              "pause_s": 3 * self.stale_period_s * self.stale_periods},
+                    "bad_line": {"at": self.bad_at},
+                    "machine_off": {"at": self.off_at, "samples": self.off_samples}}
+        if self.zero_at is not None:
+            ev["zero"] = {"at": self.zero_at}
+        return {k: v for k, v in ev.items() if _inside(v, self.n_samples)}
+
+
+def _inside(event: dict, n: int) -> bool:
+    return int(event["at"]) < n
+
+
+@dataclass
+class Result:
+    summary: dict
+    raw: dict
+    problems: list[str] = field(default_factory=list)
+
+
+# --- environment ---------------------------------------------------------------------------
+def check_linuxcnc() -> None:
+    """LinuxCNC (Debian's linuxcnc-uspace) and its Python modules must be there."""
+    if not Path(LINUXCNC).is_file():
+        raise CncError(f"{LINUXCNC} not found: install the Debian package linuxcnc-uspace "
+                       "(scripts/install-system-deps.sh does)")
+    probe = subprocess.run([SYSTEM_PYTHON, "-c", "import hal, linuxcnc"], capture_output=True,
+                           text=True)
+    if probe.returncode != 0:
+        raise CncError(f"{SYSTEM_PYTHON} cannot import LinuxCNC's hal/linuxcnc modules: "
+                       f"{probe.stderr.strip()[-300:]}")
+
+
+def run_as() -> str | None:
+    """The user LinuxCNC runs as: None (ourselves) unless we are root, then USER (created)."""
+    if os.geteuid() != 0:
+        return None
+    try:
+        pwd.getpwnam(USER)
+    except KeyError:
+        proc = subprocess.run(["useradd", "--create-home", "--shell", "/bin/sh", USER],
+                              capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise CncError(f"useradd {USER} failed (rtapi_app refuses root, LinuxCNC needs an "
+                           f"unprivileged user): {proc.stderr.strip()}") from None
+    return USER
+
+
+# --- model, firmware, feed -----------------------------------------------------------------
+def prepare_box(build: Path, n_samples: int):
+    """A 3-axis model fitted on TRAIN_RUN, the native firmware for it, the replay's feed."""
+    from hil import replay as hil_replay
+    from hil.example_model import default_terms, fit_example_model, write_model
+    from host.data import load_run, write_run
+
+    sensors = ["T01", "T02", "T03", "T04", "T05", "T06"]
+    period = 60.0
+    terms = {"dx_um": default_terms(["T03", "T04", "T01"], period, "spindle_rpm"),
+             "dy_um": default_terms(["T06", "T07", "T05"], period, None),
+             "dz_um": default_terms(["T05", "T01", "T02"], period, "spindle_rpm")}
+    model = write_model(fit_example_model(TRAIN_RUN, terms, aux_names=["spindle_rpm"]),
+                        build / "model.json")
+    run = load_run(REPLAY_RUN, targets=[a for _, a in AXES], sensors=sensors + ["T07"],
+                   aux=["spindle_rpm"])
+    n = min(n_samples, run.n_samples)
+    cols = {k: v[:n] for k, v in run.columns().items() if k != "time_s"}
+    data = build / "replay.csv"
+    write_run(data, run.time_s[:n], cols, precision=9)
+    setup = hil_replay.prepare(model, data, build / "hil")
+    return setup
+
+
+# --- staging -------------------------------------------------------------------------------
+def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
+    """Copy the config, component, driver, decoder, firmware and feed; returns the INI."""
+    (stage_dir / "cnc" / "config").mkdir(parents=True)
+    for f in ("thermalcomp.py", "driver.py"):
+        shutil.copy2(ROOT / "cnc" / f, stage_dir / "cnc" / f)
+    for f in CONFIG_DIR.iterdir():
+        if f.is_file():
+            shutil.copy2(f, stage_dir / "cnc" / "config" / f.name)
+    # the stdlib-only decoder the component imports (see thermalcomp.py)
+    if (ROOT / "contract" / "protocol.py").is_file():
+        pkg = stage_dir / "contract"
+        pkg.mkdir()
+        for f in (ROOT / "contract").glob("*.py"):
+            shutil.copy2(f, pkg / f.name)
+    else:
+        pkg = stage_dir / "host"
+        pkg.mkdir()
+        for f in ("__init__.py", "protocol.py"):
+            shutil.copy2(ROOT / "host" / f, pkg / f)
+    cfg = stage_dir / "cnc" / "config"
+    shutil.copy2(setup.binary, stage_dir / "box")
+    (stage_dir / "feed.txt").write_bytes(b"".join(setup.feed.feed_lines()))
+    port = stage_dir / "box-tty"
+    conf = (cfg / "thermalcomp.conf").read_text()
+    conf = conf.replace("port = /dev/ttyUSB0", f"port = {port}")
+    # the replay runs in compressed time: the stale clock counts wall-clock sample periods
+    conf = conf.replace("# period_s = 60", f"period_s = {scenario.stale_period_s}")
+    conf = conf.replace("stale_periods = 3", f"stale_periods = {scenario.stale_periods:g}")
+    (cfg / "thermalcomp-session.conf").write_text(conf)
+    ini = (cfg / "thermal_sim.ini").read_text()
+    ini = ini.replace("DISPLAY = axis", f"DISPLAY = {stage_dir / 'cnc' / 'driver.py'}")
+    ini = ini.replace("CONFIG = thermalcomp.conf",
+                      "CONFIG = thermalcomp-session.conf\nDRIVER_PLAN = plan.json")
+    (cfg / "thermal_sim_session.ini").write_text(ini)
+    (cfg / "mcodes").mkdir(exist_ok=True)
+    plan = {"firmware": str(stage_dir / "box"), "feed": str(stage_dir / "feed.txt"),
+            "port_link": str(port), "results": str(stage_dir / "results.json"),
+            "axes": [{"letter": letter, "box_axis": a} for letter, a in AXES],
+            "start_mdi": START_MDI, "events": scenario.events(), "timeout_s": 10.0,
+            "program": scenario.program}
+    (cfg / "plan.json").write_text(json.dumps(plan, indent=1))
+    for p in (stage_dir, *stage_dir.rglob("*")):
+        p.chmod(0o755 if p.is_dir() or os.access(p, os.X_OK) else 0o644)
+    return cfg / "thermal_sim_session.ini"
+
+
+def launch(ini: Path, stage_dir: Path, user: str | None, timeout_s: float) -> tuple[int, str]:
+    """Run linuxcnc on ``ini`` (as ``user``), headless; returns (exit code, its output)."""
+    env = {"PATH": "/usr/sbin:/usr/bin:/sbin:/bin", "HOME": str(stage_dir), "RUNTESTS": "1",
+           "LANG": "C.UTF-8"}
+    cmd = ["timeout", f"{timeout_s:g}", LINUXCNC, str(ini)]
+    if user is not None:
+        pw = pwd.getpwnam(user)
+        os.chown(stage_dir, pw.pw_uid, pw.pw_gid)
+        for p in stage_dir.rglob("*"):
+            os.chown(p, pw.pw_uid, pw.pw_gid, follow_symlinks=False)
+        cmd = ["runuser", "-u", user, "--", *cmd]
+    with LOCK.open("a") as lock:  # one LinuxCNC per machine (shared memory, lock file)
+        if os.geteuid() == 0:
+            os.chmod(LOCK, 0o666)  # a later non-root run may take it too
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        proc = subprocess.run(cmd, cwd=ini.parent, env=env, capture_output=True, text=True)
+    return proc.returncode, (proc.stdout + proc.stderr)
+
+
+# --- judging -------------------------------------------------------------------------------
+def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Result:
+    """Compare LinuxCNC's offsets with the box's lines; the summary and the problems found."""
+    problems: list[str] = []
+    records = [r for r in raw.get("records", []) if "box" in r]
+    base = raw.get("base_pos_mm", {})
+    letters = [letter for letter, _ in AXES]
+
+    def want_nm(rec: dict, i: int) -> float:
+        return SIGN * rec["box"]["corr_nm"][i] if rec["box"]["corr_nm"] else float("nan")
+
+    max_off = max_joint = 0.0
+    tracked = 0
+    for r in records:
+        healthy = (not r["box"]["status"] & HOLD_BITS and not r["holding"]
+                   and not r["walking"] and not r["box"]["corrupted"]
+                   and r["phase"] not in ("machine_off",))
+        if not healthy:
+            continue
+        tracked += 1
+        for i, a in enumerate(letters):
+            d = abs(r["eoffset_mm"][a] * 1e6 - want_nm(r, i))
+            j = abs((r["pos_cmd_mm"][a] - base[a]) * 1e6 - want_nm(r, i))
+            max_off, max_joint = max(max_off, d), max(max_joint, j)
+    if tracked == 0:
+        problems.append("no sample was tracked (every one held or walking)")
+    if max_off > nm_per_count:
+        problems.append(f"LinuxCNC's external offset differs from the box's correction by "
+                        f"{max_off:.3f} nm (> 1 count = {nm_per_count:g} nm)")
+    if max_joint > nm_per_count:
+        problems.append(f"the joints' commanded positions moved by the correction ± "
+                        f"{max_joint:.3f} nm (> 1 count)")
+
+    holds: list[dict] = []
+    by_phase: dict[str, list[dict]] = {}
+    for r in records:
+        by_phase.setdefault(r["phase"], []).append(r)
+    idx = {r["sample"]: r for r in records}
+
+    def moved_nm(rs: list[dict], ref: dict) -> float:
+        return max((abs(r["eoffset_mm"][a] - ref["eoffset_mm"][a]) * 1e6
+                    for r in rs for a in letters), default=0.0)
+
+    opened = by_phase.get("open", [])
+    if opened:
+        before = idx.get(opened[0]["sample"] - 1)
+        boxheld = sum(1 for r in opened if r["box"]["status"] & (1 << 1))
+        moved = moved_nm(opened, before) if before else float("nan")
+        ok = before is not None and moved <= MOVED_NM and all(r["holding"] for r in opened) \
+            and boxheld == len(opened)
+        after = [idx[k] for k in range(opened[-1]["sample"], opened[-1]["sample"] + 20)
+                 if k in idx]
+        steps = [abs(b["eoffset_mm"][a] - p["eoffset_mm"][a]) * 1e6
+                 for p, b in zip(after[:-1], after[1:], strict=True) for a in letters]
+        walk_ok = max(steps, default=0.0) <= step_nm + nm_per_count
+        holds.append({"fault": "open thermocouple", "samples": len(opened),
+                      "box_status": "OPEN|HOLD" if boxheld else "-", "held": ok,
+                      "moved_nm": moved, "walk_back_ok": walk_ok})
+        if not ok:
+            problems.append(f"open thermocouple: offsets moved {moved:g} nm or were not held "
+                            f"on every sample ({boxheld}/{len(opened)} HOLD from the box)")
+        if not walk_ok:
+            problems.append(f"after the open thermocouple an offset stepped "
+                            f"{max(steps):g} nm in one sample (limit {step_nm:g})")
+    pauses = [r for r in raw.get("records", []) if r.get("phase") == "stale_pause"]
+    for p in pauses:
+        b, d = p["before"], p["during"]
+        moved = max(abs(d["eoffset_mm"][a] - b["eoffset_mm"][a]) * 1e6 for a in letters)
+        ok = bool(d["stale"]) and bool(d["holding"]) and moved <= MOVED_NM and not b["stale"]
+        holds.append({"fault": "stale stream", "samples": 0, "box_status": "(silent)",
+                      "held": ok, "moved_nm": moved, "age_s": d["age-s"]})
+        if not ok:
+            problems.append(f"stale stream: stale={d['stale']} holding={d['holding']} "
+                            f"moved {moved:g} nm (age {d['age-s']:.3f} s)")
+    for r in by_phase.get("bad_line", []):
+        prev = idx.get(r["sample"] - 1)
+        moved = moved_nm([r], prev) if prev else float("nan")
+        refused = prev is not None and r["bad-lines"] == prev["bad-lines"] + 1
+        ok = r["box"]["corrupted"] and refused and moved <= MOVED_NM
+        holds.append({"fault": "corrupted line (CRC)", "samples": 1, "box_status": "-",
+                      "held": ok, "moved_nm": moved})
+        if not ok:
+            problems.append(f"corrupted line at sample {r['sample']}: refused={refused}, "
+                            f"offsets moved {moved:g} nm")
+    resync: dict = {}
+    for r in by_phase.get("machine_on", []):
+        d_off = max(abs(r["eoffset_mm"][a] * 1e6 - want_nm(r, i))
+                    for i, a in enumerate(letters))
+        d_joint = max(abs((r["pos_cmd_mm"][a] - base[a]) * 1e6 - want_nm(r, i))
+                      for i, a in enumerate(letters))
+        resync = {"sample": r["sample"], "offset_diff_nm": d_off, "joint_diff_nm": d_joint,
+                  "ok": d_off <= nm_per_count and d_joint <= nm_per_count}
+        holds.append({"fault": "machine off/on", "samples": len(by_phase.get("machine_off",
+                      [])), "box_status": "-", "held": resync["ok"], "moved_nm": d_off})
+        if not resync["ok"]:
+            problems.append(f"after machine off/on the offset is {d_off:g} nm and the joint "
+                            f"{d_joint:g} nm away from the box's correction")
+    zero: dict = {"done": False, "ok": False}
+    sent = [r for r in raw.get("records", []) if r.get("phase") == "zero_sent"]
+    for r in by_phase.get("zero", []):
+        box_zero = all(c == 0 for c in r["box"]["corr_nm"])
+        off = max(abs(r["eoffset_mm"][a]) * 1e6 for a in letters)
+        joint = max(abs(r["pos_cmd_mm"][a] - base[a]) * 1e6 for a in letters)
+        zero = {"done": True, "sample": r["sample"], "reply": sent[0]["reply"] if sent else "",
+                "box_zero": box_zero, "offset_nm": off, "joint_nm": joint,
+                "referenced": bool(r["box"]["status"] & (1 << 11)),
+                "ok": box_zero and off <= nm_per_count and joint <= nm_per_count}
+        if not zero["ok"]:
+            problems.append(f"ZERO: box output {r['box']['corr_nm']}, LinuxCNC offset "
+                            f"{off:g} nm, joint {joint:g} nm from its start")
+    if not raw.get("ok"):
+        problems.insert(0, f"the LinuxCNC session did not complete: {raw.get('error')}")
+    summary = {"samples": len(records), "tracked_samples": tracked,
+               "max_abs_diff_nm": max_off, "max_abs_diff_counts": max_off / nm_per_count,
+               "max_abs_joint_diff_nm": max_joint, "holds": holds, "resync": resync,
+               "zero": zero, "zero_ok": bool(zero.get("ok")),
+               "bad_lines": records[-1]["bad-lines"] if records else 0,
+               "lost_lines": records[-1]["lost-lines"] if records else 0,
+               "ok": not problems, "problems": problems}
+    return Result(summary, raw, problems)
+
+
+def table(summary: dict, elapsed_s: float) -> str:
+    s = summary
+    lines = [f"LinuxCNC external offsets driven by the box: {s['samples']} samples "
+             f"({s['tracked_samples']} tracked), {elapsed_s:.1f} s",
+             "",
+             f"{'largest |LinuxCNC offset - box correction|':46s} {s['max_abs_diff_nm']:9.3f} nm"
+             f"  {s['max_abs_diff_counts']:.3f} counts",
+             f"{'largest |joint pos-cmd move - box correction|':46s} "
+             f"{s['max_abs_joint_diff_nm']:9.3f} nm",
+             f"{'bad lines refused / lines lost':46s} {s['bad_lines']:9d} / {s['lost_lines']}",
+             "",
+             f"{'fault injected':24s}{'samples':>8s}  {'box says':12s}{'held':>6s}"
+             f"{'moved nm':>10s}",
+             "-" * 62]
+    for h in s["holds"]:
+        lines.append(f"{h['fault']:24s}{h['samples']:8d}  {h['box_status']:12s}"
+                     f"{'yes' if h['held'] else 'NO':>6s}{h['moved_nm']:10.3f}")
+    z = s["zero"]
+    lines.append("")
+    if z.get("done"):
+        lines.append(f"ZERO at sample {z['sample']}: box replied {z['reply']!r}, box output "
+                     f"{'0' if z['box_zero'] else 'not 0'}, LinuxCNC offset "
+                     f"{z['offset_nm']:.3f} nm -> {'PASS' if z['ok'] else 'FAIL'}")
+    else:
+        lines.append("ZERO: not run")
+    lines += ["", "RESULT: " + ("PASS" if s["ok"] else "FAIL")]
+    lines += [f"  - {p}" for p in s["problems"]]
+    return "\n".join(lines)
+
+
+def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float = 110.0,
+                keep: bool = False) -> Result:
+    """The whole session: prepare, stage, run LinuxCNC, judge; writes build/summary.json."""
+    scenario = scenario or Scenario()
+    check_linuxcnc()
+    build.mkdir(parents=True, exist_ok=True)
+    setup = prepare_box(build, scenario.n_samples)
+    scenario.n_samples = setup.feed.n_samples
+    user = run_as()
+    stage_dir = Path(tempfile.mkdtemp(prefix="thermal-cnc-"))
+    t0 = time.monotonic()
+    try:
+        ini = stage(stage_dir, setup, scenario)
+        if scenario.program is not None:
+            prog = Path(scenario.program["path"])
+            shutil.copy2(prog, ini.parent / prog.name)
+        code, output = launch(ini, stage_dir, user, timeout_s)
+        (build / "linuxcnc.log").write_text(output)
+        results = stage_dir / "results.json"
+        if not results.is_file():
+            raise CncError(f"LinuxCNC exited with {code} and the driver wrote no results "
+                           f"(see {build / 'linuxcnc.log'}):\n{output[-2000:]}")
+        raw = json.loads(results.read_text())
+        shutil.copy2(results, build / "results.json")
+    finally:
+        if not keep:
+            shutil.rmtree(stage_dir, ignore_errors=True)
+    result = judge(raw, step_nm=1000.0 * setup.model["sample_period_s"])
+    result.summary["elapsed_s"] = time.monotonic() - t0
+    result.summary["linuxcnc_exit"] = code
+    (build / "summary.json").write_text(json.dumps(result.summary, indent=2))
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m cnc", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--build-dir", default=str(ROOT / "build" / "cnc"))
+    ap.add_argument("--samples", type=int, default=961)
+    ap.add_argument("--keep", action="store_true", help="keep the staged LinuxCNC directory")
+    args = ap.parse_args(argv)
+    try:
+        result = run_session(Path(args.build_dir), Scenario(n_samples=args.samples),
+                             keep=args.keep)
+    except CncError as exc:
+        print(f"cnc: {exc}")
+        return 2
+    print(table(result.summary, result.summary["elapsed_s"]))
+    print(f"\nwrote {Path(args.build_dir) / 'summary.json'}")
+    return 0 if result.summary["ok"] else 1
