@@ -40,10 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import hal  # noqa: E402  (LinuxCNC's modules: /usr/bin/python3 only)
 import linuxcnc  # noqa: E402
 
-try:  # noqa: E402
-    from contract import protocol
-except ImportError:  # pragma: no cover - the pre-split layout
-    from host import protocol  # type: ignore[no-redef]
+from contract import protocol  # noqa: E402  (stdlib only: docs/architecture.md, floor 0)
 
 COMP = "thermalcomp"
 # LinuxCNC's offset planner stops within a few hundredths of a nanometre of the request

@@ -123,7 +123,7 @@ def prepare_box(build: Path, n_samples: int):
     """A 3-axis model fitted on TRAIN_RUN, the native firmware for it, the replay's feed."""
     from hil import replay as hil_replay
     from hil.example_model import default_terms, fit_example_model, write_model
-    from host.data import load_run, write_run
+    from host.io import load_run, write_run
 
     sensors = ["T01", "T02", "T03", "T04", "T05", "T06"]
     period = 60.0
@@ -151,17 +151,10 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
     for f in CONFIG_DIR.iterdir():
         if f.is_file():
             shutil.copy2(f, stage_dir / "cnc" / "config" / f.name)
-    # the stdlib-only decoder the component imports (see thermalcomp.py)
-    if (ROOT / "contract" / "protocol.py").is_file():
-        pkg = stage_dir / "contract"
-        pkg.mkdir()
-        for f in (ROOT / "contract").glob("*.py"):
-            shutil.copy2(f, pkg / f.name)
-    else:
-        pkg = stage_dir / "host"
-        pkg.mkdir()
-        for f in ("__init__.py", "protocol.py"):
-            shutil.copy2(ROOT / "host" / f, pkg / f)
+    # the stdlib-only contract package the component imports its decoder from
+    (stage_dir / "contract").mkdir()
+    for f in (ROOT / "contract").glob("*.py"):
+        shutil.copy2(f, stage_dir / "contract" / f.name)
     cfg = stage_dir / "cnc" / "config"
     shutil.copy2(setup.binary, stage_dir / "box")
     (stage_dir / "feed.txt").write_bytes(b"".join(setup.feed.feed_lines()))

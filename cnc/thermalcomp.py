@@ -44,10 +44,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-try:  # the decoder's home after the package split (issue 12); before it, host/protocol.py
-    from contract import protocol
-except ImportError:  # pragma: no cover - the pre-split layout
-    from host import protocol  # type: ignore[no-redef]
+from contract import protocol  # noqa: E402  (stdlib only: docs/architecture.md, floor 0)
 
 NAME = "thermalcomp"
 MODEL_BAD, HOLD, NO_DATA, EXTRAP = 1 << 0, 1 << 1, 1 << 9, 1 << 10

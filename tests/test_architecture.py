@@ -12,7 +12,7 @@ from collections import defaultdict
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("contract", "codegen", "hil", "host")
+PACKAGES = ("contract", "codegen", "hil", "host", "cnc")
 
 # unit -> the units it may import (besides itself). Mirrors the table in docs/architecture.md.
 BELOW = {
@@ -30,6 +30,12 @@ BELOW = {
                       "host.effects", "host.train", "host.sim", "host.progress"},
     "host.box": {"contract", "codegen"},
     "hil": {"contract", "codegen", "host.io", "host.fitting", "host.progress"},
+    # the LinuxCNC side: the HAL component and the headless driver run under Debian's
+    # /usr/bin/python3 with the contract only; the session (make cnc) builds with the rest
+    "cnc.thermalcomp": {"contract"},
+    "cnc.driver": {"contract"},
+    "cnc": {"contract", "codegen", "hil", "host.io", "host.fitting", "host.sim",
+            "host.progress"},
 }
 TOP = ("host.cli", "host.commands", "host.demo", "host.__main__", "host")  # may import any wing
 UNITS = sorted(BELOW, key=len, reverse=True)
