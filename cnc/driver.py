@@ -247,14 +247,24 @@ class Machine:
         subprocess.run(["halcmd", "setp", pin, str(value)], check=True)
 
     def settled(self) -> bool:
-        """The offsets have reached their requests and the joints stand still (5 ms)."""
+        """The offsets have reached their requests and the joints' commanded positions stood
+        still for 3 servo periods. The servo thread is not realtime here (uspace without an RT
+        kernel) and can stall for milliseconds, so periods are counted by its heartbeat
+        (``motion.servo.last-period`` changes every period), not by the wall clock."""
         if not all(abs(self.get(f"axis.{a}.eoffset") - self.get(f"axis.{a}.eoffset-request"))
                    < SETTLED_MM for a in self.letters):
             return False
-        before = [self.get(f"joint.{self.joint[a]}.motor-pos-cmd") for a in self.letters]
-        time.sleep(0.005)
-        return before == [self.get(f"joint.{self.joint[a]}.motor-pos-cmd")
-                          for a in self.letters]
+        pos = [self.get(f"joint.{self.joint[a]}.motor-pos-cmd") for a in self.letters]
+        beat, beats = self.get("motion.servo.last-period"), 0
+        deadline = time.monotonic() + 2.0
+        while beats < 3 and time.monotonic() < deadline:
+            time.sleep(0.0005)
+            now = self.get("motion.servo.last-period")
+            if now != beat:
+                beat, beats = now, beats + 1
+            if [self.get(f"joint.{self.joint[a]}.motor-pos-cmd") for a in self.letters] != pos:
+                return False
+        return beats >= 3
 
     def snapshot(self) -> dict:
         snap = {"eoffset_mm": {a: self.get(f"axis.{a}.eoffset") for a in self.letters},
@@ -342,7 +352,9 @@ def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
 def run_program(plan: dict, machine: Machine) -> dict:
     """Run an NC program in AUTO and record the spindle and trigger pins against wall time."""
     prog = plan["program"]
-    pins = {"speed": "spindle.0.speed-out", "orient": "spindle.0.orient",
+    # spindle.0.orient is up for a servo period only (the sim loops it to is-oriented);
+    # spindle.0.locked holds from the completed orient until the next M3/M4/M5
+    pins = {"speed": "spindle.0.speed-out", "oriented": "spindle.0.locked",
             "on": "spindle.0.on", "trigger": prog["trigger_pin"]}
     machine.cmd.mode(linuxcnc.MODE_AUTO)
     machine.cmd.wait_complete()

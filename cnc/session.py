@@ -31,6 +31,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from host.sim import ThermalTestPlan, build_program
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = ROOT / "cnc" / "config"
 USER = os.environ.get("THERMAL_CNC_USER", "thermal-cnc")
@@ -65,7 +67,7 @@ class Scenario:
     zero_at: int | None = None  # ZERO needs the firmware of issue 13 (box-safety)
     stale_period_s: float = 0.1  # the component's stale clock in the time-compressed replay
     stale_periods: float = 3.0
-    program: dict | None = None  # {"path": NC file, "trigger_pin": ..., "timeout_s": ...}
+    testplan: ThermalTestPlan | None = None  # run after the replay, in AUTO (dialect linuxcnc)
 
     def events(self) -> dict:
         ev: dict = {"open": {"at": self.open_at, "stop": self.open_stop,
@@ -171,11 +173,21 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
                       "CONFIG = thermalcomp-session.conf\nDRIVER_PLAN = plan.json")
     (cfg / "thermal_sim_session.ini").write_text(ini)
     (cfg / "mcodes").mkdir(exist_ok=True)
+    program = None
+    if scenario.testplan is not None:
+        tp = scenario.testplan
+        if tp.dialect != "linuxcnc" or tp.digital_output is None:
+            raise CncError("the session runs a test plan of --dialect linuxcnc with an "
+                           "'M64 P<n>' trigger (it watches motion.digital-out-NN)")
+        tp.write(cfg / "thermal_test.ngc")
+        program = {"path": str(cfg / "thermal_test.ngc"),
+                   "trigger_pin": f"motion.digital-out-{tp.digital_output:02d}",
+                   "timeout_s": tp.duration_s * 1.5 + 10.0}
     plan = {"firmware": str(stage_dir / "box"), "feed": str(stage_dir / "feed.txt"),
             "port_link": str(port), "results": str(stage_dir / "results.json"),
             "axes": [{"letter": letter, "box_axis": a} for letter, a in AXES],
             "start_mdi": START_MDI, "events": scenario.events(), "timeout_s": 10.0,
-            "program": scenario.program}
+            "program": program}
     (cfg / "plan.json").write_text(json.dumps(plan, indent=1))
     for p in (stage_dir, *stage_dir.rglob("*")):
         p.chmod(0o755 if p.is_dir() or os.access(p, os.X_OK) else 0o644)
@@ -323,6 +335,77 @@ def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Re
     return Result(summary, raw, problems)
 
 
+def short_testplan() -> ThermalTestPlan:
+    """A time-compressed thermal test for LinuxCNC: the step protocol in 4 s steps (2000 to
+    8000 rpm), 16 s running and 8 s cooling, a measurement every 4 s with a 1 s stop, the
+    logger on digital output 0 (``M64 P0``): 7 measurements, 25 s."""
+    prog = build_program("step", 8000.0, hours=16 / 3600, cool_hours=8 / 3600,
+                         step_minutes=4 / 60)
+    return ThermalTestPlan(prog, 4.0, 1.0, "M64 P0", "linuxcnc")
+
+
+def _state_at(events: list[dict], pin: str, t: float) -> object:
+    value = None
+    for e in events:
+        if e["t"] > t:
+            break
+        if e["pin"] == pin:
+            value = e["value"]
+    return value
+
+
+def judge_program(plan: ThermalTestPlan, rec: dict | None, tol_s: float = 0.25) -> dict:
+    """The program as LinuxCNC ran it (pin changes against wall time) against the plan's
+    schedule: a trigger pulse at every measurement time, spindle stopped and oriented then,
+    and the protocol's speed in every running window. Time 0 is the first trigger."""
+    problems: list[str] = []
+    out: dict = {"measurements_expected": plan.n_intervals + 1, "problems": problems}
+    if not rec:
+        problems.append("the test program was not run")
+        return out
+    if rec.get("error"):
+        problems.append("LinuxCNC reported an error while running the test program")
+    ev = rec["events"]
+    rises = [e["t"] for i, e in enumerate(ev) if e["pin"] == "trigger" and e["value"]
+             and _state_at(ev[:i], "trigger", e["t"]) in (False, None)]
+    falls = [e["t"] for e in ev if e["pin"] == "trigger" and e["value"] is False]
+    out["measurements_found"] = len(rises)
+    if len(rises) != plan.n_intervals + 1:
+        problems.append(f"{len(rises)} trigger pulses, the plan has {plan.n_intervals + 1}")
+        return out
+    t0 = rises[0]
+    expected = plan.measurement_times_s()
+    errors = [abs((r - t0) - e) for r, e in zip(rises, expected, strict=True)]
+    widths = [f - r for r, f in zip(rises, [f for f in falls if f > t0], strict=False)]
+    out["max_trigger_error_s"] = max(errors)
+    out["pulse_s"] = [round(w, 3) for w in widths]
+    if max(errors) > tol_s:
+        problems.append(f"a trigger came {max(errors):.3f} s off its scheduled time "
+                        f"(tolerance {tol_s} s)")
+    if any(abs(w - plan.measure_s) > tol_s for w in widths):
+        problems.append(f"trigger pulses of {widths} s, the stop is {plan.measure_s} s")
+    bad_stop = [k for k, r in enumerate(rises)
+                if _state_at(ev, "on", r + 0.01) or not _state_at(ev, "oriented", r + 0.01)]
+    out["stopped_and_oriented"] = len(rises) - len(bad_stop)
+    if bad_stop:
+        problems.append(f"measurements {bad_stop}: spindle not stopped and oriented")
+    p, d = plan.measure_every_s, plan.measure_s
+    checked, wrong = 0, []
+    for k in range(plan.n_intervals):
+        mid = k * p + d + (p - d) / 2  # the middle of interval k's running window
+        want = float(plan.program.rpm_at(k * p + (p - d) / 2))
+        on = bool(_state_at(ev, "on", t0 + mid))
+        got = float(_state_at(ev, "speed", t0 + mid) or 0.0) if on else 0.0
+        checked += 1
+        if abs(got - want) > 0.5:
+            wrong.append((k, want, got))
+    out["speeds_checked"], out["speeds_wrong"] = checked, wrong
+    out["speeds"] = sorted({float(plan.program.rpm_at(k * p)) for k in range(plan.n_intervals)})
+    if wrong:
+        problems.append(f"spindle speed off the schedule in intervals (k, want, got) {wrong}")
+    return out
+
+
 def table(summary: dict, elapsed_s: float) -> str:
     s = summary
     lines = [f"LinuxCNC external offsets driven by the box: {s['samples']} samples "
@@ -348,6 +431,14 @@ def table(summary: dict, elapsed_s: float) -> str:
                      f"{z['offset_nm']:.3f} nm -> {'PASS' if z['ok'] else 'FAIL'}")
     else:
         lines.append("ZERO: not run")
+    prog = s.get("program")
+    if prog:
+        lines.append(f"test program (host testplan --dialect linuxcnc, M64 P0): "
+                     f"{prog.get('measurements_found', 0)}/{prog['measurements_expected']} "
+                     f"triggers, largest timing error {prog.get('max_trigger_error_s', 0):.3f} "
+                     f"s, {prog.get('stopped_and_oriented', 0)} stopped+oriented, "
+                     f"{prog.get('speeds_checked', 0) - len(prog.get('speeds_wrong', []))}/"
+                     f"{prog.get('speeds_checked', 0)} speeds as scheduled")
     lines += ["", "RESULT: " + ("PASS" if s["ok"] else "FAIL")]
     lines += [f"  - {p}" for p in s["problems"]]
     return "\n".join(lines)
@@ -366,9 +457,8 @@ def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float 
     t0 = time.monotonic()
     try:
         ini = stage(stage_dir, setup, scenario)
-        if scenario.program is not None:
-            prog = Path(scenario.program["path"])
-            shutil.copy2(prog, ini.parent / prog.name)
+        if scenario.testplan is not None:
+            shutil.copy2(ini.parent / "thermal_test.ngc", build / "thermal_test.ngc")
         code, output = launch(ini, stage_dir, user, timeout_s)
         (build / "linuxcnc.log").write_text(output)
         results = stage_dir / "results.json"
@@ -381,6 +471,12 @@ def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float 
         if not keep:
             shutil.rmtree(stage_dir, ignore_errors=True)
     result = judge(raw, step_nm=1000.0 * setup.model["sample_period_s"])
+    if scenario.testplan is not None:
+        prog = judge_program(scenario.testplan, raw.get("program"))
+        result.summary["program"] = prog
+        result.problems += prog["problems"]
+        result.summary["problems"] = result.problems
+        result.summary["ok"] = not result.problems
     result.summary["elapsed_s"] = time.monotonic() - t0
     result.summary["linuxcnc_exit"] = code
     (build / "summary.json").write_text(json.dumps(result.summary, indent=2))
@@ -394,10 +490,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--build-dir", default=str(ROOT / "build" / "cnc"))
     ap.add_argument("--samples", type=int, default=961)
     ap.add_argument("--keep", action="store_true", help="keep the staged LinuxCNC directory")
+    ap.add_argument("--no-program", action="store_true",
+                    help="skip the test program (host testplan --dialect linuxcnc) run")
     args = ap.parse_args(argv)
     try:
-        result = run_session(Path(args.build_dir), Scenario(n_samples=args.samples),
-                             keep=args.keep)
+        scenario = Scenario(n_samples=args.samples,
+                            testplan=None if args.no_program else short_testplan())
+        result = run_session(Path(args.build_dir), scenario, keep=args.keep)
     except CncError as exc:
         print(f"cnc: {exc}")
         return 2

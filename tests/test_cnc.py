@@ -1,10 +1,11 @@
 """The box's corrections through a real, headless LinuxCNC (cnc/session.py, docs/linuxcnc.md).
 
-One LinuxCNC session (about 30 s): the native firmware on a pty, the thermalcomp HAL component
-reading it, LinuxCNC's external offsets; the expectation is the box's own sample lines as the
-driver's serial tap saw them, decoded by the project's decoder, against ``axis.L.eoffset`` and
-``joint.N.motor-pos-cmd`` read through HAL. LinuxCNC missing is a failure, not a skip: CI
-installs it (scripts/install-system-deps.sh).
+One LinuxCNC session (about 50 s): the native firmware on a pty, the thermalcomp HAL component
+reading it, LinuxCNC's external offsets, then a short `host testplan --dialect linuxcnc`
+program. The expectation is the box's own sample lines as the driver's serial tap saw them,
+decoded by the project's decoder, against ``axis.L.eoffset`` and ``joint.N.motor-pos-cmd``
+read through HAL, and the plan's own schedule against the spindle and trigger pins. LinuxCNC
+missing is a failure, not a skip: CI installs it (scripts/install-system-deps.sh).
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from cnc import session
 @pytest.fixture(scope="module")
 def cnc_run(tmp_path_factory):
     build = tmp_path_factory.mktemp("cnc")
-    result = session.run_session(build, session.Scenario())
+    scenario = session.Scenario(testplan=session.short_testplan())
+    result = session.run_session(build, scenario)
     return result, build
 
 
@@ -82,6 +84,35 @@ def test_machine_off_on_resynchronises_the_counts(cnc_run):
     assert _hold(result.summary, "machine off/on")["held"]
     r = result.summary["resync"]
     assert r["ok"] and r["offset_diff_nm"] <= 1.0 and r["joint_diff_nm"] <= 1.0
+
+
+@pytest.mark.slow
+def test_the_linuxcnc_test_program_runs_to_its_schedule(cnc_run):
+    """host testplan --dialect linuxcnc (M64 P0 trigger, M19 R0) in AUTO on the same LinuxCNC:
+    every measurement's trigger on time, spindle stopped and oriented, every speed as planned."""
+    result, build = cnc_run
+    prog = result.summary["program"]
+    assert not prog["problems"], prog["problems"]
+    assert prog["measurements_found"] == prog["measurements_expected"] == 7
+    assert prog["max_trigger_error_s"] < 0.25
+    assert prog["stopped_and_oriented"] == 7
+    assert prog["speeds_checked"] == 6 and not prog["speeds_wrong"]
+    assert prog["speeds"] == [0.0, 2000.0, 4000.0, 6000.0, 8000.0]
+    assert (build / "thermal_test.ngc").read_text().count("M64 P0 (MEASUREMENT") == 7
+
+
+def test_program_judge_catches_a_missing_orient_and_a_late_trigger():
+    plan = session.short_testplan()
+    ev = []
+    for k, t in enumerate(plan.measurement_times_s()):
+        late = 0.5 if k == 3 else 0.0
+        ev += [{"t": t, "pin": "oriented", "value": k != 2},
+               {"t": t + late, "pin": "trigger", "value": True},
+               {"t": t + late + 1.0, "pin": "trigger", "value": False}]
+    ev.sort(key=lambda e: e["t"])
+    out = session.judge_program(plan, {"events": ev, "error": False})
+    text = " ".join(out["problems"])
+    assert "measurements [2]" in text and "off its scheduled time" in text
 
 
 def test_judge_catches_an_offset_off_by_two_counts():

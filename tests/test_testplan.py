@@ -125,3 +125,67 @@ def test_durations_parse():
     assert parse_duration("10", "x") == 10.0
     with pytest.raises(PlanError, match="cannot read"):
         parse_duration("five", "--measure-every")
+
+
+def _linuxcnc_plan(trigger: str) -> ThermalTestPlan:
+    prog = build_program("step", 8000.0, hours=1.0, cool_hours=0.5)
+    return ThermalTestPlan(prog, 900.0, 10.0, trigger, "linuxcnc")
+
+
+def test_linuxcnc_digital_output_trigger_pulses_for_each_stop():
+    plan = _linuxcnc_plan("M64 P2")
+    lines = plan.render().splitlines()
+    on = [i for i, line in enumerate(lines) if line.startswith("M64 P2")]
+    assert len(on) == plan.n_intervals + 1 == 7
+    for i in on:  # the output for exactly the measurement dwell
+        assert lines[i + 1] == "G4 P10." and lines[i + 2] == "M65 P2"
+        # stopped and oriented: the last spindle word before the trigger is M19 R0
+        last = [line for line in lines[:i] if line.startswith(("M3", "M5", "M19"))][-1]
+        assert last == "M19 R0", (i, last)
+    assert "M19" not in [line.strip() for line in lines]  # LinuxCNC ignores a bare M19
+    assert plan.digital_output == 2
+
+
+def test_linuxcnc_user_m_code_gets_the_measurement_number():
+    plan = _linuxcnc_plan("M100")
+    calls = [line.split(" (")[0] for line in plan.render().splitlines()
+             if line.startswith("M100")]
+    assert calls == [f"M100 P{k}" for k in range(plan.n_intervals + 1)]
+    assert plan.digital_output is None
+
+
+@pytest.mark.parametrize("dialect", ["rs274", "fanuc", "linuxcnc"])
+def test_comments_are_never_nested(dialect):
+    """LinuxCNC refuses a program with a '(' inside a comment."""
+    trigger = "M64 P0" if dialect == "linuxcnc" else "M100"
+    prog = build_program("random", 8000.0, hours=1.0, cool_hours=0.5, seed=2)
+    for line in ThermalTestPlan(prog, 300.0, 10.0, trigger, dialect).render().splitlines():
+        depth = 0
+        for ch in line:
+            depth += {"(": 1, ")": -1}.get(ch, 0)
+            assert 0 <= depth <= 1, line
+        assert depth == 0, line
+
+
+@pytest.mark.parametrize("dialect, trigger, message", [
+    ("rs274", "M64 P0", "only with --dialect linuxcnc"),
+    ("linuxcnc", "M65 P0", "the only trigger with a P word"),
+    ("linuxcnc", "M64 P64", "P0..P63"),
+    ("linuxcnc", "M99", "M100-M199"),
+    ("linuxcnc", "M200", "M100-M199"),
+    ("linuxcnc", "G4", "M100 or M64 P0"),
+])
+def test_triggers_linuxcnc_cannot_do_are_refused(dialect, trigger, message):
+    with pytest.raises(PlanError, match=message):
+        ThermalTestPlan(build_program("step", 8000.0, hours=2.0, cool_hours=1.0),
+                        trigger=trigger, dialect=dialect)
+
+
+def test_cli_writes_a_linuxcnc_program(tmp_path, capsys):
+    out = tmp_path / "thermal_test.ngc"
+    assert main(["testplan", "--protocol", "constant", "--hours", "1", "--cool-hours", "1",
+                 "--measure-every", "10min", "--dialect", "linuxcnc", "--trigger", "m64p1",
+                 "-o", str(out)]) == 0
+    text = out.read_text()
+    assert text.count("M64 P1 (MEASUREMENT") == 13 and text.count("\nM65 P1\n") == 13
+    assert "wrote" in capsys.readouterr().out

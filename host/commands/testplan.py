@@ -22,10 +22,14 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--measure-time", default="10s", metavar="DURATION",
                         help="spindle stop for each measurement (default 10s)")
     parser.add_argument("--trigger", default="M100",
-                        help="M-code wired to the logger's trigger input (default M100)")
+                        help="M-code wired to the logger's trigger input (default M100); "
+                        "with --dialect linuxcnc a user M-code M100-M199 (called with P = "
+                        "measurement number) or 'M64 P<n>' (digital output n on during each "
+                        "measurement stop)")
     parser.add_argument("--dialect", choices=DIALECTS, default="rs274",
-                        help="dwell word: rs274 'G4 P<s>.' (LinuxCNC, Haas) or fanuc "
-                        "'G4 X<s>.' (default rs274)")
+                        help="dwell word: rs274 'G4 P<s>.' (Haas, RS274/NGC), fanuc "
+                        "'G4 X<s>.', linuxcnc 'G4 P<s>.' plus LinuxCNC's triggers "
+                        "(default rs274)")
     parser.add_argument("--program-number", type=int, default=1000,
                         help="O-number of the program (default 1000)")
     parser.add_argument("--json", action="store_true", help="print a summary as JSON")

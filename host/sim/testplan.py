@@ -14,7 +14,13 @@ during the d-second stops. The program moves no axis: the operator positions the
 the sensor nest before cycle start (the header comment says so). It ends with M5 and M30.
 
 Dwell words differ between controls: ``rs274`` (LinuxCNC, Haas, RS274/NGC) writes ``G4 P<s>.``
-in seconds; ``fanuc`` writes ``G4 X<s>.`` (Fanuc reads P as milliseconds).
+in seconds; ``fanuc`` writes ``G4 X<s>.`` (Fanuc reads P as milliseconds). ``linuxcnc`` dwells
+like rs274 and takes a trigger LinuxCNC can do without a PLC: ``M64 P<n>`` sets digital output
+n (``motion.digital-out-NN``) for each measurement stop and ``M65 P<n>`` clears it after the
+dwell, so the logger sees a pulse as long as the stop; or a user M-code M100-M199 (an executable
+file found through ``[RS274NGC]USER_M_PATH``), called as ``M1xx P<k>`` with the measurement
+number k (the file gets it as its first argument). It orients with ``M19 R0``: LinuxCNC 2.9
+does nothing on a bare ``M19``.
 """
 
 from __future__ import annotations
@@ -28,9 +34,12 @@ from contract import __version__
 from contract.errors import InputError
 from host.sim.spindle_programs import COOL, SpindleProgram
 
-DIALECTS = ("rs274", "fanuc")
+DIALECTS = ("rs274", "fanuc", "linuxcnc")
+LINUXCNC_USER_M = range(100, 200)  # LinuxCNC runs user M-codes M100..M199 only
+LINUXCNC_DIO = range(64)  # motmod num_dio is at most 64 (default 4: P0..P3)
 RESERVED_M = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 19, 30, 98, 99}
 MAX_DWELL_S = 99999.0  # Fanuc's G4 X limit
+_TRIGGER = re.compile(r"M(\d{1,4})(?:\s*P(\d{1,2}))?")
 _DURATION = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)\s*(s|sec|m|min|h|hr|hours?)?\s*$", re.I)
 
 
@@ -76,15 +85,9 @@ class ThermalTestPlan:
     program_number: int = 1000
 
     def __post_init__(self) -> None:
-        m = re.fullmatch(r"M(\d{1,4})", self.trigger.strip().upper())
-        if not m:
-            raise PlanError(f"--trigger {self.trigger!r}: give an M-code such as M100")
-        if int(m.group(1)) in RESERVED_M:
-            raise PlanError(f"--trigger {self.trigger}: M{int(m.group(1))} already means "
-                                "something to the control (spindle, coolant, program end); "
-                                "use a free M-code wired to the logger")
         if self.dialect not in DIALECTS:
             raise PlanError(f"unknown dialect '{self.dialect}' (known: {', '.join(DIALECTS)})")
+        self._trigger()  # refuses a trigger the dialect's control cannot do
         if not 1 <= self.program_number <= 9999:
             raise PlanError(f"program number O{self.program_number} is not in 1..9999")
         p, d = self.measure_every_s, self.measure_s
@@ -113,6 +116,56 @@ class ThermalTestPlan:
                         f"stop {_clock(edge - pos + p - d)}..{_clock(edge - pos + p)}; choose "
                         "a --measure-every that divides the protocol's segments")
 
+    def _trigger(self) -> tuple[int, int | None]:
+        """(M number, digital output or None) of ``trigger``, checked against the dialect."""
+        m = _TRIGGER.fullmatch(self.trigger.strip().upper())
+        if not m:
+            forms = "M100 or M64 P0" if self.dialect == "linuxcnc" else "M100"
+            raise PlanError(f"--trigger {self.trigger!r}: give an M-code such as {forms}")
+        code, out = int(m.group(1)), m.group(2)
+        if out is not None:
+            if code != 64 or self.dialect != "linuxcnc":
+                raise PlanError(f"--trigger {self.trigger!r}: 'M64 P<n>' (LinuxCNC's digital "
+                                "output) is the only trigger with a P word, and only with "
+                                "--dialect linuxcnc")
+            if int(out) not in LINUXCNC_DIO:
+                raise PlanError(f"--trigger {self.trigger!r}: LinuxCNC has digital outputs "
+                                f"P0..P{LINUXCNC_DIO[-1]} (motmod num_dio)")
+            return code, int(out)
+        if self.dialect == "linuxcnc" and code not in LINUXCNC_USER_M:
+            raise PlanError(f"--trigger {self.trigger}: LinuxCNC runs user M-codes M100-M199 "
+                            "only (an executable file in [RS274NGC]USER_M_PATH); or use "
+                            "'M64 P<n>', a digital output")
+        if code in RESERVED_M:
+            raise PlanError(f"--trigger {self.trigger}: M{code} already means "
+                                "something to the control (spindle, coolant, program end); "
+                                "use a free M-code wired to the logger")
+        return code, None
+
+    @property
+    def digital_output(self) -> int | None:
+        """The LinuxCNC digital output the trigger sets (``M64 P<n>``), or None."""
+        return self._trigger()[1]
+
+    def _trigger_on(self, k: int, note: str) -> str:
+        code, out = self._trigger()
+        if out is not None:
+            return f"M64 P{out} (MEASUREMENT {k} {note})"
+        if self.dialect == "linuxcnc":
+            return f"M{code} P{k} (MEASUREMENT {k} {note})"
+        return f"M{code} (MEASUREMENT {k} {note})"
+
+    def _trigger_off(self) -> list[str]:
+        _, out = self._trigger()
+        return [f"M65 P{out}"] if out is not None else []
+
+    def _trigger_words(self) -> str:
+        code, out = self._trigger()
+        if out is not None:
+            return f"M64 P{out} SETS DIGITAL OUTPUT {out} FOR THE STOP, M65 P{out} CLEARS IT"
+        return f"M{code} TRIGGERS THE LOGGER" + (" (P = MEASUREMENT NUMBER)"
+                                                 if self.dialect == "linuxcnc" else "")
+
     @property
     def n_intervals(self) -> int:
         return round(self.program.duration_s / self.measure_every_s)
@@ -126,6 +179,10 @@ class ThermalTestPlan:
         """Cycle time: reference measurement + the whole schedule."""
         return self.measure_s + self.program.duration_s
 
+    def _orient(self) -> str:
+        # LinuxCNC 2.9 ignores a bare M19 (no orient, spindle.0.locked stays low): give R
+        return "M19 R0" if self.dialect == "linuxcnc" else "M19"
+
     def _dwell(self, seconds: float) -> str:
         word = "X" if self.dialect == "fanuc" else "P"
         return f"G4 {word}{_num(seconds)}"
@@ -133,14 +190,13 @@ class ThermalTestPlan:
     def render(self) -> str:
         """The NC program text (ends with a newline)."""
         prog, p, d = self.program, self.measure_every_s, self.measure_s
-        trig = self.trigger.strip().upper()
         out = [
             "%",
             f"O{self.program_number:04d} (THERMAL TEST {prog.protocol.upper()})",
             f"(GENERATED BY HOST TESTPLAN {__version__}, PAPER 002 / ISO 230-3 PROCEDURE)",
             f"(MAX SPINDLE {prog.max_rpm:g} RPM, RUN {prog.run_s / 3600:g} H, COOL "
             f"{(prog.duration_s - prog.run_s) / 3600:g} H)",
-            f"(MEASURE EVERY {p:g} S: M5, M19, {trig} TRIGGERS THE LOGGER, G4 {d:g} S)",
+            f"(MEASURE EVERY {p:g} S: M5, M19, {self._trigger_words()}, G4 {d:g} S)",
             f"({self.n_intervals + 1} MEASUREMENTS, CYCLE TIME {_clock(self.duration_s)})",
             "(NO AXIS MOTION: PUT THE TEST BAR AT THE SENSOR NEST BEFORE CYCLE START)",
             f"(SCHEDULE, T = TIME AFTER THE {d:g} S REFERENCE MEASUREMENT)",
@@ -148,8 +204,9 @@ class ThermalTestPlan:
         for seg in prog.segments:
             what = "COOLING" if seg.phase == COOL else ("STOPPED" if seg.rpm == 0 else "RUN")
             out.append(f"(T {_clock(seg.start_s)} - {_clock(seg.end_s)} S{seg.rpm:.0f} {what})")
-        out += ["G21 G90 G17 G40 G80 G94", "M5", "M19",
-                f"{trig} (MEASUREMENT 0 AT T 0:00:00, COLD REFERENCE)", self._dwell(d)]
+        out += ["G21 G90 G17 G40 G80 G94", "M5", self._orient(),
+                self._trigger_on(0, "AT T 0:00:00, COLD REFERENCE"), self._dwell(d),
+                *self._trigger_off()]
         running, oriented = False, True
         for k in range(self.n_intervals):
             start, stop = k * p, k * p + p - d
@@ -171,10 +228,11 @@ class ThermalTestPlan:
                 out.append("M5")
                 running = False
             if not oriented:
-                out.append("M19")
+                out.append(self._orient())
                 oriented = True
-            out.append(f"{trig} (MEASUREMENT {k + 1} AT T {_clock(stop)})")
+            out.append(self._trigger_on(k + 1, f"AT T {_clock(stop)}"))
             out.append(self._dwell(d))
+            out += self._trigger_off()
         out += ["M5", "M30 (END OF THERMAL TEST)", "%"]
         return "\n".join(out) + "\n"
 
