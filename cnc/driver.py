@@ -284,7 +284,7 @@ def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
     feed = Path(plan["feed"]).read_text().splitlines()
     ev = plan.get("events", {})
     open_tc, stale, bad = ev.get("open"), ev.get("stale"), ev.get("bad_line")
-    off, zero = ev.get("machine_off"), ev.get("zero")
+    off, zero, dis = ev.get("machine_off"), ev.get("zero"), ev.get("disable")
     records: list[dict] = []
     start_mdi = plan["start_mdi"]
     timeout = float(plan.get("timeout_s", 10.0))
@@ -310,6 +310,10 @@ def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
             machine.off()
         if off and off["at"] <= k < off["at"] + off["samples"]:
             phase = "machine_off"
+        if dis and k == dis["at"]:
+            machine.setp(f"{COMP}.enable", 0)  # the operator switches compensation off
+        if dis and dis["at"] <= k < dis["at"] + dis["samples"]:
+            phase = "disabled"
         if zero and k == zero["at"]:
             acks = machine.get(f"{COMP}.zero-acks")
             machine.setp(f"{COMP}.zero", 1)
@@ -341,6 +345,11 @@ def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
                          "the component to resynchronise after machine-on")
             machine.mdi(start_mdi)
             phase = "machine_on"
+        if dis and k == dis["at"] + dis["samples"] - 1:
+            machine.setp(f"{COMP}.enable", 1)
+            machine.wait(lambda: machine.get(f"{COMP}.active"), timeout,
+                         "the component to resynchronise after enable")
+            phase = "enabled"
         if machine.poll().task_state == linuxcnc.STATE_ON:
             time.sleep(0.003)  # let motion pick up a counts change written this instant
             machine.wait(machine.settled, timeout, f"the external offset to settle after "

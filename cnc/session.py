@@ -64,6 +64,8 @@ class Scenario:
     bad_at: int = 420
     off_at: int = 500
     off_samples: int = 5
+    disable_at: int = 600
+    disable_samples: int = 5
     zero_at: int | None = None  # ZERO needs the firmware of issue 13 (box-safety)
     stale_period_s: float = 0.1  # the component's stale clock in the time-compressed replay
     stale_periods: float = 3.0
@@ -75,7 +77,8 @@ class Scenario:
                     "stale": {"at": self.stale_at,
                               "pause_s": 3 * self.stale_period_s * self.stale_periods},
                     "bad_line": {"at": self.bad_at},
-                    "machine_off": {"at": self.off_at, "samples": self.off_samples}}
+                    "machine_off": {"at": self.off_at, "samples": self.off_samples},
+                    "disable": {"at": self.disable_at, "samples": self.disable_samples}}
         if self.zero_at is not None:
             ev["zero"] = {"at": self.zero_at}
         return {k: v for k, v in ev.items() if _inside(v, self.n_samples)}
@@ -229,7 +232,7 @@ def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Re
     for r in records:
         healthy = (not r["box"]["status"] & HOLD_BITS and not r["holding"]
                    and not r["walking"] and not r["box"]["corrupted"]
-                   and r["phase"] not in ("machine_off",))
+                   and r["phase"] not in ("machine_off", "disabled"))
         if not healthy:
             continue
         tracked += 1
@@ -310,6 +313,19 @@ def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Re
         if not resync["ok"]:
             problems.append(f"after machine off/on the offset is {d_off:g} nm and the joint "
                             f"{d_joint:g} nm away from the box's correction")
+    disabled = by_phase.get("disabled", [])
+    if disabled:
+        off = max(abs(r["eoffset_mm"][a]) * 1e6 for r in disabled
+                  for a in letters)
+        back = [r for r in by_phase.get("enabled", [])]
+        d_back = max((abs(r["eoffset_mm"][a] * 1e6 - want_nm(r, i)) for r in back
+                      for i, a in enumerate(letters)), default=float("inf"))
+        ok = off <= nm_per_count and d_back <= nm_per_count
+        holds.append({"fault": "enable off/on", "samples": len(disabled),
+                      "box_status": "-", "held": ok, "moved_nm": d_back})
+        if not ok:
+            problems.append(f"enable off/on: offset {off:g} nm while disabled (want 0), "
+                            f"{d_back:g} nm from the box's value after enable")
     zero: dict = {"done": False, "ok": False}
     sent = [r for r in raw.get("records", []) if r.get("phase") == "zero_sent"]
     for r in by_phase.get("zero", []):
@@ -417,12 +433,12 @@ def table(summary: dict, elapsed_s: float) -> str:
              f"{s['max_abs_joint_diff_nm']:9.3f} nm",
              f"{'bad lines refused / lines lost':46s} {s['bad_lines']:9d} / {s['lost_lines']}",
              "",
-             f"{'fault injected':24s}{'samples':>8s}  {'box says':12s}{'held':>6s}"
-             f"{'moved nm':>10s}",
-             "-" * 62]
-    for h in s["holds"]:
+             f"{'event injected':24s}{'samples':>8s}  {'box says':12s}{'handled':>8s}"
+             f"{'off by nm':>11s}",
+             "-" * 65]
+    for h in s["holds"]:  # off by: how far an offset moved while held, or missed after resync
         lines.append(f"{h['fault']:24s}{h['samples']:8d}  {h['box_status']:12s}"
-                     f"{'yes' if h['held'] else 'NO':>6s}{h['moved_nm']:10.3f}")
+                     f"{'yes' if h['held'] else 'NO':>8s}{h['moved_nm']:11.3f}")
     z = s["zero"]
     lines.append("")
     if z.get("done"):

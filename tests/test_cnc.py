@@ -87,6 +87,13 @@ def test_machine_off_on_resynchronises_the_counts(cnc_run):
 
 
 @pytest.mark.slow
+def test_enable_off_ramps_to_zero_and_on_resynchronises(cnc_run):
+    result, _ = cnc_run
+    h = _hold(result.summary, "enable off/on")
+    assert h["held"] and h["samples"] == 4 and h["moved_nm"] <= 1.0
+
+
+@pytest.mark.slow
 def test_the_linuxcnc_test_program_runs_to_its_schedule(cnc_run):
     """host testplan --dialect linuxcnc (M64 P0 trigger, M19 R0) in AUTO on the same LinuxCNC:
     every measurement's trigger on time, spindle stopped and oriented, every speed as planned."""
