@@ -127,11 +127,20 @@ def print_training(demo: Demo, doc: dict, model: dict) -> None:
     for axis, row in doc["axes"].items():
         spec = model["axes"][axis]
         base = spec.get("baseline_validation_rmse_um")
-        effects = [e.get("name", "?") for e in spec.get("effects", [])]
+        effects = [e.get("name", "?") for e in spec.get("effects", [])
+                   if not e.get("dropped_for_channels")]
+        dropped = [e.get("name", "?") for e in spec.get("effects", [])
+                   if e.get("dropped_for_channels")]
         line = (f"    {axis}: sensors {', '.join(row['sensors'])}; validation RMSE "
                 f"{fmt_um(row['validation_rmse_um'])} of {fmt_um(row['raw_rms_um'])} raw")
         if effects:
             line += f" (before effects {fmt_um(base)}; added {', '.join(effects)})"
+        gone = [s for s in spec.get("selection", {}).get("sensors", [])
+                if s not in row["sensors"]]
+        if dropped:
+            line += f"; dropped for lack of a box channel: {', '.join(dropped)}"
+        if gone:
+            line += f"; selected but not read by the box: {', '.join(gone)}"
         demo.say(line)
 
 
@@ -237,15 +246,23 @@ def step_protocols(demo: Demo) -> Path | None:
         demo.done()
         return None
     doc = demo.host_json("compare-protocols", "--out", out_dir, "--json")
-    matrix, train, test = doc.get("matrix"), doc.get("train", []), doc.get("test", [])
-    if matrix and train and test:
-        means = [sum(row) / len(row) for row in matrix]
-        best = min(range(len(train)), key=lambda i: means[i])
-        demo.say(f"    {doc.get('metric', 'RMSE')}, averaged over the judged protocols "
-                 f"({', '.join(test)}):")
-        demo.say("    " + ", ".join(f"trained on {name}: {m:.2f} µm" for name, m in
-                                     zip(train, means, strict=True)))
-        demo.say(f"    → the {train[best]} protocol builds the model that holds best")
+    verdict = doc.get("verdict") or {}
+    scores, spread = verdict.get("scores_um", {}), verdict.get("spread_um", {})
+    if scores:
+        demo.say(f"    mean RMSE on the other protocols' runs over {verdict.get('repeats', 1)} "
+                 "repeats (± standard deviation over the repeats):")
+        demo.say("    " + ", ".join(
+            f"trained on {name}: {v:.2f}" + (f" ± {spread[name]:.2f}"
+                                            if spread.get(name) is not None else "") + " µm"
+            for name, v in scores.items()))
+        per_repeat = (doc.get("settings") or {}).get("per_repeat_ranking") or []
+        if per_repeat:
+            demo.say("    best per repeat: " + ", ".join(r[0] for r in per_repeat if r))
+        if verdict.get("winner"):
+            demo.say(f"    → the {verdict['winner']} protocol builds the model that holds best "
+                     f"({verdict.get('reason')})")
+        else:
+            demo.say(f"    → no winner: {verdict.get('reason')}")
     demo.done()
     return out_dir / "protocols.json"
 

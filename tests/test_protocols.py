@@ -109,3 +109,49 @@ def test_bad_runs_are_refused(tmp_path):
                                                               "b": ["2.csv"]}
     with pytest.raises(ProtocolComparisonError, match="unknown protocol"):
         simulate_runs(tmp_path, ["constant", "ramp"])
+
+
+def _two_protocols(a_score: float, b_score: float):
+    """A hand-made comparison whose ranking scores are a_score (a) and b_score (b): each
+    protocol's score is its RMSE on the other protocol's run, the off-diagonal cell."""
+    from host.analysis.protocol_matrix import Comparison
+
+    m = np.array([[0.1, a_score], [b_score, 0.1]])
+    return Comparison(["a", "b"], ["a", "b"], ["x"], {"x": m}, np.zeros((2, 2), bool),
+                      {"a": [], "b": []}, raw_rms_um={"a": {"x": 5.0}, "b": {"x": 5.0}})
+
+
+def test_a_winner_only_when_the_gap_exceeds_the_spread_over_repeats():
+    clear = combine([_two_protocols(a, b) for a, b in ((1.0, 2.0), (1.1, 2.1), (0.9, 1.9))])
+    v = clear.verdict()
+    assert v["winner"] == "a" and v["repeats"] == 3
+    assert v["gap_um"] == pytest.approx(1.0)
+    assert v["spread_um"]["a"] == pytest.approx(np.std([1.0, 1.1, 0.9], ddof=1), abs=1e-4)
+
+    # means 1.0 vs 1.2, but each repeat scatters by about 0.4-0.5: no winner
+    noisy = combine([_two_protocols(a, b) for a, b in ((1.0, 1.2), (1.5, 0.8), (0.5, 1.6))])
+    v = noisy.verdict()
+    assert v["winner"] is None and v["best"] == "a"
+    assert v["spread_used_um"] == pytest.approx(np.std([1.0, 1.5, 0.5], ddof=1), abs=1e-4)
+    assert "within the spread" in v["reason"]
+
+    single = _two_protocols(0.33, 0.34).verdict()  # one repeat: no spread, no winner
+    assert single["winner"] is None and "one repeat" in single["reason"]
+
+
+def test_cli_repeats_by_default(monkeypatch, capsys):
+    import host.commands.compare_protocols as cmd
+
+    seen = []
+
+    def fake_sim(out_dir, protocols, **kw):
+        seen.append(kw["seed"])
+        return {}
+
+    monkeypatch.setattr(cmd, "simulate_runs", fake_sim)
+    monkeypatch.setattr(cmd, "compare_protocols", lambda runs, targets, **kw: _two_protocols(
+        1.0 + len(seen) / 100, 2.0))
+    assert main(["compare-protocols", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert seen == [0, 1000, 2000]  # three sets of days
+    assert doc["verdict"]["repeats"] == 3 and doc["verdict"]["winner"] == "a"

@@ -170,7 +170,7 @@ def test_html_embeds_every_figure_and_links_the_files(rendered):
     assert "lag(T05, tau=1800s)</b>: validation RMSE 3.21 → 1.23 µm, 62 % better" in page
     assert "HIL replay (" in page and "twin_bit_exact passed" in page
     assert "Status bits the box raised: SLEW on 1 sample, EXTRAP on 412 samples." in page
-    assert "how many sensors the box reads: the smallest EC (paper 000)." in page  # ch3
+    assert "how many sensors the selection chose: the smallest EC (paper 000)." in page  # ch3
     assert "the smallest out-of-fold error S<sub>i</sub>" in page  # ch5
     assert "Group refinement then swapped T16 → " in page and "(2.5 → 2.2 µm)" in page
     assert "<td>0.410</td><td>4.200</td>" in page  # box vs float and its bound, in nm
@@ -291,3 +291,79 @@ def test_protocol_matrix_shape_is_checked(tmp_path):
     matrix = load_protocols(rows)
     assert matrix.train == ["a", "b"] and matrix.test == ["a", "b"]
     np.testing.assert_array_equal(matrix.values, [[1.0, 2.0], [3.0, 4.0]])
+
+
+@pytest.fixture(scope="module")
+def budget_model(example, tmp_path_factory):
+    """The example model with what the channel budget does on FL ch5: an effect found by the
+    search (T05 + square(T05)) whose sensor got no box channel, and a selected sensor (T01) the
+    budget took away; and ch3 whose count was capped by --max-sensors."""
+    import copy
+
+    model = copy.deepcopy(example["model"])
+    ch5 = model["axes"]["ch5_um"]
+    train = load_run(example["runs"][0], list(AXES), "T*")
+    y = train.target("ch5_um")
+    s_temp, s_lag = example["sensors_used"]["ch5_um"]
+    ref = float(np.mean(train.column("T05")))
+    A = np.column_stack([np.ones(len(y)), train.column(s_temp),
+                         lag(train.column(s_lag), example["alpha"]), train.column("T05"),
+                         (train.column("T05") - ref) ** 2])
+    c, *_ = np.linalg.lstsq(A, y, rcond=None)
+    dropped_terms = ch5["terms"] + [{"kind": "temp", "source": "T05", "coef": float(c[3])},
+                                    {"kind": "square", "source": "T05", "ref_c": ref,
+                                     "coef": float(c[4])}]
+    ch5["effects"].append({"kind": "nonlinear", "name": "T05 + square(T05)",
+                           "rmse_before_um": 1.23, "rmse_after_um": 1.0,
+                           "evidence": {"folds_improved": "3/3"}, "dropped_for_channels": True,
+                           "intercept": float(c[0]), "terms": dropped_terms})
+    ch5["selection"]["sensors"] = [s_temp, s_lag, "T01"]
+    ch5["channel_budget_after_effects"] = {"max_channels": 3, "dropped_sensors": ["T01", "T05"],
+                                           "dropped_terms": ["T01", "T05", "square(T05)"]}
+    ch3 = model["axes"]["ch3_um"]["selection"]
+    ch3.update({"count_rule": "smallest out-of-fold error S_i", "chosen_count": 2,
+                "ec_errors_um": [5.0, 3.0, 2.5, 2.0, 1.5]})
+    model["training"]["max_sensors"] = 2
+    path = tmp_path_factory.mktemp("budget") / "model.json"
+    path.write_text(json.dumps(model))
+    out = tmp_path_factory.mktemp("budget_out")
+    return model, build_report(path, example["runs"], out, peers=False, quiet=True)
+
+
+def test_report_describes_the_model_the_box_runs(example, budget_model):
+    model, report = budget_model
+    page = report.index.read_text()
+    summary = json.loads((report.out_dir / "summary.json").read_text())
+    ch5 = next(r for r in summary["axes"] if r["axis"] == "ch5_um")
+    assert ch5["effects"] == ["lag(T16, tau=1800s)"]
+    assert ch5["effects_dropped"] == ["T05 + square(T05)"]
+    assert "T05 + square(T05) (dropped: no box channel)" in page
+    # the selection caption names what the box reads, and T01 as dropped
+    assert "the sensors the box reads for ch5_um (T11, T16)" in page
+    assert "dropped by the box's channel budget (T01)" in page
+    # the effects figure ends on the box's model: its RMS is the final terms' residual
+    alpha = example["alpha"]
+    for path in example["runs"]:
+        run = load_run(path, list(AXES), "T*")
+        terms = model["axes"]["ch5_um"]["terms"]
+        box = (model["axes"]["ch5_um"]["intercept"] + terms[0]["coef"] * run.column("T11")
+               + terms[1]["coef"] * lag(run.column("T16"), alpha))
+        stages = summary["runs"][path.stem]["ch5_um"]["stages_rms_um"]
+        assert stages[-1]["box"] and not stages[-1]["dropped"]
+        assert stages[-1]["rms_um"] == pytest.approx(
+            np.sqrt(np.mean((run.target("ch5_um") - box) ** 2)), rel=1e-6)
+        assert [s["dropped"] for s in stages] == [False, False, True, False]
+        assert summary["runs"][path.stem]["ch5_um"]["residual_rms_um"]["our model"] == \
+            pytest.approx(stages[-1]["rms_um"])
+
+
+def test_ec_caption_says_the_cap_decided(budget_model):
+    from host.analysis.report import count_rule
+
+    model, report = budget_model
+    # S_i is smallest at 5 sensors, the cap is 2: the cap decided, not the minimum
+    assert count_rule(model["axes"]["ch3_um"]["selection"], model) == "cap"
+    assert count_rule(model["axes"]["ch5_um"]["selection"], model) == "min"
+    page = report.index.read_text()
+    assert "the --max-sensors cap of 2: the out-of-fold error S<sub>i</sub> is smallest at 5 " \
+           "sensors (1.5 µm against 3 µm at 2)" in page

@@ -17,6 +17,7 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.transforms import offset_copy  # noqa: E402
 
 WIDE = (9.0, 5.0)
 SQUARE = (7.0, 6.0)
@@ -49,15 +50,36 @@ def rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
 
 
+def _spread_labels(points: Sequence[tuple[float, float]], min_gap: float) -> list[float]:
+    """Vertical label positions (in axis fraction units) so that no two labels overprint:
+    labels are sorted by height and pushed apart by at least ``min_gap``."""
+    order = sorted(range(len(points)), key=lambda i: points[i][1])
+    ys = [0.0] * len(points)
+    last = -np.inf
+    for i in order:
+        y = max(points[i][1], last + min_gap)
+        ys[i] = y
+        last = y
+    return ys
+
+
 def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float],
                     correlations: Sequence[float], labels: Sequence[int],
-                    chosen: Sequence[str]) -> Figure:
-    """Paper 000 Fig. 7: sensors in the (delay, correlation) plane by cluster, chosen ones named.
+                    chosen: Sequence[str], dropped: Sequence[str] = (),
+                    delay_limit_s: float | None = None) -> Figure:
+    """Paper 000 Fig. 7: sensors in the (delay, correlation) plane by cluster, with each
+    cluster's centre (the mean of its members: c-means runs on standardised axes, an affine
+    map, so the centre in these units is the members' mean); ``chosen`` (read by the box) are
+    circled and named, ``dropped`` (chosen by the selection, then taken away by the box's
+    channel budget) get a dashed grey circle; sensors whose delay sits at the limit of the
+    search (``delay_limit_s``) are marked with a triangle: their true delay may be longer.
 
     Label -1 marks sensors the channel budget kept out of the selection (grey crosses)."""
-    fig = Figure(figsize=SQUARE, layout="constrained")
+    fig = Figure(figsize=(10.0, 6.0), layout="constrained")
     ax = fig.add_subplot()
-    delays, xlabel = delay_axis(np.asarray(delays_s, dtype=float))
+    raw_delays = np.asarray(delays_s, dtype=float)
+    delays, xlabel = delay_axis(raw_delays)
+    scale = 1 / 3600.0 if "(h)" in xlabel else 1 / 60.0 if "(min)" in xlabel else 1.0
     corr = np.asarray(correlations, dtype=float)
     labels_arr = np.asarray(labels, dtype=int)
     groups = sorted(set(labels_arr.tolist()))
@@ -68,32 +90,70 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
             ax.scatter(delays[mask], corr[mask], s=40, color="0.75", marker="x",
                        label=f"no channel on the box ({int(mask.sum())})")
             continue
-        ax.scatter(delays[mask], corr[mask], s=40, color=cmap(k % cmap.N), alpha=0.85,
+        colour = cmap(k % cmap.N)
+        ax.scatter(delays[mask], corr[mask], s=40, color=colour, alpha=0.85,
                    label=f"group {group} ({int(mask.sum())})")
-    chosen_set = set(chosen)
-    for name, x, y in zip(sensors, delays, corr, strict=True):
+        cx, cy = float(np.mean(delays[mask])), float(np.mean(corr[mask]))
+        ax.scatter([cx], [cy], s=90, marker="D", facecolors="none", edgecolors=colour,
+                   linewidths=1.5, zorder=1)
+    ax.scatter([], [], s=90, marker="D", facecolors="none", edgecolors="0.4", linewidths=1.5,
+               label="group centre (mean of members)")
+    if delay_limit_s is not None and delay_limit_s > 0:
+        edge = np.abs(raw_delays) >= delay_limit_s - 1e-6
+        if edge.any():
+            ax.scatter(delays[edge], corr[edge], s=420, marker="^", facecolors="none",
+                       edgecolors="tab:red", linewidths=1.4, zorder=4,
+                       label=f"delay at the search limit (±{delay_limit_s * scale:.3g} "
+                             f"{xlabel.rsplit('(', 1)[-1].rstrip(')')})")
+        for x in (-delay_limit_s * scale, delay_limit_s * scale):
+            ax.axvline(x, color="tab:red", ls=":", lw=0.8)
+    chosen_set, dropped_set = set(chosen), set(dropped)
+    named = [(n, float(x), float(y)) for n, x, y in zip(sensors, delays, corr, strict=True)
+             if n in chosen_set or n in dropped_set]
+    for name, x, y in named:
         if name in chosen_set:
             ax.scatter([x], [y], s=220, facecolors="none", edgecolors="black", linewidths=2)
-            ax.annotate(name, (x, y), xytext=(8, 6), textcoords="offset points",
-                        fontsize=11, fontweight="bold")
+        else:
+            ax.scatter([x], [y], s=220, facecolors="none", edgecolors="0.5", linewidths=1.5,
+                       linestyle="--")
+    # labels: to the right of each circled sensor, pushed apart vertically so none overprint
+    ylim = ax.get_ylim()
+    span = (ylim[1] - ylim[0]) or 1.0
+    label_y = _spread_labels([(x, y) for _, x, y in named], 0.045 * span)
+    shifted = offset_copy(ax.transData, fig=fig, x=10, y=0, units="points")
+    for (name, x, y), ly in zip(named, label_y, strict=True):
+        keep = name in chosen_set
+        ax.annotate(name if keep else f"{name} (dropped)", (x, y), xytext=(x, ly),
+                    textcoords=shifted, fontsize=10 if keep else 9,
+                    fontweight="bold" if keep else "normal", color="black" if keep else "0.4",
+                    ha="left", va="center",
+                    arrowprops=None if abs(ly - y) < 1e-9 else dict(arrowstyle="-", lw=0.5,
+                                                                    color="0.5"))
     ax.scatter([], [], s=220, facecolors="none", edgecolors="black", linewidths=2,
-               label="chosen sensor")
+               label="read by the box")
+    if dropped_set:
+        ax.scatter([], [], s=220, facecolors="none", edgecolors="0.5", linewidths=1.5,
+                   linestyle="--", label="chosen, then dropped (not read by the box)")
     ax.set_xlabel(xlabel)
     ax.set_ylabel("correlation coefficient r with displacement (–)")
-    ax.set_title(f"{axis}: sensors grouped by delay and correlation, "
-                 f"{len(chosen_set)} of {len(sensors)} chosen")
+    ax.set_title(f"{axis}: sensors grouped by delay and correlation,\n"
+                 f"{len(chosen_set)} of {len(sensors)} read by the box")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="best", ncol=2 if len(groups) > 6 else 1)
+    fig.legend(fontsize=8, loc="outside right upper")
     return fig
 
 
 def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
              subsets: Sequence[Sequence[str]] | None = None,
-             errors: Sequence[float] | None = None, rule: str = "ec") -> Figure:
+             errors: Sequence[float] | None = None, rule: str = "ec",
+             max_sensors: int | None = None,
+             error_spread: Sequence[float] | None = None) -> Figure:
     """Paper 000 Fig. 8: EC_i over model size; with ``errors`` also S_i itself (right axis).
 
-    ``rule`` says which curve fixed the count: "ec" (paper 000: smallest EC_i) or "min"
-    (validated: smallest out-of-fold S_i); the chosen size is circled on that curve.
+    ``rule`` says what fixed the count: "ec" (paper 000: smallest EC_i), "min" (validated:
+    smallest out-of-fold S_i) or "cap" (the smallest S_i lay beyond ``max_sensors``, so the cap
+    decided); the chosen size is circled on the curve that fixed it, the cap drawn as a line.
+    ``error_spread`` (one value per size) draws error bars on S_i.
     """
     fig = Figure(figsize=WIDE, layout="constrained")
     ax = fig.add_subplot()
@@ -103,11 +163,17 @@ def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
     marked_ax, marked = ax, list(ec)
     if errors is not None and len(errors) == len(ec):
         ax2 = ax.twinx()
+        if error_spread is not None and len(error_spread) == len(errors):
+            ax2.errorbar(sizes, errors, yerr=error_spread, fmt="none", ecolor=PEER_COLOURS[0],
+                         alpha=0.6, capsize=3)
         lines += ax2.plot(sizes, errors, "s--", color=PEER_COLOURS[0],
                           label="S$_i$, error of the best i-sensor model (µm)")
         ax2.set_ylabel("S$_i$ (µm)")
-        if rule == "min":
+        if rule in ("min", "cap"):
             marked_ax, marked = ax2, list(errors)
+    if max_sensors is not None and max_sensors < len(ec):
+        lines.append(ax.axvline(max_sensors + 0.5, color="0.3", ls=":", lw=1.2,
+                                label=f"--max-sensors {max_sensors}"))
     if 1 <= chosen_count <= len(ec):
         y = marked[chosen_count - 1]
         lines.append(marked_ax.scatter([chosen_count], [y], s=250, facecolors="none",
@@ -116,13 +182,17 @@ def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
         if subsets and len(subsets) >= chosen_count:
             marked_ax.annotate(", ".join(subsets[chosen_count - 1]), (chosen_count, y),
                                xytext=(0, 18), textcoords="offset points", ha="center",
-                               fontsize=10)
+                               fontsize=10, bbox=dict(boxstyle="round", fc="white", ec="0.8",
+                                                      alpha=0.9))
     ax.set_xticks(sizes)
     ax.set_xlabel("number of sensors i in the model")
-    ax.set_title(f"{axis}: model size chosen where "
-                 + ("EC is smallest" if rule == "ec" else "the out-of-fold error S is smallest"))
+    ax.set_title(f"{axis}: " + {
+        "ec": "model size chosen where EC is smallest (paper 000)",
+        "min": "model size chosen where the out-of-fold error S is smallest",
+        "cap": f"model size capped by --max-sensors {max_sensors} "
+               "(S is smallest beyond the cap)"}[rule])
     ax.grid(True, alpha=0.3)
-    ax.legend(lines, [ln.get_label() for ln in lines])
+    ax.legend(lines, [ln.get_label() for ln in lines], fontsize=8, loc="upper center")
     return fig
 
 
@@ -153,23 +223,34 @@ def run_fit(run: str, axis: str, time_s: np.ndarray, measured: np.ndarray,
 
 
 def residual_steps(run: str, axis: str, time_s: np.ndarray,
-                   stages: Sequence[tuple[str, np.ndarray]]) -> Figure:
-    """The residual after each model stage (baseline, then every effect added), RMS in legend."""
+                   stages: Sequence[tuple[str, np.ndarray]],
+                   dropped: Sequence[bool] | None = None) -> Figure:
+    """The residual after each model stage (baseline, then every effect added), RMS in legend.
+
+    ``dropped`` marks stages that are not part of the final model (drawn dashed grey); the last
+    stage is the final model and is drawn thickest."""
     fig = Figure(figsize=WIDE, layout="constrained")
     ax = fig.add_subplot()
     t, tlabel = time_axis(np.asarray(time_s, dtype=float))
     cmap = matplotlib.colormaps["viridis"]
     n = len(stages)
+    gone = list(dropped) if dropped is not None else [False] * n
+    kept = [k for k in range(n) if not gone[k]]
     for k, (label, residual) in enumerate(stages):
-        colour = cmap(0.85 * k / max(1, n - 1))
-        ax.plot(t, residual, color=colour, lw=1.6 if k in (0, n - 1) else 1.0,
+        if gone[k]:
+            ax.plot(t, residual, color="0.6", lw=1.0, ls="--",
+                    label=f"{label}: RMS {rms(residual):.2f} µm")
+            continue
+        pos = kept.index(k)
+        colour = cmap(0.85 * pos / max(1, len(kept) - 1))
+        ax.plot(t, residual, color=colour, lw=2.0 if k == n - 1 else 1.6 if k == 0 else 1.0,
                 label=f"{label}: RMS {rms(residual):.2f} µm")
     ax.axhline(0.0, color="black", lw=0.8)
     ax.set_xlabel(tlabel)
     ax.set_ylabel("residual = measured − predicted (µm)")
     ax.set_title(f"{run}, {axis}: residual before and after each added effect")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+    fig.legend(fontsize=8, loc="outside lower center", ncol=2)
     return fig
 
 

@@ -63,6 +63,45 @@ class Comparison:
             out.append((name, float(np.mean(m[i, cols])) if cols else math.nan))
         return sorted(out, key=lambda x: (math.isnan(x[1]), x[1]))
 
+    def verdict(self) -> dict:
+        """Is there a best training protocol, or is the difference within the noise?
+
+        The score of a protocol is its mean RMSE on the other protocols' runs (``ranking``).
+        With repeats (other simulated days) each repeat gives a score per protocol; the spread
+        is the larger standard deviation over repeats of the two best protocols' scores. A
+        winner is declared only when the gap between the best and the runner-up exceeds that
+        spread; with one repeat there is no spread, and no winner is declared.
+        """
+        ranking = [(n, v) for n, v in self.ranking() if math.isfinite(v)]
+        per_repeat = self.settings.get("per_repeat_scores") or []
+        sd = {}
+        if len(per_repeat) >= 2:
+            for name, _ in ranking:
+                vals = [r[name] for r in per_repeat if r.get(name) is not None]
+                sd[name] = float(np.std(vals, ddof=1)) if len(vals) >= 2 else math.nan
+        out: dict = {"repeats": max(1, len(per_repeat)),
+                     "scores_um": {n: _none(v) for n, v in ranking},
+                     "spread_um": {n: _none(sd.get(n, math.nan)) for n, _ in ranking},
+                     "winner": None}
+        if len(ranking) < 2:
+            out["reason"] = "fewer than two training protocols with a score"
+            return out
+        (best, b), (second, s2) = ranking[0], ranking[1]
+        gap = s2 - b
+        spread = max(sd.get(best, math.nan), sd.get(second, math.nan))
+        out.update(best=best, runner_up=second, gap_um=_none(gap), spread_used_um=_none(spread))
+        if not math.isfinite(spread):
+            out["reason"] = (f"{best} {b:.2f} um vs {second} {s2:.2f} um from one repeat: no "
+                             "spread to judge the gap against (use --repeats 3 or more)")
+        elif gap > spread:
+            out["winner"] = best
+            out["reason"] = (f"{best} {b:.2f} um beats {second} {s2:.2f} um by {gap:.2f} um, "
+                             f"more than the spread over repeats ({spread:.2f} um)")
+        else:
+            out["reason"] = (f"{best} {b:.2f} um vs {second} {s2:.2f} um: the gap {gap:.2f} um "
+                             f"is within the spread over repeats ({spread:.2f} um)")
+        return out
+
     def to_json(self) -> dict:
         return {
             "train": self.train, "test": self.test, "targets": self.targets,
@@ -72,6 +111,7 @@ class Comparison:
             "metric": "test RMSE, mean of axes (um)", "matrix": _nan_to_none(self.mean_rmse_um()),
             "in_sample": self.in_sample.tolist(),
             "ranking": [{"train": n, "mean_cross_rmse_um": _none(v)} for n, v in self.ranking()],
+            "verdict": self.verdict(),
             "raw_rms_um": self.raw_rms_um, "runs": self.runs, "models": self.models,
             "settings": self.settings,
         }
@@ -233,6 +273,7 @@ def combine(comps: Sequence[Comparison]) -> Comparison:
     settings["repeats"] = len(comps)
     settings["per_repeat_mean_rmse_um"] = [_nan_to_none(c.mean_rmse_um()) for c in comps]
     settings["per_repeat_ranking"] = [[n for n, _ in c.ranking()] for c in comps]
+    settings["per_repeat_scores"] = [{n: _none(v) for n, v in c.ranking()} for c in comps]
     spread = np.std([c.mean_rmse_um() for c in comps], axis=0, ddof=1)
     settings["mean_rmse_sd_over_repeats_um"] = _nan_to_none(spread)
     runs = {k: [p for c in comps for p in c.runs[k]] for k in head.runs}
@@ -277,9 +318,12 @@ def format_matrix(comp: Comparison) -> str:
         lines.append(f"each cell: mean over {comp.settings['repeats']} repeats (other days); "
                      "ranking per repeat: " + "; ".join(
                          ">".join(r) for r in comp.settings["per_repeat_ranking"]))
-    ranking = comp.ranking()
+    verdict = comp.verdict()
+    spread = verdict["spread_um"]
     lines.append("training protocols by mean RMSE on the other protocols' runs: " + ", ".join(
-        f"{n} {v:.2f} um" for n, v in ranking))
+        f"{n} {v:.2f}" + (f" ± {spread[n]:.2f}" if spread.get(n) is not None else "") + " um"
+        for n, v in comp.ranking() if math.isfinite(v)))
+    lines.append(f"verdict: {verdict.get('reason', '')}")
     return "\n".join(lines)
 
 

@@ -23,11 +23,12 @@ import numpy as np
 
 from contract.errors import InputError
 from contract.model_file import read_model
-from contract.terms import Term
+from contract.terms import TEMPERATURE_KINDS, Term
 from host.analysis import plots
 from host.fitting import design_matrix, fit_linear
 from host.io import Run, load_run
 from host.progress import progress
+from host.selection import default_max_lag
 from host.train import TOLERANCE_SHARE, outside_training, training_ranges
 
 
@@ -62,6 +63,27 @@ def sensor_contributions(axis: dict, run: Run, period_s: float) -> dict[str, np.
         value = coef * design_matrix([term], columns, period_s)[:, 0]
         out[term.source] = out.get(term.source, 0.0) + value
     return out
+
+
+def box_sensors(axis: dict) -> list[str]:
+    """Temperature sources of the axis's final terms, in term order: what the box reads."""
+    out: list[str] = []
+    for t in axis["terms"]:
+        if t["kind"] in TEMPERATURE_KINDS and t.get("source") and t["source"] not in out:
+            out.append(t["source"])
+    return out
+
+
+def dropped_sensors(axis: dict) -> list[str]:
+    """Sensors the channel budget took away from this axis after selection and effects."""
+    after = axis.get("channel_budget_after_effects") or {}
+    return list(after.get("dropped_sensors") or [])
+
+
+def effect_label(effect: dict) -> str:
+    """An effect's name, marked when the channel budget took it out of the box's model."""
+    name = str(effect.get("name", effect.get("kind", "?")))
+    return f"{name} (dropped: no box channel)" if effect.get("dropped_for_channels") else name
 
 
 def most_important_sensor(axis: dict, run: Run, period_s: float) -> str | None:
@@ -261,7 +283,11 @@ def summary_rows(model: dict) -> list[dict]:
             "error_bound_um": (fixed.get(name) or {}).get("bound_um"),
             "validation_rmse_um": val, "raw_rms_um": raw, "reduction_pct": reduction,
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
-            "effects": [e.get("name", "?") for e in axis.get("effects", [])],
+            "effects": [e.get("name", "?") for e in axis.get("effects", [])
+                        if not e.get("dropped_for_channels")],
+            "effects_dropped": [e.get("name", "?") for e in axis.get("effects", [])
+                                if e.get("dropped_for_channels")],
+            "sensors_dropped": dropped_sensors(axis),
             "validation": metrics.get("validation"),
         })
     return rows
@@ -300,31 +326,45 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
     if ranges:
         jobs += [("window", None, run) for run in runs]
 
+    limit = delay_limit_s(model)
     run_table: dict[str, dict] = {}
     for kind, axis_name, run in progress(jobs, "report figures", quiet=quiet):
         axis = model["axes"][axis_name] if axis_name else None
         fig_obj = None
         if kind == "selection":
-            fig_obj, title, caption = _selection_figure(axis_name, axis)
+            fig_obj, title, caption = _selection_figure(axis_name, axis, limit)
             file = f"selection_{_slug(axis_name)}.png"
         elif kind == "ec":
             sel = axis["selection"]
-            rule = "ec" if sel.get("count_rule", "smallest EC_i") == "smallest EC_i" else "min"
+            rule = count_rule(sel, model)
+            cap = int(model.get("training", {}).get("max_sensors") or 0) or None
             fig_obj = plots.ec_curve(axis_name, sel["ec_curve"], int(sel.get("chosen_count", 0)),
-                                     sel.get("ec_subsets"), sel.get("ec_errors_um"), rule)
+                                     sel.get("ec_subsets"), sel.get("ec_errors_um"), rule, cap)
             title = f"{axis_name}: evaluation criterion"
+            errors = sel.get("ec_errors_um") or []
             caption = ("EC<sub>i</sub> = (S<sub>i</sub>/S<sub>1</sub>)·(i/c) trades the error "
                        "of the best i-sensor model against its size. The circled point fixes "
-                       "how many sensors the box reads: "
-                       + ("the smallest EC (paper 000)." if rule == "ec" else
-                          "the smallest out-of-fold error S<sub>i</sub> (an error on data the "
-                          "fit did not see already rises when a model is too big)."))
+                       "how many sensors the selection chose: "
+                       + {"ec": "the smallest EC (paper 000).",
+                          "min": "the smallest out-of-fold error S<sub>i</sub> (an error on data "
+                                 "the fit did not see already rises when a model is too big).",
+                          "cap": f"the --max-sensors cap of {cap}: the out-of-fold error "
+                                 f"S<sub>i</sub> is smallest at "
+                                 f"{int(np.argmin(errors)) + 1 if errors else '?'} sensors "
+                                 f"({min(errors) if errors else math.nan:.3g} µm against "
+                                 f"{errors[cap - 1] if errors and cap else math.nan:.3g} µm at "
+                                 f"{cap}), beyond what the box allows per axis."}[rule])
             swaps = sel.get("refinement") or []
             if swaps:
                 caption += " Group refinement then swapped " + ", ".join(
                     f"{html.escape(w['removed'])} → {html.escape(w['added'])} "
                     f"({w['error_before_um']:.3g} → {w['error_after_um']:.3g} µm)"
                     for w in swaps) + "."
+            dropped = [n for n in sel.get("sensors", []) if n not in box_sensors(axis)]
+            if dropped:
+                caption += (" The channel budget later dropped "
+                            + html.escape(", ".join(dropped)) + ": the box reads "
+                            + html.escape(", ".join(box_sensors(axis))) + ".")
             file = f"ec_{_slug(axis_name)}.png"
         elif kind == "runs":
             measured = run.target(axis_name)
@@ -365,18 +405,31 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             if len(stages) < 2:
                 continue
             fig_obj = plots.residual_steps(run.name, axis_name, run.time_s,
-                                           [(s["label"], s["residual"]) for s in stages])
+                                           [(s["label"], s["residual"]) for s in stages],
+                                           dropped=[s["dropped"] for s in stages])
             run_table[run.name][axis_name]["stages_rms_um"] = [
-                {"stage": s["label"], "rms_um": plots.rms(s["residual"])} for s in stages]
+                {"stage": s["label"], "rms_um": plots.rms(s["residual"]),
+                 "dropped": s["dropped"], "box": s["box"]} for s in stages]
             title = f"{run.name}, {axis_name}: effects added to close the loop"
+            kept = [s for s in stages[1:] if not s["dropped"] and s.get("name") is not None]
+            gone = [s for s in stages if s["dropped"]]
             caption = ("Residual of the temperature-only baseline and after each effect the "
                        "close-the-loop step added (RMS on this run in the legend). Why each was "
-                       "added: " + "; ".join(f"<b>{html.escape(s['label'][2:])}</b>: "
-                                             f"{html.escape(s['evidence'])}" for s in stages[1:])
+                       "added: " + "; ".join(f"<b>{html.escape(s['name'])}</b>: "
+                                             f"{html.escape(s['evidence'])}" for s in kept)
                        + ".")
+            if gone:
+                caption += (" Dashed grey: " + ", ".join(
+                    f"<b>{html.escape(s['name'])}</b> ({html.escape(s['evidence'])})"
+                    for s in gone) + ", added by the search but dropped because the box had no "
+                    "channel left for its sensor: it is not in the box's model, and the last "
+                    "curve is what the box runs.")
             unexplained = axis.get("unexplained") or {}
             if unexplained.get("message"):
-                caption += " Still unexplained: " + html.escape(str(unexplained["message"]))
+                caption += (" Still unexplained"
+                            + (" (said of the model before the channel budget)"
+                               if axis.get("channel_budget_after_effects") else "")
+                            + ": " + html.escape(str(unexplained["message"])))
             file = f"effects_{_slug(run.name)}_{_slug(axis_name)}.png"
         elif kind == "hysteresis":
             sensor = most_important_sensor(axis, run, period)
@@ -444,13 +497,69 @@ def _in_training(model: dict, run: Run) -> bool:
     return run.name in names
 
 
-def _selection_figure(axis_name: str, axis: dict):
+def count_rule(sel: dict, model: dict) -> str:
+    """Which rule fixed the selection's sensor count: "ec" (smallest EC_i, paper 000), "min"
+    (smallest out-of-fold error S_i) or "cap" (the smallest S_i lies beyond --max-sensors, so
+    the cap decided)."""
+    if sel.get("count_rule", "smallest EC_i") == "smallest EC_i":
+        return "ec"
+    errors = [float(e) for e in sel.get("ec_errors_um") or []]
+    chosen = int(sel.get("chosen_count", 0))
+    cap = int(model.get("training", {}).get("max_sensors") or 0)
+    if errors and cap and chosen == cap and int(np.argmin(errors)) + 1 > cap:
+        return "cap"
+    return "min"
+
+
+def delay_limit_s(model: dict) -> float | None:
+    """The limit of the delay search training used (s): ``--max-delay-h`` when given, else a
+    quarter of the shortest training run (host.selection's default), read from the runs;
+    None when the runs are not readable here."""
+    training = model.get("training", {})
+    period = float(model["sample_period_s"])
+    if training.get("max_delay_s") is not None:
+        return float(training["max_delay_s"])
+    lengths = []
+    for p in training.get("runs", []):
+        path = Path(p)
+        if not path.is_file():
+            return None
+        with path.open(encoding="utf-8-sig") as fh:
+            lengths.append(sum(1 for line in fh if line.strip()) - 1)
+    if not lengths:
+        return None
+    n = min(lengths)
+    return min(default_max_lag(n), n - 1) * period
+
+
+def selection_groups(axis: dict) -> list[dict]:
+    """Paper 000's Table 1 for this axis: each c-means group, its members, its centre
+    (mean delay and correlation of the members) and which member the box reads."""
+    sel = axis["selection"]
+    box = set(box_sensors(axis))
+    rows = []
+    for g, members in enumerate(sel.get("groups") or []):
+        if not members:
+            continue
+        delays = [float(sel.get("delays_s", {}).get(m, math.nan)) for m in members]
+        corr = [float(sel.get("correlations", {}).get(m, math.nan)) for m in members]
+        rows.append({"group": g, "members": list(members),
+                     "centre_delay_s": float(np.mean(delays)),
+                     "centre_r": float(np.mean(corr)),
+                     "chosen": [m for m in members if m in sel.get("sensors", [])],
+                     "read_by_box": [m for m in members if m in box]})
+    return rows
+
+
+def _selection_figure(axis_name: str, axis: dict, limit_s: float | None = None):
     sel = axis["selection"]
     names = list(sel.get("correlations", {}))
     delays = [float(sel.get("delays_s", {}).get(n, math.nan)) for n in names]
     corr = [float(sel["correlations"][n]) for n in names]
     labels = [int(sel.get("labels", {}).get(n, 0)) for n in names]
-    chosen = sel.get("sensors", [])
+    box = box_sensors(axis)
+    selected = list(sel.get("sensors", []))
+    dropped = [n for n in selected if n not in box]
     # sensors the box's channel budget left out of the shared pool: drawn as group -1
     outside = sel.get("channel_budget", {}).get("outside_pool", {}).get(axis_name, {})
     for n, r in outside.get("correlations", {}).items():
@@ -458,12 +567,38 @@ def _selection_figure(axis_name: str, axis: dict):
         corr.append(float(r))
         delays.append(float(outside.get("delays_s", {}).get(n, math.nan)))
         labels.append(-1)
-    fig = plots.selection_plane(axis_name, names, delays, corr, labels, chosen)
+    shown = [n for n in box if n in names]
+    fig = plots.selection_plane(axis_name, names, delays, corr, labels, shown, dropped,
+                                limit_s)
+    e = html.escape
     title = f"{axis_name}: sensors by delay and correlation"
     caption = (f"Each dot is a thermocouple: how strongly it correlates with {axis_name} and how "
-               "far it lags behind it. Colours are the c-means groups; one representative per "
-               f"group is tried, and the circled ones ({html.escape(', '.join(chosen))}) "
-               f"are read by the box. Method: {html.escape(str(sel.get('method', '?')))}.")
+               "far it lags behind it. Colours are the c-means groups (+: each group's "
+               "centre; the table below lists the members); one representative per group is "
+               f"tried. Circled and named: the sensors the box reads for {axis_name} "
+               f"({e(', '.join(box)) or 'none'}).")
+    budget = set(dropped_sensors(axis)) | set((sel.get("channel_budget") or {}).get("dropped")
+                                              or [])
+    by_budget = [n for n in dropped if n in budget]
+    other = [n for n in dropped if n not in budget]
+    if by_budget:
+        caption += (f" Dashed: chosen by the selection but dropped by the box's channel "
+                    f"budget ({e(', '.join(by_budget))}); the box does not read "
+                    f"{'it' if len(by_budget) == 1 else 'them'} for this axis.")
+    if other:
+        caption += (f" Dashed: chosen by the selection but not in the box's model "
+                    f"({e(', '.join(other))}).")
+    added = [n for n in box if n not in selected]
+    if added:
+        caption += (f" Brought in by the effects rather than the selection: "
+                    f"{e(', '.join(added))}.")
+    if limit_s:
+        at_edge = [n for n, d in zip(names, delays, strict=True)
+                   if math.isfinite(d) and abs(d) >= limit_s - 1e-6]
+        caption += (f" Triangles: delay at the limit of the search (±{limit_s / 3600:.3g} h): "
+                    + (e(", ".join(at_edge)) if at_edge else "none")
+                    + (", whose true delay may be longer." if at_edge else "."))
+    caption += f" Method: {e(str(sel.get('method', '?')))}."
     return fig, title, caption
 
 
@@ -484,25 +619,42 @@ def effect_evidence(effect: dict) -> str:
 
 
 def effect_stages(axis: dict, axis_name: str, run: Run, period: float) -> list[dict]:
-    """Residual of the baseline model and after each effect, in the order they were added.
+    """Residual of the baseline model and after each effect, in the order they were added,
+    then (when the channel budget changed it afterwards) the model the box runs.
 
     Each effect records the model it produced (``intercept`` and ``terms``) and the axis keeps
     the ``baseline`` it started from (host/effects/), so every stage is re-evaluated here on
-    this run, seen or unseen.
+    this run, seen or unseen. An effect the channel budget took out is kept as a stage marked
+    ``dropped`` (what it would have done), and the last stage is always the box's model, so the
+    figure's final error is the box's.
     """
     measured = run.target(axis_name)
     stages = []
     baseline = axis.get("baseline")
     if baseline and "terms" in baseline:
         stages.append({"label": "baseline (temperatures only)", "evidence": "",
+                       "dropped": False, "box": False,
                        "residual": measured - predict(baseline["intercept"], baseline["terms"],
                                                       run, period)})
     for effect in axis.get("effects", []):
         if "terms" in effect and "intercept" in effect:
-            stages.append({"label": f"+ {effect.get('name', effect.get('kind', '?'))}",
-                           "evidence": effect_evidence(effect),
+            dropped = bool(effect.get("dropped_for_channels"))
+            name = effect.get("name", effect.get("kind", "?"))
+            stages.append({"label": f"+ {name}" + (" (dropped: no box channel)" if dropped
+                                                   else ""),
+                           "name": name, "evidence": effect_evidence(effect),
+                           "dropped": dropped, "box": False,
                            "residual": measured - predict(effect["intercept"], effect["terms"],
                                                           run, period)})
+    after = axis.get("channel_budget_after_effects")
+    if stages and after:
+        stages.append({"label": "the box's model (after the channel budget dropped "
+                                + ", ".join(after.get("dropped_terms") or []) + ")",
+                       "evidence": "", "dropped": False, "box": True,
+                       "residual": measured - predict(axis["intercept"], axis["terms"], run,
+                                                      period)})
+    elif stages:
+        stages[-1]["box"] = True
     return stages
 
 
@@ -631,7 +783,9 @@ def render_html(model: dict, report: Report) -> str:
                      + _cell(_fmt(row["baseline_validation_rmse_um"]))
                      + _cell(_fmt(row["validation_rmse_um"])) + _cell(_fmt(row["raw_rms_um"]))
                      + _cell(_fmt(row["reduction_pct"], 1))
-                     + _cell(e(", ".join(row["effects"])) or "—", True) + "</tr>")
+                     + _cell(e(", ".join(row["effects"] + [
+                         f"{n} (dropped: no box channel)" for n in row["effects_dropped"]]))
+                         or "—", True) + "</tr>")
     parts.append("</table>")
     validations = {r["validation"] for r in summary["axes"] if r.get("validation")}
     if validations:

@@ -100,19 +100,35 @@ def print_table(doc: dict, model: dict) -> None:
 
 
 def print_effects(doc: dict) -> None:
-    """Issue 7: each axis's validation RMSE before/after effects, what was added and why."""
+    """Each axis's validation RMSE before/after effects, what was added and why; an effect the
+    channel budget dropped afterwards is listed as dropped (the box does not run it)."""
     for name, a in doc["axes"].items():
         before, after = a.get("baseline_validation_rmse_um"), a.get("validation_rmse_um")
         effects = a.get("effects") or []
-        if effects:
-            print(f"{name}: effects lower the validation RMSE {_fmt(before)} -> {_fmt(after)} um")
+        kept = [e for e in effects if not e.get("dropped_for_channels")]
+        if kept:
+            print(f"{name}: effects lower the validation RMSE {_fmt(before)} -> {_fmt(after)} um"
+                  " (the box's model)")
+        elif effects:
+            print(f"{name}: no effect survived the channel budget (validation RMSE "
+                  f"{_fmt(after)} um)")
         for e in effects:
             ev = e.get("evidence") or {}
-            print(f"  + {e['kind']:<9} {e['feature']}: {_fmt(e.get('rmse_before_um'))} -> "
+            mark = "x" if e.get("dropped_for_channels") else "+"
+            print(f"  {mark} {e['kind']:<9} {e['feature']}: {_fmt(e.get('rmse_before_um'))} -> "
                   f"{_fmt(e.get('rmse_after_um'))} um, {ev.get('folds_improved', '?')} folds "
-                  f"better, residual correlation {_fmt(ev.get('residual_corr'), 2)}")
+                  f"better, residual correlation {_fmt(ev.get('residual_corr'), 2)}"
+                  + ("  DROPPED: no box channel left for its sensor, not in the box's model"
+                     if e.get("dropped_for_channels") else ""))
+        after = a.get("channel_budget_after_effects")
+        if after:
+            print(f"  {name}: the box's {after['max_channels']} channels, shared by all axes, "
+                  f"then dropped {', '.join(after['dropped_sensors'])} (terms "
+                  f"{', '.join(after['dropped_terms'])}); the box runs "
+                  f"{', '.join(a['sensors'])} and the errors above are its own")
         if a.get("unexplained"):
-            print(f"  {name} unexplained: {a['unexplained']['message']}")
+            note = " (said of the model before the channel budget)" if after else ""
+            print(f"  {name} unexplained{note}: {a['unexplained']['message']}")
 
 
 def run(args: argparse.Namespace) -> int:

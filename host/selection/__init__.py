@@ -7,7 +7,12 @@ on its own so that training does not pay for scikit-learn.
 from __future__ import annotations
 
 from host.selection.clustering import hard_c_means, standardise
-from host.selection.correlation import cross_correlation, pearson_r, thermal_parameters
+from host.selection.correlation import (
+    cross_correlation,
+    default_max_lag,
+    pearson_r,
+    thermal_parameters,
+)
 from host.selection.selector import (
     DEFAULT_BLOCKS,
     DEFAULT_GROUPS,
@@ -28,6 +33,7 @@ __all__ = [
     "GramCache",
     "METHODS",
     "cross_correlation",
+    "default_max_lag",
     "ec_reduction",
     "fold_labels",
     "group_refinement",

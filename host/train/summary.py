@@ -31,8 +31,10 @@ def summary(model: dict, model_path: str) -> dict:
             # issue 7: before/after the effects, what was added and what is still unexplained
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
-                                               "rmse_after_um")}
+                                               "rmse_after_um", "dropped_for_channels")}
                         for e in axis.get("effects", [])],
             "unexplained": axis.get("unexplained"),
+            # what the channel budget took away after the effects (None: nothing)
+            "channel_budget_after_effects": axis.get("channel_budget_after_effects"),
         }
     return {"model": model_path, "axes": axes}
