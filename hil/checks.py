@@ -285,7 +285,8 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
                          f"bound {ax.bound_um:.6g} um")
         if name in feed.measured and got.any():
             meas = feed.measured[name][got]
-            comp = meas - fw_out[got, a] / 1000.0
+            # the box's output referenced like the measurement (the change since the start)
+            comp = meas - feed.reference.apply(fw_out[got, a] / 1000.0)
             ax.raw_rms_um = float(np.sqrt(np.mean(meas ** 2)))
             ax.raw_peak_um = float(np.max(np.abs(meas)))
             ax.compensated_rms_um = float(np.sqrt(np.mean(comp ** 2)))

@@ -16,6 +16,7 @@ import numpy as np
 
 from contract.errors import InputError
 from contract.model_file import model_aux, model_sensors
+from host.fitting import NO_REFERENCE, Reference
 from host.io import Run, load_run
 
 
@@ -32,6 +33,7 @@ class Feed:
     aux: np.ndarray  # (n, n_aux) int64, aux unit (rpm)
     axes: list[str]  # model axes, in model order
     measured: dict[str, np.ndarray]  # axis -> measured displacement (um), axes the run has
+    reference: Reference = NO_REFERENCE  # the model's: how measured and box output are judged
 
     @property
     def n_samples(self) -> int:
@@ -85,5 +87,7 @@ def build_feed(model: dict, data_path: str | Path, max_aux: int = 1) -> Feed:
         run.n_samples, len(sensors))
     aux_values = (np.rint(run.aux).astype(np.int64) if run.aux is not None
                   else np.zeros((run.n_samples, 0), dtype=np.int64))
-    measured = {a: run.target(a) for a in targets}
-    return Feed(run, codes, aux_values, axes, measured)
+    # judged as the model is: with a ``start`` reference, the change since the run's start
+    ref = Reference.of_model(model)
+    measured = {a: ref.apply(run.target(a)) for a in targets}
+    return Feed(run, codes, aux_values, axes, measured, ref)

@@ -294,8 +294,9 @@ def step_fl(demo: Demo) -> tuple[list[Path], dict]:
 
     demo.step("Real data: train on the first three cycles (1250, 2500, 3750 rpm)")
     targets = [a for t in FL_TARGETS for a in ("--target", t)]
-    doc = demo.host_json("train", parts[0], *targets, "--aux", "spindle_rpm", "--out", FL_BUILD,
-                         "--json")
+    # one continuous recording: absolute values against one datum (docs/effects.md)
+    doc = demo.host_json("train", parts[0], *targets, "--aux", "spindle_rpm",
+                         "--reference", "none", "--out", FL_BUILD, "--json")
     model = load_json(FL_BUILD / "model.json")
     print_training(demo, doc, model)
     demo.done()

@@ -38,7 +38,7 @@ def doc():
     train = [_run("a.csv", 400, 1, 1.0), _run("b.csv", 400, 2, 1.3)]
     test = [_run("c.csv", 300, 3, 1.6)]
     return train, test, compare_methods(train, test, ["dz_um"], engineering=["T2", "T6"],
-                                        groups=4)
+                                        groups=4, reference="none")
 
 
 def test_all_methods_reported(doc):

@@ -56,7 +56,8 @@ def runs() -> list[Run]:
 
 
 def test_model_fits_and_metrics_match_numpy(runs):
-    model = train_model(runs, ["dz_um", "dy_um"], effects=False, groups=4)
+    model = train_model(runs, ["dz_um", "dy_um"], effects=False, groups=4,
+                        reference="none")  # the least-squares arithmetic itself
     assert model["schema"] == "thermal-model/1" and model["sample_period_s"] == 60.0
     for axis in ("dz_um", "dy_um"):
         spec = model["axes"][axis]
@@ -126,7 +127,8 @@ def test_model_roundtrip_and_atomic_write(runs, tmp_path):
 
 
 def test_evaluate_metrics_recomputed_independently(runs):
-    model = train_model(runs[:1], ["dz_um"], effects=False, groups=4)
+    model = train_model(runs[:1], ["dz_um"], effects=False, groups=4,
+                        reference="none")  # the least-squares arithmetic itself
     test = _run("c.csv", _power("sine", 500) * 0.8, 3)
     result = evaluate_model(model, test)
     spec = model["axes"]["dz_um"]
@@ -209,7 +211,7 @@ def test_end_to_end_fl_thermal_split_train_evaluate(tmp_path, capsys):
     np.testing.assert_allclose(second.temperatures, whole.temperatures[first.n_samples:])
     out = tmp_path / "model"
     assert main(["train", str(parts[0]), "--target", "ch3_um", "--out", str(out),
-                 "--no-codegen", "--json"]) == 0
+                 "--reference", "none", "--no-codegen", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["axes"]["ch3_um"]["sensors"]
     selected = read_model(out / "model.json")["axes"]["ch3_um"]["selection"]["sensors"]
@@ -255,9 +257,12 @@ def test_example_simulations_train_on_two_protocols_judge_on_random(selection):
     model = train_model(paths[:2], axes, effects=False, selection=selection)
     test = load_run(paths[2], axes, model["training"]["sensors"])
     result = evaluate_model(model, test)["axes"]
+    k = model["reference"]["samples"]
     for axis in axes:
         y = test.target(axis)
+        y = y - np.array([y[:min(i, k - 1) + 1].mean() for i in range(y.size)])  # since start
         pred = predict(model, test)[axis]
+        assert pred[0] == 0.0  # the box's output at its first sample after zeroing
         assert result[axis]["rmse_um"] == pytest.approx(np.sqrt(np.mean((y - pred) ** 2)))
         assert result[axis]["reduction_pct"] > 90.0, (axis, result[axis])
         assert 1 <= len(model["axes"][axis]["selection"]["sensors"]) <= 5

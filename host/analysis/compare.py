@@ -29,11 +29,11 @@ import numpy as np
 from contract.box import BOX_CHANNELS
 from contract.errors import InputError
 from host.analysis.evaluate import predict
-from host.fitting import common_period, fit_linear, fold_groups, rmse
+from host.fitting import Reference, common_period, fit_linear, fold_groups, rmse, run_labels
 from host.io import Run
 from host.progress import progress
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, GramCache, pearson_r
-from host.train import axis_sensors, train_model
+from host.train import DEFAULT_REFERENCE, axis_sensors, train_model
 
 DEFAULT_K_CORRELATED = 4
 EXHAUSTIVE_LIMIT = 200_000  # subsets; C(16,5) = 4368 runs, C(64,5) = 7.6 M is skipped
@@ -148,8 +148,12 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
                     n_blocks: int = DEFAULT_BLOCKS, max_delay_s: float | None = None,
                     exhaustive_limit: int = EXHAUSTIVE_LIMIT, seed: int = 0,
                     methods: Sequence[str] = ("validated", "validated-refined", "paper"),
-                    quiet: bool = True) -> dict:
-    """Train every method on ``train_runs`` and report its test RMSE per axis."""
+                    reference: str = DEFAULT_REFERENCE, quiet: bool = True) -> dict:
+    """Train every method on ``train_runs`` and report its test RMSE per axis.
+
+    Every method is judged the same way: with the ``start`` reference the peers are fitted on
+    the change since each fold's start and every prediction and measurement is referenced at
+    its test run's start (host.fitting.reference)."""
     train_runs, test_runs = list(train_runs), list(test_runs)
     if not train_runs or not test_runs:
         raise InputError("compare needs at least one training and one test run")
@@ -157,22 +161,24 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
     for run in test_runs:
         if run.sensor_names != names:
             raise InputError(f"{run.path}: sensor columns differ from the training runs")
-    common_period(train_runs + test_runs)
+    period = common_period(train_runs + test_runs)
+    ref = Reference.for_period(reference, period)
     X = np.vstack([r.temperatures for r in train_runs])
     Xt_runs = [r.temperatures for r in test_runs]
     folds, scheme = fold_groups(train_runs, n_blocks)
+    X = ref.apply(X, run_labels(train_runs))
     out: dict = {"train": [r.path for r in train_runs], "test": [r.path for r in test_runs],
-                 "validation": scheme, "axes": {}}
+                 "validation": scheme, "reference": ref.kind, "axes": {}}
     for target in targets:
-        y = np.concatenate([r.target(target) for r in train_runs])
-        yt = np.concatenate([r.target(target) for r in test_runs])
+        y = np.concatenate([ref.apply(r.target(target)) for r in train_runs])
+        yt = np.concatenate([ref.apply(r.target(target)) for r in test_runs])
         results: list[MethodResult] = []
         k = None
         for method in methods:
             t0 = time.perf_counter()
             model = train_model(train_runs, [target], max_sensors=max_sensors, groups=groups,
                                 effects=False, selection=method, max_delay_s=max_delay_s,
-                                n_blocks=n_blocks, seed=seed)
+                                n_blocks=n_blocks, seed=seed, reference=reference)
             dt = time.perf_counter() - t0
             pred = np.concatenate([predict(model, r)[target] for r in test_runs])
             sensors = axis_sensors(model["axes"][target])
@@ -190,7 +196,7 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
                 results.append(MethodResult(label, [], math.nan, math.nan, 0.0, note))
                 continue
             chosen, pred_fn, dt = _timed(thunk)
-            pred = np.concatenate([pred_fn(Xt) for Xt in Xt_runs])
+            pred = np.concatenate([ref.apply(pred_fn(Xt)) for Xt in Xt_runs])
             results.append(MethodResult(label, chosen, rmse(yt - pred),
                                         float(np.max(np.abs(yt - pred))), dt, note))
         out["axes"][target] = {"raw_rms_um": rmse(yt), "k": k,

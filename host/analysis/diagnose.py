@@ -36,6 +36,7 @@ import numpy as np
 
 from contract.errors import InputError
 from contract.model_file import model_aux, model_sensors
+from host.analysis.evaluate import measured, model_reference, predict
 from host.effects import (
     TAU_GRID_S,
     Candidate,
@@ -50,7 +51,7 @@ from host.effects import (
     tau_grid,
 )
 from host.effects import candidate_row as _candidate_row
-from host.fitting import DEFAULT_BLOCKS, axis_terms, design_matrix, fit_linear, fold_groups, rmse
+from host.fitting import DEFAULT_BLOCKS, axis_terms, fit_linear, fold_groups, rmse
 from host.io import Run, load_run
 from host.train import describe, outside_training
 
@@ -114,14 +115,18 @@ def load_for_diagnosis(model: Mapping, path: str | Path, fill_gaps: int = 0) -> 
 
 
 def diagnose_axis(model: Mapping, axis: str, run: Run, *, ambient: str | None = None,
-                  n_blocks: int = DEFAULT_BLOCKS, rule: Rule | None = None) -> dict:
-    """The model's error on the run and which candidate effect explains what remains."""
+                  n_blocks: int = DEFAULT_BLOCKS, rule: Rule | None = None,
+                  reference: str | None = None) -> dict:
+    """The model's error on the run and which candidate effect explains what remains.
+
+    Measured and predicted drift are referenced as ``host evaluate`` does (the model's
+    reference unless ``reference`` is given), and so are the candidates' features."""
     rule = rule or Rule()
     period = float(model["sample_period_s"])
-    terms, coefs, intercept = axis_terms(dict(model), axis)
-    cols = run.columns()
-    y = run.target(axis)
-    pred = design_matrix(terms, cols, period) @ coefs + intercept
+    terms, _, _ = axis_terms(dict(model), axis)
+    ref_kind = model_reference(dict(model), reference)
+    y = measured(dict(model), run, axis, reference)
+    pred = predict(dict(model), run, reference)[axis]
     e = y - pred
     spec = model["axes"][axis]
     trained = (spec.get("metrics") or {}).get("validation_rmse_um")
@@ -134,7 +139,7 @@ def diagnose_axis(model: Mapping, axis: str, run: Run, *, ambient: str | None = 
         "ratio_to_validation": (rmse(e) / trained if trained else None),
     }
     groups, scheme = fold_groups([run], n_blocks)
-    cache = FeatureCache([run], period)
+    cache = FeatureCache([run], period, reference=ref_kind)
     taus = tau_grid(period, float(run.time_s[-1] - run.time_s[0]), TAU_GRID_S)
     refs = {s: float(run.column(s)[0]) for s in run.sensor_names}
     amb = find_ambient(run.sensor_names, ambient)
@@ -297,7 +302,7 @@ def check_sensors(model: Mapping, run: Run) -> dict[str, dict]:
 
 
 def diagnose(model: Mapping, run: Run, *, ambient: str | None = None,
-             n_blocks: int = DEFAULT_BLOCKS) -> dict:
+             n_blocks: int = DEFAULT_BLOCKS, reference: str | None = None) -> dict:
     """Everything ``host diagnose`` reports, as a JSON-ready dict."""
     if run.n_samples < 2 * n_blocks:
         raise DiagnoseError(f"{run.path}: {run.n_samples} samples is too few for {n_blocks} "
@@ -306,13 +311,15 @@ def diagnose(model: Mapping, run: Run, *, ambient: str | None = None,
     if abs(run.period_s - period) > 0.01 * period:
         raise DiagnoseError(f"{run.path}: sample period {run.period_s:g} s differs from the "
                             f"model's {period:g} s (its lag terms assume that period)")
-    axes = {a: diagnose_axis(model, a, run, ambient=ambient, n_blocks=n_blocks)
+    axes = {a: diagnose_axis(model, a, run, ambient=ambient, n_blocks=n_blocks,
+                             reference=reference)
             for a in model["axes"] if a in run.target_names}
     sensors = check_sensors(model, run)
     faulty = [{"sensor": s, **f, "evidence": c["evidence"]}
               for s, c in sensors.items() for f in c["faults"]]
     missing = [a for a in model["axes"] if a not in run.target_names]
-    return {"run": run.path, "samples": run.n_samples, "axes": axes,
+    return {"run": run.path, "samples": run.n_samples,
+            "reference": model_reference(dict(model), reference).kind, "axes": axes,
             "axes_without_measurement": missing, "sensors": sensors, "faulty": faulty,
             "outside_training_range": outside_training(model, run)}
 

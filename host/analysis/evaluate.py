@@ -17,7 +17,7 @@ import numpy as np
 
 from contract.errors import InputError
 from contract.model_file import model_aux, model_sensors
-from host.fitting import axis_terms, design_matrix, rmse
+from host.fitting import Reference, axis_terms, design_matrix, rmse
 from host.io import Run, load_run
 from host.train import outside_training
 
@@ -44,8 +44,18 @@ def _check_period(model: dict, run: Run) -> None:
                               f"terms were fitted at {period:g} s; resample the run")
 
 
-def predict(model: dict, run: Run) -> dict[str, np.ndarray]:
-    """Predicted displacement (um) per axis over the run."""
+def model_reference(model: dict, reference: str | None = None) -> Reference:
+    """The reference to judge by: the one given, else the model's own (``none`` for old ones)."""
+    own = Reference.of_model(model)
+    if reference is None or reference == own.kind:
+        return own
+    return Reference.for_period(reference, float(model["sample_period_s"]))
+
+
+def predict(model: dict, run: Run, reference: str | None = None) -> dict[str, np.ndarray]:
+    """Predicted displacement (um) per axis over the run, referenced as the box outputs it
+    (with ``start``: the change since the run's first samples)."""
+    ref = model_reference(model, reference)
     _check_period(model, run)
     columns = run.columns()
     out = {}
@@ -55,8 +65,14 @@ def predict(model: dict, run: Run) -> dict[str, np.ndarray]:
             X = design_matrix(terms, columns, float(model["sample_period_s"]))
         except KeyError as exc:
             raise EvaluationError(f"{run.path}: axis {axis}: {exc.args[0]}") from None
-        out[axis] = X @ coefs + intercept if len(terms) else np.full(run.n_samples, intercept)
+        raw = X @ coefs + intercept if len(terms) else np.full(run.n_samples, intercept)
+        out[axis] = ref.apply(raw)
     return out
+
+
+def measured(model: dict, run: Run, axis: str, reference: str | None = None) -> np.ndarray:
+    """The run's measured displacement of ``axis``, referenced like the prediction."""
+    return model_reference(model, reference).apply(run.target(axis))
 
 
 def axis_metrics(measured: np.ndarray, predicted: np.ndarray) -> dict:
@@ -73,13 +89,17 @@ def axis_metrics(measured: np.ndarray, predicted: np.ndarray) -> dict:
     }
 
 
-def evaluate_model(model: dict, run: Run) -> dict:
-    """``{"run": path, "axes": {axis: metrics}}`` for every model axis the run measures."""
+def evaluate_model(model: dict, run: Run, reference: str | None = None) -> dict:
+    """``{"run": path, "axes": {axis: metrics}}`` for every model axis the run measures.
+
+    ``reference`` (``start`` or ``none``) defaults to the model's; measured and predicted
+    displacement are referenced the same way."""
     missing = [a for a in model["axes"] if a not in run.target_names]
     if missing:
         raise EvaluationError(f"{run.path}: no measured column for axis "
                               f"{', '.join(missing)}")
-    preds = predict(model, run)
-    return {"run": run.path,
-            "axes": {a: axis_metrics(run.target(a), p) for a, p in preds.items()},
+    preds = predict(model, run, reference)
+    return {"run": run.path, "reference": model_reference(model, reference).kind,
+            "axes": {a: axis_metrics(measured(model, run, a, reference), p)
+                     for a, p in preds.items()},
             "outside_training_range": outside_training(model, run)}

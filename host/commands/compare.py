@@ -82,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
                           groups=args.groups, n_blocks=args.blocks,
                           max_delay_s=None if args.max_delay_h is None else args.max_delay_h * 3600,
                           exhaustive_limit=args.exhaustive_limit, seed=args.seed,
+                          reference=args.reference,
                           quiet=args.json)
     if args.json:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))

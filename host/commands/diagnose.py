@@ -9,6 +9,7 @@ import json
 from contract.errors import InputError
 from contract.model_file import jsonable, read_model
 from host.analysis import diagnose, load_for_diagnosis, summary_lines
+from host.commands._arguments import add_reference_argument
 from host.fitting import DEFAULT_BLOCKS
 from host.train import input_units
 
@@ -28,6 +29,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "%(default)s)")
     parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
                         help="interpolate interior gaps of at most N samples (default: reject)")
+    add_reference_argument(parser, training=False)
     parser.add_argument("--json", action="store_true", help="print JSON on stdout")
 
 
@@ -37,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     model = read_model(args.model)
     data = load_for_diagnosis(model, args.run, args.fill_gaps)
     doc = {"model": args.model, **diagnose(model, data, ambient=args.ambient,
-                                           n_blocks=args.blocks)}
+                                           n_blocks=args.blocks, reference=args.reference)}
     if args.json:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
     else:

@@ -7,6 +7,7 @@ import json
 
 from contract.model_file import jsonable, read_model
 from host.analysis import evaluate_model, load_for_model
+from host.commands._arguments import add_reference_argument
 from host.train import describe, input_units
 
 NAME = "evaluate"
@@ -18,13 +19,14 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", metavar="RUN.csv")
     parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
                         help="interpolate interior gaps of at most N samples (default: reject)")
+    add_reference_argument(parser, training=False)
     parser.add_argument("--json", action="store_true", help="print JSON on stdout")
 
 
 def run(args: argparse.Namespace) -> int:
     model = read_model(args.model)
     data = load_for_model(args.run, model, args.fill_gaps)
-    doc = {"model": args.model, **evaluate_model(model, data)}
+    doc = {"model": args.model, **evaluate_model(model, data, args.reference)}
     if args.json:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
         return 0

@@ -10,6 +10,7 @@ from pathlib import Path
 from contract.box import BOX_CHANNELS
 from contract.errors import InputError
 from contract.model_file import jsonable, write_model, write_text_atomic
+from host.commands._arguments import add_reference_argument
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
 from host.train import summary, train_model
 
@@ -33,6 +34,7 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
                         help="temperature columns (glob, default %(default)s)")
     parser.add_argument("--aux", action="append", default=[], metavar="COL",
                         help="auxiliary input column, e.g. spindle_rpm (repeatable)")
+    add_reference_argument(parser, training=True)
     parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
                         help="interpolate interior gaps of at most N samples (default: reject)")
 
@@ -139,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
                         max_delay_s=None if args.max_delay_h is None else args.max_delay_h * 3600,
                         n_blocks=args.blocks, seed=args.seed, fill_gaps=args.fill_gaps,
                         tc_type=args.tc_type, max_channels=args.max_channels,
+                        reference=args.reference,
                         quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"

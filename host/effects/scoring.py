@@ -14,7 +14,7 @@ import numpy as np
 from contract.terms import Term
 from host.effects.candidates import Candidate
 from host.effects.residual import rounded
-from host.fitting import fit_linear, rmse, term_values
+from host.fitting import NO_REFERENCE, Reference, fit_linear, rmse, term_values
 from host.io import Run
 
 MIN_GAIN = 0.10  # an effect must lower the validation RMSE by at least 10 %
@@ -51,16 +51,19 @@ def every_nth(runs: Sequence[Run], stride: int, values: np.ndarray) -> np.ndarra
 class FeatureCache:
     """Term values on every run, stacked, each computed once (filters run per whole run)."""
 
-    def __init__(self, runs: Sequence[Run], period_s: float, stride: int = 1) -> None:
+    def __init__(self, runs: Sequence[Run], period_s: float, stride: int = 1,
+                 reference: Reference = NO_REFERENCE) -> None:
         self.columns = [r.columns() for r in runs]
         self.period_s = period_s
         self.stride = stride
+        self.reference = reference  # applied per run, as host.fitting.stack does
         self._cache: dict[Term, np.ndarray] = {}
 
     def column(self, term: Term) -> np.ndarray:
         if term not in self._cache:
             self._cache[term] = np.concatenate(
-                [term_values(term, cols, self.period_s)[::self.stride] for cols in self.columns])
+                [self.reference.apply(term_values(term, cols, self.period_s))[::self.stride]
+                 for cols in self.columns])
         return self._cache[term]
 
     def matrix(self, terms: Sequence[Term]) -> np.ndarray:

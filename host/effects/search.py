@@ -55,7 +55,7 @@ from host.effects.scoring import (
     score_candidates,
     search_stride,
 )
-from host.fitting import DEFAULT_BLOCKS, fit_linear, fold_groups
+from host.fitting import DEFAULT_BLOCKS, NO_REFERENCE, Reference, fit_linear, fold_groups
 from host.io import Run
 from host.selection import DEFAULT_MAX_SENSORS
 
@@ -103,8 +103,8 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
                    rule: Rule | None = None, max_error_um: float = MAX_ERROR_UM,
                    taus: Iterable[float] = TAU_GRID_S, kinds: Iterable[str] = EFFECT_KINDS,
                    selection: Mapping | None = None, max_sensors: int = DEFAULT_MAX_SENSORS,
-                   max_new_sensors: int | None = None, channels_in_use: Iterable[str] = ()
-                   ) -> EffectsResult:
+                   max_new_sensors: int | None = None, channels_in_use: Iterable[str] = (),
+                   reference: Reference = NO_REFERENCE) -> EffectsResult:
     """Add up to ``max_effects`` validated effects to the ``baseline`` terms of one axis.
 
     ``ambient`` is the ambient sensor (default: a sensor named like *amb*, if any); ``aux`` the
@@ -133,10 +133,10 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
     taus = tau_grid(period_s, shortest, taus)
     stride = search_stride(runs)
     groups_full, scheme = fold_groups(runs, n_blocks)
-    y_full = np.concatenate([r.target(target) for r in runs])
+    y_full = np.concatenate([reference.apply(r.target(target)) for r in runs])
     floor = noise_floor(y_full, groups_full)
     groups, y = every_nth(runs, stride, groups_full), every_nth(runs, stride, y_full)
-    cache = FeatureCache(runs, period_s, stride)
+    cache = FeatureCache(runs, period_s, stride, reference)
     refs = {s: start_reference(runs, s) for s in sensors}
 
     run_ids = every_nth(runs, stride, np.concatenate([np.full(r.n_samples, i)

@@ -5,16 +5,21 @@ from __future__ import annotations
 
 from host.fitting.features import axis_terms, design_matrix, first_order_lag, term_values
 from host.fitting.linear import condition_number, fit_linear, r_squared, rmse, variance_inflation
+from host.fitting.reference import NO_REFERENCE, Reference, causal_reference
 from host.fitting.validation import (
     DEFAULT_BLOCKS,
     common_period,
     fold_groups,
     out_of_fold_predictions,
+    run_labels,
     stack,
     validation_rmse,
 )
 
 __all__ = [
+    "NO_REFERENCE",
+    "Reference",
+    "causal_reference",
     "DEFAULT_BLOCKS",
     "axis_terms",
     "common_period",
@@ -26,6 +31,7 @@ __all__ = [
     "out_of_fold_predictions",
     "r_squared",
     "rmse",
+    "run_labels",
     "stack",
     "term_values",
     "validation_rmse",

@@ -20,6 +20,7 @@ from contract.errors import InputError
 from contract.terms import Term
 from host.fitting.features import design_matrix
 from host.fitting.linear import fit_linear, rmse
+from host.fitting.reference import NO_REFERENCE, Reference
 from host.io import Run
 
 DEFAULT_BLOCKS = 3
@@ -60,13 +61,24 @@ def common_period(runs: list[Run], tolerance: float = 0.01) -> float:
     return p0
 
 
+def run_labels(runs: list[Run]) -> np.ndarray:
+    """Run index per stacked sample (a reference restarts at each run's start)."""
+    return np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
+
+
 def stack(runs: list[Run], terms: list[Term], target: str, period_s: float,
-          n_blocks: int = DEFAULT_BLOCKS) -> Stacked:
-    """Evaluate the terms on each run and stack runs with their fold labels."""
+          n_blocks: int = DEFAULT_BLOCKS, reference: Reference = NO_REFERENCE) -> Stacked:
+    """Evaluate the terms on each run and stack runs with their fold labels.
+
+    With a ``start`` reference every run is referenced at its own start, features and target
+    alike, so a held-out run is scored as the unseen day it stands for. A time block of one run
+    is not a new day (nothing was zeroed when it began): it keeps the run's reference.
+    """
     X = np.vstack([design_matrix(terms, r.columns(), period_s) for r in runs])
     y = np.concatenate([r.target(target) for r in runs])
     groups, scheme = fold_groups(runs, n_blocks)
-    return Stacked(X, y, groups, scheme)
+    per_run = run_labels(runs)
+    return Stacked(reference.apply(X, per_run), reference.apply(y, per_run), groups, scheme)
 
 
 def out_of_fold_predictions(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> np.ndarray:

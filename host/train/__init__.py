@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from host.train.pipeline import TrainingError, axis_with_effects, train_model
+from host.train.pipeline import DEFAULT_REFERENCE, TrainingError, axis_with_effects, train_model
 from host.train.ranges import (
     TOLERANCE_SHARE,
     describe,
@@ -14,6 +14,7 @@ from host.train.ranges import (
 from host.train.summary import axis_sensors, summary
 
 __all__ = [
+    "DEFAULT_REFERENCE",
     "TOLERANCE_SHARE",
     "TrainingError",
     "axis_sensors",

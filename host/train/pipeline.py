@@ -23,6 +23,8 @@ from contract.model_file import SCHEMA
 from contract.terms import AUX_KINDS, TEMPERATURE_KINDS, Term, make_temp, term_sensors
 from host.effects import search_effects, sensor_reference
 from host.fitting import (
+    NO_REFERENCE,
+    Reference,
     common_period,
     condition_number,
     fit_linear,
@@ -45,6 +47,7 @@ from host.selection import (
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from host.train.ranges import add_training_ranges
 
+DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
 TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
 DEFAULT_TC_TYPE = "K"
 
@@ -86,13 +89,13 @@ def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str 
 
 
 def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
-             n_blocks: int = DEFAULT_BLOCKS) -> dict:
+             n_blocks: int = DEFAULT_BLOCKS, reference: Reference = NO_REFERENCE) -> dict:
     """Fit ``target`` on fixed terms; the axis dict (unit, intercept, terms, metrics).
 
     The validation RMSE refits the coefficients without each fold (run, or time block of a
     single run) and predicts it; the terms themselves are taken as given.
     """
-    st = stack(runs, terms, target, period_s, n_blocks)
+    st = stack(runs, terms, target, period_s, n_blocks, reference)
     fit = fit_linear(st.X, st.y)
     residual = st.y - fit.predict(st.X)
     vif = variance_inflation(st.X)
@@ -119,7 +122,8 @@ def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
 def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: float,
                       n_blocks: int = DEFAULT_BLOCKS, ambient: str | None = None,
                       max_sensors: int = DEFAULT_MAX_SENSORS,
-                      channels_in_use: Sequence[str] = ()) -> dict:
+                      channels_in_use: Sequence[str] = (),
+                      reference: Reference = NO_REFERENCE) -> dict:
     """The baseline axis dict plus the validated effects (host.effects.search_effects).
 
     The final terms are fitted once, at the full rate, with the baseline's metrics; the axis
@@ -129,9 +133,9 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
     baseline = [Term.from_json(t) for t in axis["terms"]]
     found = search_effects(runs, target, baseline, period_s, ambient=ambient, n_blocks=n_blocks,
                            selection=axis.get("selection"), max_sensors=max_sensors,
-                           channels_in_use=channels_in_use)
+                           channels_in_use=channels_in_use, reference=reference)
     out = dict(axis)
-    out.update(fit_axis(list(runs), target, found.terms, period_s, n_blocks))
+    out.update(fit_axis(list(runs), target, found.terms, period_s, n_blocks, reference))
     out.update(found.report)
     out["sensor_reference"] = sensor_reference(runs, term_sensors(found.terms),
                                                axis.get("selection"))
@@ -181,7 +185,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 selection: str = "validated", max_delay_s: float | None = None,
                 n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
                 tc_type: str = DEFAULT_TC_TYPE, max_channels: int = BOX_CHANNELS,
-                quiet: bool = True) -> dict:
+                reference: str = DEFAULT_REFERENCE, quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
@@ -215,11 +219,13 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     if len(runs) == 1 and n_min < 2 * n_blocks:
         raise TrainingError(f"{runs[0].path}: {n_min} samples is too few for {n_blocks} "
                             "validation blocks")
+    ref = Reference.for_period(reference, period_s)
     X = np.vstack([r.temperatures for r in runs])
     run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
     folds, scheme = fold_groups(runs, n_blocks)
 
-    ys = {t: np.concatenate([r.target(t) for r in runs]) for t in targets}
+    X = ref.apply(X, run_ids)  # selection sees what the model will: the change since the start
+    ys = {t: ref.apply(np.concatenate([r.target(t) for r in runs]), run_ids) for t in targets}
 
     def select(target: str, pool: list[str] | None = None) -> tuple[list[Term], dict]:
         cols = list(range(len(names))) if pool is None else [names.index(n) for n in pool]
@@ -230,7 +236,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
 
     def vrmse(target: str, terms: list[Term]) -> float:
-        st = stack(runs, terms, target, period_s, n_blocks)
+        st = stack(runs, terms, target, period_s, n_blocks, ref)
         return validation_rmse(st.X, st.y, st.groups)
 
     selected = {t: select(t) for t in progress(targets, "selecting sensors", quiet=quiet)}
@@ -244,7 +250,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     axes: dict[str, dict] = {}
     for target in progress(targets, "fitting axes and effects", quiet=quiet):
         terms, trace = selected[target]
-        axis = fit_axis(runs, target, terms, period_s, n_blocks)
+        axis = fit_axis(runs, target, terms, period_s, n_blocks, ref)
         axis["selection"] = trace
         baseline_validation = axis["metrics"]["validation_rmse_um"]
         axis["baseline_validation_rmse_um"] = baseline_validation
@@ -255,7 +261,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         if effects:
             axis = axis_with_effects(axis, runs=runs, target=target, period_s=period_s,
                                      n_blocks=n_blocks, ambient=ambient,
-                                     max_sensors=max_sensors, channels_in_use=sorted(others))
+                                     max_sensors=max_sensors, channels_in_use=sorted(others),
+                                     reference=ref)
         # on long runs the search scores a thinned-out copy; the baseline figure is full-rate
         axis["baseline_validation_rmse_um"] = baseline_validation
         axes[target] = axis
@@ -268,7 +275,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         for target, axis in axes.items():
             if kept[target] != final[target]:
                 gone = {t.name for t in final[target]} - {t.name for t in kept[target]}
-                axis.update(fit_axis(runs, target, kept[target], period_s, n_blocks))
+                axis.update(fit_axis(runs, target, kept[target], period_s, n_blocks, ref))
                 axis["channel_budget_after_effects"] = {
                     "max_channels": max_channels, "dropped_sensors": dropped,
                     "dropped_terms": sorted(gone)}
@@ -287,6 +294,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         "schema": SCHEMA,
         "tool_version": __version__,
         "sample_period_s": float(period_s),
+        "reference": ref.to_json(),
         "channels": wired,
         "aux": aux_inputs,
         "time_max_s": TIME_MAX_S,
@@ -303,6 +311,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "validation": scheme,
             "seed": int(seed),
             "effects": bool(effects),
+            "reference": ref.kind,
             "ambient": ambient,
             "max_channels": int(max_channels),
         },

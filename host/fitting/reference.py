@@ -1,0 +1,103 @@
+"""The reference of a correction: what "zero drift" means on a given day.
+
+A thermal test starts with the probes zeroed (ISO 230-3), and on the machine the correction
+that matters is the drift since the tool and work offsets were taken. With the ``start``
+reference a model predicts the change since the start of each run (on the box: since power-up
+or the last ``ZERO``), so a day that starts warmer than the training day is no offset; with
+``none`` it predicts absolute values against one fixed datum (a continuous recording such as
+FL_THERMAL).
+
+The reference must not rest on one noisy sample: it is the mean of the first ``samples``
+samples of the series (about ``WINDOW_S`` seconds), taken causally as the box does: at sample
+i < samples the reference is the mean of samples 0..i (so the first output is exactly 0), from
+then on it is frozen. The same rule applies to the measured displacement and to the
+prediction, so it cancels wherever the model tracks; docs/effects.md has the measurement.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from contract.errors import InputError
+
+KINDS = ("start", "none")
+WINDOW_S = 300.0  # five minutes of samples average the probe and thermocouple noise
+MAX_SAMPLES = 64  # the box keeps an int64 sum; more adds nothing at these noise levels
+
+
+def window_samples(period_s: float, window_s: float = WINDOW_S) -> int:
+    """Samples in the reference window at this sample period (at least 1)."""
+    return int(max(1, min(MAX_SAMPLES, round(window_s / period_s))))
+
+
+def causal_reference(values: np.ndarray, samples: int) -> np.ndarray:
+    """Per row, the running mean of the first ``samples`` rows (frozen after them); 1-D or 2-D."""
+    values = np.asarray(values, dtype=float)
+    n = values.shape[0]
+    if n == 0:
+        return values.copy()
+    k = min(samples, n)
+    counts = np.arange(1, k + 1, dtype=float).reshape((k,) + (1,) * (values.ndim - 1))
+    head = np.cumsum(values[:k], axis=0) / counts
+    out = np.empty_like(values)
+    out[:k] = head
+    out[k:] = head[-1]
+    return out
+
+
+@dataclass(frozen=True)
+class Reference:
+    """How a model's output is referenced (stored in model.json as ``reference``)."""
+
+    kind: str = "none"
+    samples: int = 1
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise InputError(f"--reference must be one of {', '.join(KINDS)} (got {self.kind!r})")
+        if self.samples < 1:
+            raise InputError(f"reference samples must be >= 1 (got {self.samples})")
+
+    @staticmethod
+    def for_period(kind: str, period_s: float) -> Reference:
+        return Reference(kind, window_samples(period_s) if kind == "start" else 1)
+
+    @staticmethod
+    def of_model(model: dict) -> Reference:
+        """The model's reference; a model written before references were kept has ``none``."""
+        spec = model.get("reference") or {"kind": "none"}
+        return Reference(str(spec.get("kind", "none")), int(spec.get("samples", 1)))
+
+    def to_json(self) -> dict:
+        out: dict = {"kind": self.kind}
+        if self.kind == "start":
+            out.update(samples=self.samples, window_s=WINDOW_S)
+        return out
+
+    def apply(self, values: np.ndarray, segments: np.ndarray | None = None) -> np.ndarray:
+        """``values`` minus their reference, each segment (run, or fold of a run) on its own."""
+        values = np.asarray(values, dtype=float)
+        if self.kind == "none":
+            return values
+        if segments is None:
+            return values - causal_reference(values, self.samples)
+        out = np.empty_like(values)
+        for start, stop in segment_bounds(segments):
+            out[start:stop] = values[start:stop] - causal_reference(values[start:stop],
+                                                                    self.samples)
+        return out
+
+
+NO_REFERENCE = Reference()
+
+
+def segment_bounds(labels: np.ndarray) -> list[tuple[int, int]]:
+    """Contiguous runs of equal labels as (start, stop) row ranges."""
+    labels = np.asarray(labels)
+    if labels.size == 0:
+        return []
+    cuts = np.flatnonzero(labels[1:] != labels[:-1]) + 1
+    edges = [0, *cuts.tolist(), labels.size]
+    return list(zip(edges[:-1], edges[1:], strict=True))
