@@ -197,6 +197,7 @@ class Machine:
 
     def __init__(self, letters: list[str]) -> None:
         self.cmd, self.stat = linuxcnc.command(), linuxcnc.stat()
+        self.errors = linuxcnc.error_channel()
         self.letters = letters
         self.joint = {"x": 0, "y": 1, "z": 2}
         self.probe = hal.component("tcdriver")  # hal.get_value needs a component of ours
@@ -358,21 +359,28 @@ def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
     return records
 
 
-def run_program(plan: dict, machine: Machine) -> dict:
-    """Run an NC program in AUTO and record the spindle and trigger pins against wall time."""
-    prog = plan["program"]
+def run_program(prog: dict, machine: Machine) -> dict:
+    """Run an NC program in AUTO and record the spindle and trigger pins against wall time.
+
+    The trigger is a HAL pin (``M64 P<n>``: ``motion.digital-out-NN``) or the log a user
+    M-code writes (``M100``: wall-clock time and measurement number per line)."""
     # spindle.0.orient is up for a servo period only (the sim loops it to is-oriented);
     # spindle.0.locked holds from the completed orient until the next M3/M4/M5
     pins = {"speed": "spindle.0.speed-out", "oriented": "spindle.0.locked",
-            "on": "spindle.0.on", "trigger": prog["trigger_pin"]}
+            "on": "spindle.0.on"}
+    if prog.get("trigger_pin"):
+        pins["trigger"] = prog["trigger_pin"]
     machine.cmd.mode(linuxcnc.MODE_AUTO)
     machine.cmd.wait_complete()
     machine.cmd.program_open(prog["path"])
     machine.cmd.wait_complete()
     events: list[dict] = []
+    errors: list[str] = []
     last: dict[str, object] = {}
+    while machine.errors.poll():  # drop what an earlier step left
+        pass
     machine.cmd.auto(linuxcnc.AUTO_RUN, 0)
-    t0 = time.monotonic()
+    t0, wall0 = time.monotonic(), time.time()
     deadline = t0 + float(prog["timeout_s"])
     started = False
     while True:
@@ -382,6 +390,9 @@ def run_program(plan: dict, machine: Machine) -> dict:
             if last.get(name) != value:
                 events.append({"t": now - t0, "pin": name, "value": value})
                 last[name] = value
+        err = machine.errors.poll()
+        if err:
+            errors.append(str(err[1]))
         s = machine.poll()
         if s.interp_state != linuxcnc.INTERP_IDLE:
             started = True
@@ -391,8 +402,19 @@ def run_program(plan: dict, machine: Machine) -> dict:
             raise DriverError(f"the program {prog['path']} did not finish within "
                               f"{prog['timeout_s']} s")
         time.sleep(0.002)
-    return {"events": events, "elapsed_s": time.monotonic() - t0,
-            "error": machine.poll().state == linuxcnc.RCS_ERROR}
+    if prog.get("trigger_log"):
+        log = Path(prog["trigger_log"])
+        calls = [line.split() for line in log.read_text().splitlines()] if log.is_file() else []
+        for stamp, number in calls:
+            # an M-code call is an instant: a pulse of one millisecond
+            events += [{"t": float(stamp) - wall0, "pin": "trigger", "value": True,
+                        "number": number},
+                       {"t": float(stamp) - wall0 + 0.001, "pin": "trigger", "value": False}]
+        events.sort(key=lambda e: e["t"])
+    if machine.poll().state == linuxcnc.RCS_ERROR and not errors:
+        errors.append("RCS_ERROR")
+    return {"path": prog["path"], "events": events, "elapsed_s": time.monotonic() - t0,
+            "error": "; ".join(errors)}
 
 
 def main(argv: list[str]) -> int:
@@ -403,7 +425,7 @@ def main(argv: list[str]) -> int:
     ini = linuxcnc.ini(ini_path)
     plan_path = Path(ini_path).resolve().parent / ini.find("THERMALCOMP", "DRIVER_PLAN")
     plan = json.loads(plan_path.read_text())
-    out: dict = {"ok": False, "error": "", "records": [], "program": None}
+    out: dict = {"ok": False, "error": "", "records": [], "programs": []}
     box = tap = None
     t_start = time.monotonic()
     try:
@@ -419,8 +441,8 @@ def main(argv: list[str]) -> int:
         out["base_pos_mm"] = {a: machine.get(f"joint.{machine.joint[a]}.motor-pos-cmd")
                               for a in letters}
         out["records"] = replay(plan, machine, box, tap)
-        if plan.get("program"):
-            out["program"] = run_program(plan, machine)
+        for prog in plan.get("programs", []):
+            out["programs"].append(run_program(prog, machine))
         out["ok"] = True
     except Exception as exc:  # the session reports why it stopped; session.py fails it
         out["error"] = f"{type(exc).__name__}: {exc}"

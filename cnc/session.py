@@ -69,7 +69,7 @@ class Scenario:
     zero_at: int | None = None  # ZERO needs the firmware of issue 13 (box-safety)
     stale_period_s: float = 0.1  # the component's stale clock in the time-compressed replay
     stale_periods: float = 3.0
-    testplan: ThermalTestPlan | None = None  # run after the replay, in AUTO (dialect linuxcnc)
+    testplans: tuple[ThermalTestPlan, ...] = ()  # run after the replay, in AUTO (linuxcnc)
 
     def events(self) -> dict:
         ev: dict = {"open": {"at": self.open_at, "stop": self.open_stop,
@@ -156,6 +156,7 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
     for f in CONFIG_DIR.iterdir():
         if f.is_file():
             shutil.copy2(f, stage_dir / "cnc" / "config" / f.name)
+    shutil.copytree(CONFIG_DIR / "mcodes", stage_dir / "cnc" / "config" / "mcodes")
     # the stdlib-only contract package the component imports its decoder from
     (stage_dir / "contract").mkdir()
     for f in (ROOT / "contract").glob("*.py"):
@@ -175,22 +176,25 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
     ini = ini.replace("CONFIG = thermalcomp.conf",
                       "CONFIG = thermalcomp-session.conf\nDRIVER_PLAN = plan.json")
     (cfg / "thermal_sim_session.ini").write_text(ini)
-    (cfg / "mcodes").mkdir(exist_ok=True)
-    program = None
-    if scenario.testplan is not None:
-        tp = scenario.testplan
-        if tp.dialect != "linuxcnc" or tp.digital_output is None:
-            raise CncError("the session runs a test plan of --dialect linuxcnc with an "
-                           "'M64 P<n>' trigger (it watches motion.digital-out-NN)")
-        tp.write(cfg / "thermal_test.ngc")
-        program = {"path": str(cfg / "thermal_test.ngc"),
-                   "trigger_pin": f"motion.digital-out-{tp.digital_output:02d}",
-                   "timeout_s": tp.duration_s * 1.5 + 10.0}
+    programs = []
+    for i, tp in enumerate(scenario.testplans):
+        if tp.dialect != "linuxcnc" or tp.trigger.strip().upper() not in ("M100", "M64 P0"):
+            raise CncError("the session runs test plans of --dialect linuxcnc triggered by "
+                           "'M64 P0' (it watches motion.digital-out-00) or M100 (the "
+                           "configuration's cnc/config/mcodes/M100 logs each call)")
+        path = cfg / f"thermal_test_{i}.ngc"
+        tp.write(path)
+        prog = {"path": str(path), "timeout_s": tp.duration_s * 1.5 + 10.0}
+        if tp.digital_output is not None:
+            prog["trigger_pin"] = f"motion.digital-out-{tp.digital_output:02d}"
+        else:
+            prog["trigger_log"] = str(cfg / "thermal_triggers.log")
+        programs.append(prog)
     plan = {"firmware": str(stage_dir / "box"), "feed": str(stage_dir / "feed.txt"),
             "port_link": str(port), "results": str(stage_dir / "results.json"),
             "axes": [{"letter": letter, "box_axis": a} for letter, a in AXES],
             "start_mdi": START_MDI, "events": scenario.events(), "timeout_s": 10.0,
-            "program": program}
+            "programs": programs}
     (cfg / "plan.json").write_text(json.dumps(plan, indent=1))
     for p in (stage_dir, *stage_dir.rglob("*")):
         p.chmod(0o755 if p.is_dir() or os.access(p, os.X_OK) else 0o644)
@@ -360,6 +364,17 @@ def short_testplan() -> ThermalTestPlan:
     return ThermalTestPlan(prog, 4.0, 1.0, "M64 P0", "linuxcnc")
 
 
+def short_mcode_testplan() -> ThermalTestPlan:
+    """The user M-code trigger (``M100 P<k>``, cnc/config/mcodes/M100): 4 s at 6000 rpm, 2 s
+    cooling, a measurement every 2 s with a 0.5 s stop: 4 measurements, 6.5 s."""
+    prog = build_program("constant", 8000.0, hours=4 / 3600, cool_hours=2 / 3600)
+    return ThermalTestPlan(prog, 2.0, 0.5, "M100", "linuxcnc")
+
+
+def default_testplans() -> tuple[ThermalTestPlan, ...]:
+    return (short_testplan(), short_mcode_testplan())
+
+
 def _state_at(events: list[dict], pin: str, t: float) -> object:
     value = None
     for e in events:
@@ -375,12 +390,14 @@ def judge_program(plan: ThermalTestPlan, rec: dict | None, tol_s: float = 0.25) 
     schedule: a trigger pulse at every measurement time, spindle stopped and oriented then,
     and the protocol's speed in every running window. Time 0 is the first trigger."""
     problems: list[str] = []
-    out: dict = {"measurements_expected": plan.n_intervals + 1, "problems": problems}
+    out: dict = {"trigger": plan.trigger, "measurements_expected": plan.n_intervals + 1,
+                 "problems": problems}
     if not rec:
         problems.append("the test program was not run")
         return out
     if rec.get("error"):
-        problems.append("LinuxCNC reported an error while running the test program")
+        problems.append(f"LinuxCNC reported an error running {plan.trigger} test program: "
+                        f"{rec['error']}")
     ev = rec["events"]
     rises = [e["t"] for i, e in enumerate(ev) if e["pin"] == "trigger" and e["value"]
              and _state_at(ev[:i], "trigger", e["t"]) in (False, None)]
@@ -389,6 +406,10 @@ def judge_program(plan: ThermalTestPlan, rec: dict | None, tol_s: float = 0.25) 
     if len(rises) != plan.n_intervals + 1:
         problems.append(f"{len(rises)} trigger pulses, the plan has {plan.n_intervals + 1}")
         return out
+    numbers = [e.get("number") for e in ev if e["pin"] == "trigger" and e["value"]]
+    if plan.digital_output is None and numbers != [f"{k}" for k in range(len(rises))] and \
+            [float(n) for n in numbers] != [float(k) for k in range(len(rises))]:
+        problems.append(f"the M-code got measurement numbers {numbers}")
     t0 = rises[0]
     expected = plan.measurement_times_s()
     errors = [abs((r - t0) - e) for r, e in zip(rises, expected, strict=True)]
@@ -398,7 +419,8 @@ def judge_program(plan: ThermalTestPlan, rec: dict | None, tol_s: float = 0.25) 
     if max(errors) > tol_s:
         problems.append(f"a trigger came {max(errors):.3f} s off its scheduled time "
                         f"(tolerance {tol_s} s)")
-    if any(abs(w - plan.measure_s) > tol_s for w in widths):
+    if plan.digital_output is not None and any(abs(w - plan.measure_s) > tol_s
+                                               for w in widths):
         problems.append(f"trigger pulses of {widths} s, the stop is {plan.measure_s} s")
     bad_stop = [k for k, r in enumerate(rises)
                 if _state_at(ev, "on", r + 0.01) or not _state_at(ev, "oriented", r + 0.01)]
@@ -447,9 +469,8 @@ def table(summary: dict, elapsed_s: float) -> str:
                      f"{z['offset_nm']:.3f} nm -> {'PASS' if z['ok'] else 'FAIL'}")
     else:
         lines.append("ZERO: not run")
-    prog = s.get("program")
-    if prog:
-        lines.append(f"test program (host testplan --dialect linuxcnc, M64 P0): "
+    for prog in s.get("programs", []):
+        lines.append(f"test program (host testplan --dialect linuxcnc, {prog['trigger']}): "
                      f"{prog.get('measurements_found', 0)}/{prog['measurements_expected']} "
                      f"triggers, largest timing error {prog.get('max_trigger_error_s', 0):.3f} "
                      f"s, {prog.get('stopped_and_oriented', 0)} stopped+oriented, "
@@ -473,8 +494,8 @@ def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float 
     t0 = time.monotonic()
     try:
         ini = stage(stage_dir, setup, scenario)
-        if scenario.testplan is not None:
-            shutil.copy2(ini.parent / "thermal_test.ngc", build / "thermal_test.ngc")
+        for f in ini.parent.glob("thermal_test_*.ngc"):
+            shutil.copy2(f, build / f.name)
         code, output = launch(ini, stage_dir, user, timeout_s)
         (build / "linuxcnc.log").write_text(output)
         results = stage_dir / "results.json"
@@ -487,10 +508,13 @@ def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float 
         if not keep:
             shutil.rmtree(stage_dir, ignore_errors=True)
     result = judge(raw, step_nm=1000.0 * setup.model["sample_period_s"])
-    if scenario.testplan is not None:
-        prog = judge_program(scenario.testplan, raw.get("program"))
-        result.summary["program"] = prog
-        result.problems += prog["problems"]
+    if scenario.testplans:
+        recorded = raw.get("programs", [])
+        progs = [judge_program(tp, recorded[i] if i < len(recorded) else None)
+                 for i, tp in enumerate(scenario.testplans)]
+        result.summary["programs"] = progs
+        for prog in progs:
+            result.problems += prog["problems"]
         result.summary["problems"] = result.problems
         result.summary["ok"] = not result.problems
     result.summary["elapsed_s"] = time.monotonic() - t0
@@ -507,11 +531,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", type=int, default=961)
     ap.add_argument("--keep", action="store_true", help="keep the staged LinuxCNC directory")
     ap.add_argument("--no-program", action="store_true",
-                    help="skip the test program (host testplan --dialect linuxcnc) run")
+                    help="skip the test programs (host testplan --dialect linuxcnc)")
     args = ap.parse_args(argv)
     try:
         scenario = Scenario(n_samples=args.samples,
-                            testplan=None if args.no_program else short_testplan())
+                            testplans=() if args.no_program else default_testplans())
         result = run_session(Path(args.build_dir), scenario, keep=args.keep)
     except CncError as exc:
         print(f"cnc: {exc}")

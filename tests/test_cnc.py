@@ -20,7 +20,7 @@ from cnc import session
 @pytest.fixture(scope="module")
 def cnc_run(tmp_path_factory):
     build = tmp_path_factory.mktemp("cnc")
-    scenario = session.Scenario(testplan=session.short_testplan())
+    scenario = session.Scenario(testplans=session.default_testplans())
     result = session.run_session(build, scenario)
     return result, build
 
@@ -98,14 +98,26 @@ def test_the_linuxcnc_test_program_runs_to_its_schedule(cnc_run):
     """host testplan --dialect linuxcnc (M64 P0 trigger, M19 R0) in AUTO on the same LinuxCNC:
     every measurement's trigger on time, spindle stopped and oriented, every speed as planned."""
     result, build = cnc_run
-    prog = result.summary["program"]
+    prog = result.summary["programs"][0]
     assert not prog["problems"], prog["problems"]
     assert prog["measurements_found"] == prog["measurements_expected"] == 7
     assert prog["max_trigger_error_s"] < 0.25
     assert prog["stopped_and_oriented"] == 7
     assert prog["speeds_checked"] == 6 and not prog["speeds_wrong"]
     assert prog["speeds"] == [0.0, 2000.0, 4000.0, 6000.0, 8000.0]
-    assert (build / "thermal_test.ngc").read_text().count("M64 P0 (MEASUREMENT") == 7
+    assert (build / "thermal_test_0.ngc").read_text().count("M64 P0 (MEASUREMENT") == 7
+
+
+@pytest.mark.slow
+def test_a_user_m_code_trigger_runs_from_user_m_path(cnc_run):
+    """M100 P<k> finds cnc/config/mcodes/M100 through [RS274NGC]USER_M_PATH; it logs each
+    call with the measurement number, on time."""
+    result, _ = cnc_run
+    prog = result.summary["programs"][1]
+    assert not prog["problems"], prog["problems"]
+    assert prog["trigger"] == "M100"
+    assert prog["measurements_found"] == 4 and prog["stopped_and_oriented"] == 4
+    assert prog["max_trigger_error_s"] < 0.25
 
 
 def test_program_judge_catches_a_missing_orient_and_a_late_trigger():

@@ -154,10 +154,10 @@ def test_linuxcnc_user_m_code_gets_the_measurement_number():
     assert plan.digital_output is None
 
 
-@pytest.mark.parametrize("dialect", ["rs274", "fanuc", "linuxcnc"])
-def test_comments_are_never_nested(dialect):
-    """LinuxCNC refuses a program with a '(' inside a comment."""
-    trigger = "M64 P0" if dialect == "linuxcnc" else "M100"
+@pytest.mark.parametrize("dialect, trigger", [("rs274", "M100"), ("fanuc", "M100"),
+                                              ("linuxcnc", "M64 P0"), ("linuxcnc", "M100")])
+def test_comments_are_never_nested(dialect, trigger):
+    """LinuxCNC refuses a program with a '(' inside a comment ("Nested comment found")."""
     prog = build_program("random", 8000.0, hours=1.0, cool_hours=0.5, seed=2)
     for line in ThermalTestPlan(prog, 300.0, 10.0, trigger, dialect).render().splitlines():
         depth = 0

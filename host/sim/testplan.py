@@ -163,8 +163,9 @@ class ThermalTestPlan:
         code, out = self._trigger()
         if out is not None:
             return f"M64 P{out} SETS DIGITAL OUTPUT {out} FOR THE STOP, M65 P{out} CLEARS IT"
-        return f"M{code} TRIGGERS THE LOGGER" + (" (P = MEASUREMENT NUMBER)"
-                                                 if self.dialect == "linuxcnc" else "")
+        if self.dialect == "linuxcnc":
+            return f"M{code} P<K> TRIGGERS THE LOGGER, K = MEASUREMENT NUMBER"
+        return f"M{code} TRIGGERS THE LOGGER"
 
     @property
     def n_intervals(self) -> int:
