@@ -21,6 +21,8 @@ config file (cnc/config/thermalcomp.conf) and drives ``axis.L.eoffset-counts/-sc
   round(request / scale)) to its counts, so the offset lands on the box's value, not on the
   value before plus the change. The same resync runs after ``enable`` comes back (while
   ``enable`` is false it asserts ``eoffset-clear``: LinuxCNC ramps the offset to 0).
+- **box restart** (``seq`` goes back): the box walks from 0 at its slew limit (SLEW); the
+  component holds until the box tracks again, then walks to it.
 - ``zero`` (rising edge, e.g. from the touch-off macro) sends the box ``ZERO``: from the next
   sample the box outputs the change since then (issue 13).
 
@@ -47,7 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from contract import protocol  # noqa: E402  (stdlib only: docs/architecture.md, floor 0)
 
 NAME = "thermalcomp"
-MODEL_BAD, HOLD, NO_DATA, EXTRAP = 1 << 0, 1 << 1, 1 << 9, 1 << 10
+MODEL_BAD, HOLD, SLEW, NO_DATA, EXTRAP = 1 << 0, 1 << 1, 1 << 2, 1 << 9, 1 << 10
 REFERENCED, IMPLAUSIBLE = 1 << 11, 1 << 12
 HOLD_BITS = MODEL_BAD | HOLD | NO_DATA | IMPLAUSIBLE  # the box says: do not trust this sample
 UNITS_MM = {"mm": 1.0, "inch": 25.4}
@@ -226,6 +228,7 @@ class Compensator:
         self.lost_lines = 0
         self.restarts = 0
         self.holds = 0  # sample lines on which the offsets were held
+        self.rebooted = False  # the box restarted and is still walking from 0 (SLEW)
         self.zero_acks = 0
         self.zero_seq = -1
         self.stale = False
@@ -256,14 +259,20 @@ class Compensator:
             gap = (s.seq - self.last_seq) % SEQ_MOD
             if gap == 0 or gap >= SEQ_MOD // 2:
                 self.restarts += 1
-                self.log(f"sequence went from {self.last_seq} to {s.seq}: the box restarted")
+                self.rebooted = True
+                self.log(f"sequence went from {self.last_seq} to {s.seq}: the box restarted; "
+                         "holding until it has walked back from 0")
             elif gap > 1:
                 self.lost_lines += gap - 1
                 self.log(f"{gap - 1} sample line(s) lost before seq {s.seq}")
         self.last_seq, self.last_line_t, self.status = s.seq, now, s.status
         self.stale = False
         self.fault = bool(s.status & HOLD_BITS)
-        if self.fault or self.info is None:
+        if self.rebooted and not s.status & SLEW:
+            self.rebooted = False  # the box tracks again: walk to it from the held offset
+        if self.fault or self.info is None or self.rebooted:
+            # (a restarted box walks from 0 at its slew limit: following it would pull the
+            # axis towards 0 and back)
             self.holds += 1
             return
         # the walk limit is per sample period of the box (its INFO), whatever the wall clock

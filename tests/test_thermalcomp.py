@@ -84,11 +84,23 @@ def test_stale_after_the_configured_number_of_periods(tmp_path):
     assert not comp.stale and _want(comp)["z"] == -41
 
 
-def test_a_box_restart_is_counted_and_not_a_jump(tmp_path):
+def test_a_box_restart_holds_while_the_box_walks_from_0(tmp_path):
     comp = _comp(tmp_path)
     for seq, dz in enumerate([0, 100, 200, 300]):
         _line(comp, seq, 0, dz)
-    _line(comp, 0, 0, 0)  # rebooted box: seq 0, walking from 0 itself
+    slew = int(protocol.Status.SLEW)
+    _line(comp, 0, 0, 100, status=slew)  # rebooted box: seq 0, walking up from 0 itself
+    _line(comp, 1, 0, 200, status=slew)
+    assert comp.restarts == 1 and _want(comp)["z"] == -300 and comp.holds == 2
+    _line(comp, 2, 0, 310)  # tracking again: the offset follows
+    assert _want(comp)["z"] == -310
+
+
+def test_a_box_restart_without_cold_start_walk_is_walked_to(tmp_path):
+    comp = _comp(tmp_path)
+    for seq, dz in enumerate([0, 100, 200, 300]):
+        _line(comp, seq, 0, dz)
+    _line(comp, 0, 0, 0)  # no SLEW: a box built with BOX_COLD_START_SLEW=0
     assert comp.restarts == 1 and _want(comp)["z"] == -200  # one 100 nm step, not to 0
 
 
