@@ -24,7 +24,8 @@ config file (cnc/config/thermalcomp.conf) and drives ``axis.L.eoffset-counts/-sc
 - **box restart** (``seq`` goes back): the box walks from 0 at its slew limit (SLEW); the
   component holds until the box tracks again, then walks to it.
 - ``zero`` (rising edge, e.g. from the touch-off macro) sends the box ``ZERO``: from the next
-  sample the box outputs the change since then (issue 13).
+  sample the box outputs the change since then (issue 13); that first value is a new datum and
+  is applied without the walk limit (LinuxCNC still ramps it at OFFSET_AV_RATIO).
 
 Runs under Debian's /usr/bin/python3 (where LinuxCNC's ``hal`` module lives); needs only the
 standard library and the project's stdlib-only wire-protocol decoder, found next to this file
@@ -229,6 +230,7 @@ class Compensator:
         self.restarts = 0
         self.holds = 0  # sample lines on which the offsets were held
         self.rebooted = False  # the box restarted and is still walking from 0 (SLEW)
+        self.rezero = False  # ZERO acknowledged: the next value is a new datum, not a move
         self.zero_acks = 0
         self.zero_seq = -1
         self.stale = False
@@ -278,17 +280,27 @@ class Compensator:
         # the walk limit is per sample period of the box (its INFO), whatever the wall clock
         step_nm = self.cfg.slew_nm_per_s * self.info.period_ms / 1000.0
         self.walking = False
+        datum, self.rezero = self.rezero, False
         for a in self.cfg.axes:
             if a.index is None or a.index >= len(s.corrections_nm):
                 continue
             a.box_nm = s.corrections_nm[a.index]
             target = round(a.sign * a.box_nm / a.nm_per_count)
-            step = max(1, math.floor(step_nm / a.nm_per_count))
+            # after ZERO the value changes datum (to ~0) at once: the operator touches off
+            # once the offset is 0 (LinuxCNC ramps it at OFFSET_AV_RATIO), docs/linuxcnc.md
+            step = abs(target - a.want) if datum else max(1, math.floor(step_nm / a.nm_per_count))
             delta = max(-step, min(step, target - a.want))
             a.want += delta
             a.seen = True
             if a.want != target:
                 self.walking = True
+
+    def zeroed(self, seq: int) -> None:
+        """The box acknowledged ZERO (``$OK,ZERO,<seq>``): the next value is a new datum."""
+        self.zero_acks += 1
+        self.zero_seq = seq
+        self.rezero = True
+        self.log(f"box zeroed at seq {seq}")
 
     def bad_line(self, raw: bytes, err: Exception) -> None:
         self.bad_lines += 1
@@ -430,9 +442,7 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
     elif isinstance(msg, protocol.Info):
         comp.take_info(msg)
     elif isinstance(msg, protocol.Ack) and msg.command == "ZERO":
-        comp.zero_acks += 1
-        comp.zero_seq = msg.value
-        comp.log(f"box zeroed at seq {msg.value}")
+        comp.zeroed(msg.value)
     elif isinstance(msg, protocol.ErrorReply):
         comp.log(f"box refused a command: {msg.reason}")
 

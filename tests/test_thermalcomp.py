@@ -127,3 +127,16 @@ def test_the_shipped_config_loads():
     assert [(a.letter, a.box_axis, a.sign) for a in cfg.axes] == [
         ("x", "dx_um", -1), ("y", "dy_um", -1), ("z", "dz_um", -1)]
     assert cfg.port == "/dev/ttyUSB0" and cfg.period_s is None
+
+
+def test_zero_changes_the_datum_at_once(tmp_path):
+    comp = _comp(tmp_path)
+    for seq in range(3):
+        _line(comp, seq, 0, 100 * (seq + 1))
+    assert _want(comp)["z"] == -300
+    comp.zeroed(2)  # what handle_line does with $OK,ZERO,2 (decoded by contract.protocol)
+    assert comp.zero_acks == 1 and comp.zero_seq == 2
+    _line(comp, 3, 0, 0, status=tc.REFERENCED)
+    assert _want(comp)["z"] == 0 and not comp.walking  # not 100 nm a line: a datum change
+    _line(comp, 4, 0, 250, status=tc.REFERENCED)
+    assert _want(comp)["z"] == -100  # after it, the walk limit again
