@@ -354,3 +354,183 @@ def test_monitor_names_the_channels_behind_extrap(tmp_path):
     assert len(samples) == 3, out
     assert "EXTRAP" not in samples[0] and "EXTRAP" not in samples[2]  # 25 and 30.4 degC
     assert "EXTRAP(T05)" in samples[1] and "status=0400" in samples[1]  # 35 degC, bit 10
+
+
+# ---------------------------------------------------------------- faults, staleness, identity
+
+def status_line(status: int, seq: int, faults: list[int], zero: str | None = None) -> bytes:
+    """A STATUS reply as docs/protocol.md writes it (with the trailing zero_seq if given)."""
+    body = f"S,{status:04X},{seq},12," + ";".join(f"{w:04X}" for w in faults)
+    return wire(body + ("" if zero is None else f",{zero}"))
+
+
+def wait_until(cond, timeout: float = 5.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, "condition never met"
+        time.sleep(0.01)
+
+
+def test_a_faulted_channel_is_named_greyed_and_its_axes_hold():
+    box = WirePty()
+    out = io.StringIO()
+    # dx reads T05 only, dz reads T05 and T12 (as the model's terms would say)
+    monitor = Monitor(box.path, count=3, out=out, ansi=False, expected_hash="0123456789abcdef",
+                      axis_inputs={"dx_um": ["T05"], "dz_um": ["T05", "T12"]})
+    thread, result = run_in_thread(monitor)
+    box.wait_for(b"INFO\r\n")
+    box.send(INFO + sample(0, 0, [1000, 2000], [3200, 3328]))
+    wait_until(lambda: monitor.state.samples == 1)
+    box.send(sample(1, 0x0022, [1000, 2000], [3200, 9999]))  # HOLD + OPEN: which ones?
+    box.wait_for(b"STATUS\r\n")  # the monitor asks for the per-channel fault words
+    box.send(status_line(0x0022, 1, [0x0000, 0x0001]))  # T12's MAX31856 SR: OPEN
+    wait_until(lambda: monitor.state.status_report is not None)
+    box.send(sample(2, 0x0022, [1000, 2000], [3201, 9999]))
+    thread.join(10)
+    assert result["code"] == 0
+    last = [ln for ln in out.getvalue().splitlines() if ln.startswith("seq=")][-1]
+    assert "status=0022[HOLD(dz_um),OPEN(T12)]" in last
+    assert "T12=FAULT(OPEN)" in last and "T05=25.01C" in last
+    assert "78.12" not in last  # 9999/128: the faulted channel's code is not a temperature
+    screen = render(monitor.state, time.monotonic(), colour=True)
+    grey = next(ln for ln in screen if "T12" in ln and "OPEN" in ln and "°C" in ln)
+    assert "\x1b[90mT12" in grey  # greyed out on the terminal
+    assert any("dz_um" in ln and "HOLD: last good value" in ln for ln in screen)
+    assert not any("dx_um" in ln and "HOLD" in ln for ln in screen)
+    box.unplug()
+
+
+def test_silence_longer_than_two_periods_raises_stale():
+    box = WirePty()
+    out = io.StringIO()
+    monitor = Monitor(box.path, duration=1.5, out=out, ansi=False)
+    thread, result = run_in_thread(monitor)
+    box.wait_for(b"INFO\r\n")
+    box.send(wire("I,fw-1,0123456789abcdef,OK,100,dx_um,0:T05:K") + wire("C,0,0000,1,5,1,3200"))
+    time.sleep(0.5)  # 5 periods of 100 ms without a line
+    assert monitor.state.stale
+    box.send(wire("C,1,0000,1,6,1,3200"))
+    thread.join(10)
+    text = out.getvalue()
+    assert "STALE: no sample for" in text and "expected every 0.1 s" in text
+    assert "samples resumed after" in text
+    assert text.index("STALE") < text.index("seq=1 ")
+    box.unplug()
+
+
+def test_sign_and_reference_are_stated_and_newer_bits_are_named():
+    box = WirePty()
+    out = io.StringIO()
+    monitor = Monitor(box.path, count=2, out=out, ansi=False)
+    thread, result = run_in_thread(monitor)
+    box.wait_for(b"INFO\r\n")
+    box.send(INFO + sample(40, 0x0800, [-1500, 0], [3200, 3328]))  # bit 11: REFERENCED
+    box.wait_for(b"STATUS\r\n")
+    box.send(status_line(0x0800, 40, [0, 0]))  # an older STATUS reply (no zero_seq) is fine
+    wait_until(lambda: monitor.state.status_report is not None)
+    box.send(sample(41, 0x1800, [-1400, 0], [3200, 3328]))  # + bit 12: IMPLAUSIBLE
+    thread.join(10)
+    text = out.getvalue()
+    assert "offset to apply is −correction" in text
+    assert "status=0800[REFERENCED]" in text
+    assert "status=1800[REFERENCED,IMPLAUSIBLE]" in text
+    screen = render(monitor.state, time.monotonic())
+    assert any("corrections are the change since ZERO" in ln for ln in screen)
+    box.unplug()
+
+
+def test_json_prints_one_object_per_line(capsys):
+    box = WirePty()
+    result: dict = {}
+
+    def target() -> None:
+        result["code"] = host_main(["monitor", box.path, "--count", "2", "--json"])
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    box.wait_for(b"INFO\r\n")
+    box.send(INFO + sample(0, 0, [1234, -5], [3200, 3328]) + b"noise\r\n"
+             + sample(1, 0x0400, [1235, -5], [3201, 3328]))
+    thread.join(10)
+    assert result["code"] == 0
+    objects = [json.loads(ln) for ln in capsys.readouterr().out.splitlines()]
+    samples = [o for o in objects if o["type"] == "sample"]
+    assert [s["seq"] for s in samples] == [0, 1]
+    assert samples[0]["corrections_um"] == {"dx_um": 1.234, "dz_um": -0.005}
+    assert samples[0]["temperatures_c"] == {"T05": 25.0, "T12": 26.0}
+    assert samples[1]["flags"] == ["EXTRAP"] and samples[1]["status"] == "0400"
+    assert any(o["type"] == "bad_line" for o in objects)
+    assert any(o["type"] == "event" and o["event"] == "sign" for o in objects)
+    assert objects[-1]["type"] == "summary" and objects[-1]["samples"] == 2
+    box.unplug()
+
+
+def test_after_a_reconnect_an_unidentified_device_shows_nothing_until_its_info(tmp_path):
+    link = tmp_path / "ttyBOX"
+    first = WirePty()
+    link.symlink_to(first.path)
+    out = io.StringIO()
+    monitor = Monitor(str(link), duration=4.0, out=out, ansi=False, retry_s=0.05,
+                      identify=lambda port: None)  # a pty: cannot say what it is
+    thread, result = run_in_thread(monitor)
+    first.wait_for(b"INFO\r\n")
+    first.send(INFO + sample(0, 0, [1, 2], [3, 4]))
+    wait_until(lambda: monitor.state.samples == 1)
+    first.unplug()
+    time.sleep(0.2)
+    second = WirePty()
+    link.unlink()
+    link.symlink_to(second.path)
+    second.wait_for(b"INFO\r\n")
+    # something else now sits at the path: it talks the protocol but never answers INFO
+    for seq in range(5):
+        second.send(sample(seq, 0, [999000, 2], [3, 4]))
+    second.wait_for(b"INFO\r\nINFO\r\nINFO\r\n")  # asked three times
+    wait_until(lambda: monitor.state.withheld == 5, timeout=5)
+    assert monitor.state.samples == 1  # none of the stranger's samples were shown
+    # then it does answer, with another model: announced, and from now on shown
+    other = wire("I,fw-9,fedcba9876543210,OK,1000,dx_um;dz_um,0:T05:K;1:T12:K")
+    second.send(other + sample(5, 0, [7, 8], [3, 4]))
+    thread.join(10)
+    text = out.getvalue()
+    assert "cannot identify itself" in text
+    assert "+999.000um" not in text
+    assert "runs model fedcba9876543210, not 0123456789abcdef as before" in text
+    assert monitor.state.samples == 2 and "seq=5 " in text
+    second.unplug()
+
+
+def test_monitor_names_the_faulted_channel_on_the_native_firmware(native_box):
+    """The real firmware's STATUS words: T12's chip reports OPEN (MAX31856 SR 0x01); the
+    monitor asks STATUS, names T12 and the axis that reads it (dz), and not dx."""
+    binary, model_path = native_box
+    box, pty = start_native(binary)
+    monitor = subprocess.Popen([sys.executable, "-m", "host", "monitor", pty, "--model",
+                                str(model_path), "--count", "6", "--json"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               cwd=ROOT)
+    try:
+        assert monitor.stdout is not None and box.stdin is not None
+        first = json.loads(monitor.stdout.readline())
+        assert first["event"] == "connected"
+        feed = "S 0 3200 2816\n" * 2 + "F 1 01\n" + "S 0 3200 2816\n"
+        box.stdin.write(feed.encode())
+        box.stdin.flush()
+        time.sleep(1.0)  # the monitor sees the fault on the third sample and asks STATUS
+        box.stdin.write(b"S 0 3200 2816\n" * 3)
+        box.stdin.flush()
+        monitor.wait(timeout=30)
+        lines = [json.loads(ln) for ln in monitor.stdout.read().splitlines()]
+    finally:
+        if monitor.poll() is None:
+            monitor.kill()
+        box.stdin.write(b"Q\n")
+        box.stdin.close()
+        box.wait(10)
+    samples = [o for o in lines if o["type"] == "sample"]
+    assert len(samples) == 6, lines
+    last = samples[-1]
+    assert "HOLD" in last["flags"] and "OPEN" in last["flags"], last
+    assert last["faulted_channels"] == {"T12": ["OPEN"]}
+    assert last["held_axes"] == ["dz_um"]
+    assert last["temperatures_c"]["T12"] is None and last["temperatures_c"]["T05"] == 25.0

@@ -3,17 +3,28 @@
 Why it exists: at the machine, the first questions are "is the right model on this box?", "what
 is it correcting right now?" and "is any thermocouple faulted?". The monitor asks INFO, checks
 the model hash against the model.json the user has, then shows the corrections, the channel
-temperatures and the status flags as they arrive. A box on a factory floor sends noise and gets
-unplugged: bad lines are counted and shown, never fatal, and a lost port is reopened.
+temperatures and the status flags as they arrive. When a fault flag comes up it asks STATUS and
+names the faulted channel (from the box's per-channel fault words) and the axes that hold (from
+--model); a faulted channel is shown as such, never as a normal temperature. A box on a factory
+floor sends noise and gets unplugged: bad lines are counted and shown, never fatal, silence
+longer than two sample periods raises STALE, and a lost port is reopened; when what reappears
+at the path cannot identify itself (a pty, an adapter without a serial number), nothing it
+sends is shown until its INFO answer names its model.
+
+The sign (docs/protocol.md): the box's correction is its prediction of the thermal
+displacement, in the sign of the displacement measured in the thermal test (compensated =
+measured − correction), so the offset a CNC applies is −correction.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
+import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
@@ -27,11 +38,44 @@ RETRY_S = 1.0
 INFO_TIMEOUT_S = 1.0
 INFO_ATTEMPTS = 3
 REDRAW_S = 0.1
+STATUS_EVERY_S = 1.0  # while a fault flag is up, the per-channel fault words are re-read this often
+STALE_PERIODS = 2.0  # no line for more than this many expected intervals: STALE
+
+SIGN_NOTE = ("sign: a correction is the box's prediction of the thermal displacement, in the "
+             "sign of the displacement measured in the thermal test (compensated = measured − "
+             "correction): the offset to apply is −correction")
+
+# Status and channel-fault bits a newer box may send that this contract may not name yet
+# (docs/protocol.md): shown by name when present, never an error on an older box.
+_EXTRA_STATUS = {11: "REFERENCED", 12: "IMPLAUSIBLE"}
+_EXTRA_CHANNEL_FAULT = {10: "IMPLAUSIBLE"}
+# flags that mean some channel is faulted: ask STATUS which one
+_FAULT_FLAGS = {"HOLD", "RANGE", "OPEN", "TC_FAULT", "AUX_FAULT", "NO_DATA", "IMPLAUSIBLE"}
 
 
 class MonitorError(InputError):
     """Bad monitor input (unreadable model, a log file with another layout, a port that
     cannot be opened at start)."""
+
+
+def status_names(status: int) -> list[str]:
+    """Names of the bits set in a status word, including bits newer than this contract."""
+    names = protocol.status_names(status)
+    named = set(range(len(protocol.STATUS_BITS)))
+    for bit, name in _EXTRA_STATUS.items():
+        if bit not in named and status >> bit & 1 and name not in names:
+            names.append(name)
+    named |= set(_EXTRA_STATUS)
+    return names + [f"bit{b}" for b in range(16) if status >> b & 1 and b not in named]
+
+
+def channel_fault_names(word: int) -> list[str]:
+    """Names of a STATUS per-channel fault word's bits (MAX31856 SR, then the box's own)."""
+    names = [f.name for f in protocol.ChannelFault if word & f.value and f.name]
+    for bit, name in _EXTRA_CHANNEL_FAULT.items():
+        if word >> bit & 1 and name not in names:
+            names.append(name)
+    return names
 
 
 @dataclass
@@ -42,17 +86,24 @@ class MonitorState:
     info: protocol.Info | None = None
     expected_hash: str | None = None
     sample: protocol.Sample | None = None
+    status_report: protocol.StatusReport | None = None
     samples: int = 0
     bad_lines: int = 0
     last_bad: str = ""
     seq_gaps: int = 0
     reconnects: int = 0
+    withheld: int = 0  # samples not shown because the device had not identified itself
     connected: bool = False
-    last_rx: float | None = None
+    last_rx: float | None = None  # any valid line
+    last_sample_rx: float | None = None
+    seq_step: int = 1  # seq advance between the last two samples (RATE n: n)
+    stale: bool = False
     messages: list[str] = field(default_factory=list)
     # sensor -> (window_lo, window_hi) codes from model.json (codegen's EXTRAP windows); used
     # only while the box reports that model's hash, to name the channels behind EXTRAP
     windows: dict[str, tuple[int, int]] = field(default_factory=dict)
+    # axis -> thermocouples its terms read (from --model): names the axes a fault holds
+    axis_inputs: dict[str, list[str]] = field(default_factory=dict)
 
     @property
     def hash_ok(self) -> bool | None:
@@ -68,6 +119,37 @@ class MonitorState:
         names = [c.sensor for c in self.info.channels] if self.info else []
         return names[:n] + [f"ch{i}" for i in range(len(names), n)]
 
+    @property
+    def flags(self) -> list[str]:
+        return status_names(self.sample.status) if self.sample is not None else []
+
+    def period_s(self) -> float | None:
+        return self.info.period_ms / 1000.0 if self.info and self.info.period_ms else None
+
+    def faulted_channels(self) -> dict[str, list[str]]:
+        """Channel name -> fault names, from the latest STATUS reply, while the current
+        sample still raises a fault flag (a cleared fault clears the map)."""
+        rep, s = self.status_report, self.sample
+        if rep is None or s is None or not (set(self.flags) & _FAULT_FLAGS):
+            return {}
+        names = self.channel_names(max(len(rep.channel_faults), len(s.temp_codes)))
+        return {names[i]: channel_fault_names(w) or [f"0x{w:04X}"]
+                for i, w in enumerate(rep.channel_faults) if w}
+
+    def held_axes(self) -> list[str] | None:
+        """Axes that read a faulted channel (so hold), when --model says which axes read
+        what and the box runs that model; None when it cannot be told."""
+        if "HOLD" not in self.flags:
+            return []
+        faulted = set(self.faulted_channels())
+        if not faulted or not self.axis_inputs or self.hash_ok is not True:
+            return None
+        return [a for a, inputs in self.axis_inputs.items() if faulted & set(inputs)]
+
+    def zero_seq(self) -> int | None:
+        rep = self.status_report
+        return getattr(rep, "zero_seq", None) if rep is not None else None
+
     def beyond_training(self) -> list[str]:
         """Channels of the current sample outside their training window (named only when the
         box runs the model.json the windows came from)."""
@@ -78,15 +160,41 @@ class MonitorState:
         return [n for n, code in zip(names, s.temp_codes, strict=True)
                 if n in self.windows and not self.windows[n][0] <= code <= self.windows[n][1]]
 
+    def silence_s(self, now: float) -> float | None:
+        return None if self.last_sample_rx is None else now - self.last_sample_rx
+
+    def stale_after_s(self) -> float | None:
+        period = self.period_s()
+        return None if period is None else STALE_PERIODS * period * max(1, self.seq_step)
+
 
 def _flags(state: MonitorState, sep: str) -> str:
-    """The status flags of the current sample; EXTRAP names its channels when it can."""
+    """The status flags of the current sample, each named with what it concerns: EXTRAP and
+    the channel faults with their channels, HOLD with its axes, REFERENCED with its ZERO."""
     assert state.sample is not None
-    names = protocol.status_names(state.sample.status)
-    beyond = state.beyond_training() if "EXTRAP" in names else []
-    if beyond:
-        names = [f"EXTRAP({'+'.join(beyond)})" if n == "EXTRAP" else n for n in names]
-    return sep.join(names) or "ok"
+    names = state.flags
+    faulted = state.faulted_channels()
+    out = []
+    for n in names:
+        if n == "EXTRAP":
+            beyond = state.beyond_training()
+            out.append(f"EXTRAP({'+'.join(beyond)})" if beyond else n)
+        elif n == "HOLD":
+            held = state.held_axes()
+            chans = "+".join(faulted)
+            out.append(f"HOLD({'+'.join(held)})" if held else
+                       f"HOLD(axes reading {chans})" if chans else n)
+        elif n in ("OPEN", "TC_FAULT", "RANGE", "IMPLAUSIBLE"):
+            want = {"TC_FAULT": {"OVUV", "TCLOW", "TCHIGH", "CJLOW", "CJHIGH", "TCRANGE",
+                                 "CJRANGE"}, "OPEN": {"OPEN"}, "RANGE": {"RANGE"},
+                    "IMPLAUSIBLE": {"IMPLAUSIBLE"}}[n]
+            chans = [c for c, f in faulted.items() if want & set(f)]
+            out.append(f"{n}({'+'.join(chans)})" if chans else n)
+        elif n == "REFERENCED" and state.zero_seq() is not None:
+            out.append(f"REFERENCED(since #{state.zero_seq()})")
+        else:
+            out.append(n)
+    return sep.join(out) or "ok"
 
 
 def _hash_line(state: MonitorState) -> str:
@@ -102,26 +210,52 @@ def _hash_line(state: MonitorState) -> str:
     return text
 
 
-def render(state: MonitorState, now: float) -> list[str]:
+def _reference_line(state: MonitorState) -> str:
+    if "REFERENCED" in state.flags:
+        z = state.zero_seq()
+        return ("corrections are the change since ZERO"
+                + (f" (reference from sample #{z})" if z is not None else ""))
+    return "corrections are absolute (no ZERO reference in force)"
+
+
+GREY, RED, RESET = "\x1b[90m", "\x1b[1;31m", "\x1b[0m"
+
+
+def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
     """The live screen as lines (the ANSI display redraws exactly these)."""
+    grey, red, reset = (GREY, RED, RESET) if colour else ("", "", "")
     lines = [f"host monitor on {state.port}: "
              + ("connected" if state.connected else "DISCONNECTED, retrying"),
              _hash_line(state)]
+    silence, limit = state.silence_s(now), state.stale_after_s()
+    if silence is not None and limit is not None and silence > limit:
+        lines.append(f"{red}STALE: no sample for {silence:.1f} s (expected every "
+                     f"{limit / STALE_PERIODS:g} s): the values below are old{reset}")
     s = state.sample
     if s is None:
         lines.append("no sample yet")
     else:
-        age = "" if state.last_rx is None else f", {now - state.last_rx:.1f} s ago"
+        age = "" if silence is None else f", {silence:.1f} s ago"
         lines.append(f"sample #{s.seq}{age}   status {s.status:04X}: {_flags(state, ', ')}")
+        lines.append(f"  {_reference_line(state)}; offset to apply = −correction")
+        held = set(state.held_axes() or [])
         for name, nm in zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
                             strict=True):
-            lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} µm")
-        temps = [f"{name} {code / 128.0:7.2f} °C" for name, code in
-                 zip(state.channel_names(len(s.temp_codes)), s.temp_codes, strict=True)]
+            mark = "  (HOLD: last good value)" if name in held else ""
+            lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} µm{mark}")
+        faulted = state.faulted_channels()
+        temps = []
+        for name, code in zip(state.channel_names(len(s.temp_codes)), s.temp_codes,
+                              strict=True):
+            if name in faulted:
+                temps.append(f"{grey}{name} {'/'.join(faulted[name]):>9}{reset}")
+            else:
+                temps.append(f"{name} {code / 128.0:7.2f} °C")
         for i in range(0, len(temps), 4):
             lines.append("  " + "   ".join(temps[i:i + 4]))
     lines.append(f"samples {state.samples}   bad lines {state.bad_lines}   "
-                 f"seq gaps {state.seq_gaps}   reconnects {state.reconnects}")
+                 f"seq gaps {state.seq_gaps}   reconnects {state.reconnects}"
+                 + (f"   withheld {state.withheld}" if state.withheld else ""))
     if state.last_bad:
         lines.append(f"  last bad line: {state.last_bad}")
     return lines
@@ -133,11 +267,34 @@ def plain_sample_line(state: MonitorState) -> str:
     assert s is not None
     corr = " ".join(f"{n}={nm / 1000.0:+.3f}um" for n, nm in
                     zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm, strict=True))
-    temps = " ".join(f"{n}={c / 128.0:.2f}C" for n, c in
+    faulted = state.faulted_channels()
+    temps = " ".join(f"{n}=FAULT({'/'.join(faulted[n])})" if n in faulted else
+                     f"{n}={c / 128.0:.2f}C" for n, c in
                      zip(state.channel_names(len(s.temp_codes)), s.temp_codes, strict=True))
     flags = _flags(state, ",")
     return (f"seq={s.seq} status={s.status:04X}[{flags}] {corr} {temps} "
             f"bad={state.bad_lines}".replace("  ", " "))
+
+
+def json_sample(state: MonitorState, received: float) -> dict:
+    """One sample as the ``--json`` object: corrections (µm) per axis, temperatures (°C, null
+    for a faulted channel) per sensor, flags, faulted channels and held axes."""
+    s = state.sample
+    assert s is not None
+    faulted = state.faulted_channels()
+    names = state.channel_names(len(s.temp_codes))
+    return {
+        "type": "sample", "seq": s.seq, "status": f"{s.status:04X}", "flags": state.flags,
+        "corrections_um": {n: nm / 1000.0 for n, nm in
+                           zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
+                               strict=True)},
+        "temperatures_c": {n: (None if n in faulted else c / 128.0)
+                           for n, c in zip(names, s.temp_codes, strict=True)},
+        "faulted_channels": faulted, "held_axes": state.held_axes(),
+        "beyond_training": state.beyond_training(),
+        "referenced": "REFERENCED" in state.flags, "zero_seq": state.zero_seq(),
+        "model_hash_ok": state.hash_ok, "host_unix_s": round(received, 3),
+    }
 
 
 class CsvLog:
@@ -197,11 +354,30 @@ def open_port(port: str, baud: int) -> serial.SerialBase:
     return serial.Serial(port, baudrate=baud, timeout=0.05)
 
 
+def device_identity(port: str) -> str | None:
+    """What the device at ``port`` says it is without being asked: a USB adapter's serial
+    number (vendor:product:serial). None for a pty, a URL or an adapter without a serial
+    number: such a device can only be known by its INFO answer."""
+    if "://" in port:
+        return None
+    try:
+        from serial.tools import list_ports
+
+        real = os.path.realpath(port)
+        for p in list_ports.comports():
+            if os.path.realpath(p.device) == real and p.serial_number:
+                return f"{p.vid or 0:04x}:{p.pid or 0:04x}:{p.serial_number}"
+    except (OSError, ImportError):
+        return None
+    return None
+
+
 class Monitor:
     """Reads lines from the box, keeps ``state`` current, shows it and logs samples.
 
     ``count``/``duration`` stop it for scripts; ``ansi`` redraws in place (default: when
-    ``out`` is a terminal), else one plain line per sample and per event.
+    ``out`` is a terminal), else one plain line per sample and per event; ``json_lines``
+    prints one JSON object per sample and per event instead.
     """
 
     def __init__(self, port: str, baud: int = 115200, expected_hash: str | None = None,
@@ -209,16 +385,22 @@ class Monitor:
                  log: str | Path | None = None, count: int | None = None,
                  duration: float | None = None, out: TextIO | None = None,
                  ansi: bool | None = None, retry_s: float = RETRY_S,
-                 opener: Callable[[str, int], serial.SerialBase] = open_port) -> None:
+                 opener: Callable[[str, int], serial.SerialBase] = open_port,
+                 axis_inputs: Mapping[str, Sequence[str]] | None = None,
+                 json_lines: bool = False,
+                 identify: Callable[[str], str | None] = device_identity) -> None:
         self.port_name = port
         self.baud = baud
         self.count = count
         self.duration = duration
         self.out = sys.stdout if out is None else out
-        self.ansi = self.out.isatty() if ansi is None else ansi
+        self.json = json_lines
+        self.ansi = False if json_lines else (self.out.isatty() if ansi is None else ansi)
         self.retry_s = retry_s
         self.opener = opener
-        self.state = MonitorState(port, expected_hash=expected_hash, windows=dict(windows or {}))
+        self.identify = identify
+        self.state = MonitorState(port, expected_hash=expected_hash, windows=dict(windows or {}),
+                                  axis_inputs={a: list(v) for a, v in (axis_inputs or {}).items()})
         self.log = CsvLog(log) if log else None
         self._port: serial.SerialBase | None = None
         self._buf = bytearray()
@@ -228,6 +410,11 @@ class Monitor:
         self._info_attempts = 0
         self._next_retry = 0.0
         self._pending: list[tuple[protocol.Sample, float]] = []
+        self._identity: str | None = None
+        self._previous_hash: str | None = None
+        self._must_identify = False  # after a reconnect to a device that cannot say what it is
+        self._status_sent_at: float | None = None
+        self._status_for: frozenset[str] = frozenset()
 
     # ---- life cycle ------------------------------------------------------------------------
     def run(self) -> int:
@@ -237,6 +424,7 @@ class Monitor:
             self._port = self.opener(self.port_name, self.baud)
         except (OSError, serial.SerialException) as exc:
             raise MonitorError(f"{self.port_name}: cannot open serial port: {exc}") from None
+        self._identity = self.identify(self.port_name)
         self._connected()
         try:
             while not self._done(start):
@@ -247,6 +435,7 @@ class Monitor:
                     self._poll()
                 except (OSError, serial.SerialException) as exc:
                     self._lost(exc)
+                self._check_stale(time.monotonic())
                 self._draw()
         except KeyboardInterrupt:
             pass
@@ -258,8 +447,16 @@ class Monitor:
             if self.log:
                 self.log.close()
         st = self.state
-        self._emit(f"monitor: {st.samples} samples, {st.bad_lines} bad lines, {st.seq_gaps} seq "
-                   f"gaps, {st.reconnects} reconnects", final=True)
+        text = (f"monitor: {st.samples} samples, {st.bad_lines} bad lines, {st.seq_gaps} seq "
+                f"gaps, {st.reconnects} reconnects"
+                + (f", {st.withheld} withheld from an unidentified device" if st.withheld
+                   else ""))
+        if self.json:
+            self._json({"type": "summary", "samples": st.samples, "bad_lines": st.bad_lines,
+                        "seq_gaps": st.seq_gaps, "reconnects": st.reconnects,
+                        "withheld": st.withheld, "model_hash_ok": st.hash_ok})
+        else:
+            self._emit(text, final=True)
         if st.hash_ok is False or (st.info is not None and not st.info.crc_ok):
             return 1
         return 0
@@ -274,10 +471,10 @@ class Monitor:
         self._buf.clear()
         self._info_attempts = 0
         self._ask_info()
-        self._event(f"connected to {self.port_name}")
+        self._event(f"connected to {self.port_name}", kind="connected")
 
     def _lost(self, exc: BaseException) -> None:
-        self._event(f"connection lost ({exc}); retrying every {self.retry_s:g} s")
+        self._event(f"connection lost ({exc}); retrying every {self.retry_s:g} s", kind="lost")
         try:
             if self._port is not None:
                 self._port.close()
@@ -300,16 +497,34 @@ class Monitor:
             self._next_retry = time.monotonic() + self.retry_s
             return
         self.state.reconnects += 1
+        if self.state.info is not None:
+            self._previous_hash = self.state.info.model_hash
         self.state.info = None  # the box may have been swapped or reflashed: ask again
+        self.state.status_report = None
+        identity = self.identify(self.port_name)
+        # a device that cannot say what it is (a pty, an adapter without a serial number), or
+        # another adapter: nothing it sends is shown until its INFO answer names its model
+        self._must_identify = identity is None or identity != self._identity
+        self._identity = identity
         self._connected()
+        if self._must_identify:
+            self._event("the device now at this path cannot identify itself: its model hash "
+                        "is checked (INFO) before anything it sends is shown", kind="identify")
 
     # ---- reading ---------------------------------------------------------------------------
     def _ask_info(self) -> None:
         assert self._port is not None
-        self._port.write(b"INFO\r\n")
+        self._port.write(protocol.encode_command("INFO"))
         self._port.flush()
         self._info_sent_at = time.monotonic()
         self._info_attempts += 1
+
+    def _ask_status(self, now: float) -> None:
+        if self._port is None:
+            return
+        self._port.write(protocol.encode_command("STATUS"))
+        self._port.flush()
+        self._status_sent_at = now
 
     def _poll(self) -> None:
         port = self._port
@@ -322,7 +537,11 @@ class Monitor:
                 self._ask_info()
             else:
                 self._info_sent_at = None
-                self._event("no INFO reply: showing samples without names")
+                if self._must_identify:
+                    self._event("no INFO reply from the device now at this path: its lines are "
+                                "not shown (it is not known to be the box)", kind="unidentified")
+                else:
+                    self._event("no INFO reply: showing samples without names", kind="no_info")
                 self._flush_pending(force=True)
         if not data:
             return
@@ -345,45 +564,111 @@ class Monitor:
             return
         self.state.last_rx = now
         if isinstance(message, protocol.Info):
-            self.state.info = message
-            self._info_sent_at = None
-            self._event(_hash_line(self.state))
-            self._flush_pending(force=True)
+            self._got_info(message)
+        elif isinstance(message, protocol.StatusReport):
+            self.state.status_report = message
         elif isinstance(message, protocol.Sample):
+            if self.state.stale:
+                silence = self.state.silence_s(now)
+                self.state.stale = False
+                self._event(f"samples resumed after {silence or 0:.1f} s", kind="resumed")
+            self.state.last_sample_rx = now
             self._pending.append((message, time.time()))
+            self._want_status(message, now)
             self._flush_pending(force=False)
+
+    def _got_info(self, info: protocol.Info) -> None:
+        st = self.state
+        st.info = info
+        self._info_sent_at = None
+        self._event(_hash_line(st), kind="info")
+        if self._previous_hash is not None and info.model_hash != self._previous_hash:
+            self._event(f"the device now at this path runs model {info.model_hash}, not "
+                        f"{self._previous_hash} as before the connection was lost",
+                        kind="model_changed")
+        if self._must_identify and st.expected_hash is not None and st.hash_ok is False:
+            self._event("its model hash does not match model.json: its samples are not shown",
+                        kind="unidentified")
+            self._pending.clear()
+            return
+        self._must_identify = False
+        if st.reconnects == 0 or self._previous_hash is None:
+            self._event(SIGN_NOTE, kind="sign")
+        self._flush_pending(force=True)
+
+    def _want_status(self, sample: protocol.Sample, now: float) -> None:
+        """Ask STATUS (the per-channel fault words, the ZERO reference) when the fault or
+        reference flags change, and again every STATUS_EVERY_S while a fault flag is up."""
+        flags = frozenset(status_names(sample.status)) & (_FAULT_FLAGS | {"REFERENCED"})
+        if not flags:
+            self._status_for = flags
+            return
+        changed = flags != self._status_for
+        due = self._status_sent_at is None or now - self._status_sent_at >= STATUS_EVERY_S
+        if changed or (due and flags & _FAULT_FLAGS):
+            self._status_for = flags
+            self._ask_status(now)
+
+    def _check_stale(self, now: float) -> None:
+        st = self.state
+        silence, limit = st.silence_s(now), st.stale_after_s()
+        if st.stale or silence is None or limit is None or silence <= limit:
+            return
+        st.stale = True
+        self._event(f"STALE: no sample for {silence:.1f} s (expected every "
+                    f"{limit / STALE_PERIODS:g} s); the last values shown are old", kind="stale")
 
     def _bad(self, raw: bytes, why: str) -> None:
         self.state.bad_lines += 1
         shown = raw[:60].decode("ascii", errors="backslashreplace")
         self.state.last_bad = f"{shown!r}: {why}"
-        if not self.ansi:
+        if self.json:
+            self._json({"type": "bad_line", "n": self.state.bad_lines, "line": shown,
+                        "why": why})
+        elif not self.ansi:
             self._emit(f"bad line #{self.state.bad_lines}: {self.state.last_bad}")
 
     def _flush_pending(self, force: bool) -> None:
-        """Samples wait for the INFO reply (for axis and sensor names) unless none is coming."""
+        """Samples wait for the INFO reply (for axis and sensor names) unless none is coming;
+        from a device that must identify itself first, they are withheld until it has."""
         if not force and self.state.info is None and self._info_sent_at is not None:
+            return
+        if self._must_identify:
+            if self.state.info is None and self._info_sent_at is None:
+                self.state.withheld += len(self._pending)
+                self._pending.clear()
             return
         for sample, received in self._pending:
             if self.count is not None and self.state.samples >= self.count:
                 break
             prev = self.state.sample
+            if prev is not None and sample.seq > prev.seq:
+                self.state.seq_step = min(sample.seq - prev.seq, 3600)
             if prev is not None and sample.seq > prev.seq + 1:
                 self.state.seq_gaps += sample.seq - prev.seq - 1
             self.state.sample = sample
             self.state.samples += 1
             if self.log:
                 self.log.write(self.state, received)
-            if not self.ansi:
+            if self.json:
+                self._json(json_sample(self.state, received))
+            elif not self.ansi:
                 self._emit(plain_sample_line(self.state))
         self._pending.clear()
 
     # ---- output ----------------------------------------------------------------------------
-    def _event(self, text: str) -> None:
-        if self.ansi:
+    def _event(self, text: str, kind: str = "event") -> None:
+        if self.json:
+            self._json({"type": "event", "event": kind, "message": text,
+                        "host_unix_s": round(time.time(), 3)})
+        elif self.ansi:
             self.state.messages = (self.state.messages + [text])[-3:]
         else:
             self._emit(text)
+
+    def _json(self, obj: dict) -> None:
+        self.out.write(json.dumps(obj, ensure_ascii=False) + "\n")
+        self.out.flush()
 
     def _emit(self, text: str, final: bool = False) -> None:
         if self.ansi and not final:
@@ -398,7 +683,7 @@ class Monitor:
         if not force and now - self._last_draw < REDRAW_S:
             return
         self._last_draw = now
-        lines = render(self.state, now) + [f"  {m}" for m in self.state.messages]
+        lines = render(self.state, now, colour=True) + [f"  {m}" for m in self.state.messages]
         buf = io.StringIO()
         if self._drawn:
             buf.write(f"\x1b[{self._drawn}F")  # back to the first line of the last frame
