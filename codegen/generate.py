@@ -16,7 +16,7 @@ from codegen.render import render
 from contract import __version__ as CODEGEN_VERSION
 from contract.box import HEADER_FORMAT
 from contract.fixed_point import ACC_LIMIT
-from contract.model_file import write_text_atomic
+from contract.model_file import ModelFormatError, read_model, write_text_atomic
 
 DEFAULT_MAX_ERROR_UM = 0.01
 
@@ -102,19 +102,12 @@ def generate(model: Mapping, max_error_um: float = DEFAULT_MAX_ERROR_UM) -> Gene
 
 
 def load_model(path: str | Path) -> dict:
-    path = Path(path)
+    """A model file read and checked by ``contract.model_file.read_model`` (structure and
+    stored hash), its refusals raised as CodegenError."""
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CodegenError(f"{path}: no such model file") from None
-    try:
-        model = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise CodegenError(f"{path}, line {exc.lineno}, column {exc.colno}: "
-                           f"invalid JSON: {exc.msg}") from None
-    if not isinstance(model, dict):
-        raise CodegenError(f"{path}: the model must be a JSON object")
-    return model
+        return read_model(path)
+    except ModelFormatError as exc:
+        raise CodegenError(str(exc)) from None
 
 
 def fixed_point_path(header_path: str | Path) -> Path:

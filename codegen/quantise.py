@@ -39,7 +39,7 @@ from contract.fixed_point import (
     rdiv,
     round_half_away,
 )
-from contract.model_file import SCHEMA
+from contract.model_file import SCHEMA, ModelFormatError, check_model
 from contract.terms import AUX_KINDS, FILTER_KINDS, KIND_CODES, TC_TYPES, TEMPERATURE_KINDS
 
 # Runtime capacity (firmware/include/model_eval.h), named as codegen's messages use them.
@@ -464,11 +464,17 @@ def _number_states(axes: list[QAxis]) -> tuple[QAxis, ...]:
 
 
 def quantise(model: Mapping) -> QModel:
-    """Validate a model.json dict and quantise it (raises CodegenError naming the problem)."""
+    """Validate a model.json dict and quantise it (raises CodegenError naming the problem).
+
+    The structural checks are ``contract.model_file.check_model``'s (the same for every
+    command); what follows adds only what needs the fixed-point encoding.
+    """
     from codegen.hashing import model_hash
 
-    if not isinstance(model, Mapping):
-        raise CodegenError("the model must be a JSON object")
+    try:  # the structural rules every command shares (contract.model_file)
+        check_model(model, "", output_range=False)
+    except ModelFormatError as exc:
+        raise CodegenError(str(exc)) from None
     schema = model.get("schema")
     if schema != SCHEMA:
         raise CodegenError(f"schema {schema!r} is not supported (expected {SCHEMA!r})")

@@ -361,7 +361,7 @@ REFUSALS = [
     ("square ref", _single([{"kind": "square", "source": "T01", "ref_c": 20.001,
                              "coef": 1.0}]),
      ["square(T01-20.001C)", "multiple of 1/128"]),
-    ("source", _single([term(make_temp("T99"), 1.0)]), ["'T99'", "not in channels"]),
+    ("source", _single([term(make_temp("T99"), 1.0)]), ["'T99'", "is not in 'channels'"]),
     ("kind", _single([{"kind": "cubic", "source": "T01", "coef": 1.0}]),
      ["unknown term kind 'cubic'"]),
     ("tc type", _edit(GOOD, lambda m: m["channels"][0].update(tc_type="T")),

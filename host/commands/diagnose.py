@@ -10,6 +10,7 @@ from contract.errors import InputError
 from contract.model_file import jsonable, read_model
 from host.analysis import diagnose, load_for_diagnosis, summary_lines
 from host.commands._arguments import add_reference_argument
+from host.commands._options import add_fill_gaps
 from host.fitting import DEFAULT_BLOCKS
 from host.train import input_units
 
@@ -27,9 +28,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--blocks", type=int, default=DEFAULT_BLOCKS, metavar="N",
                         help="time blocks of the run that validate an effect (default "
                         "%(default)s)")
-    parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
-                        help="interpolate interior gaps of at most N samples (default: reject)")
     add_reference_argument(parser, training=False)
+    add_fill_gaps(parser)
     parser.add_argument("--json", action="store_true", help="print JSON on stdout")
 
 

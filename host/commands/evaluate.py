@@ -8,6 +8,7 @@ import json
 from contract.model_file import jsonable, read_model
 from host.analysis import evaluate_model, load_for_model
 from host.commands._arguments import add_reference_argument
+from host.commands._options import add_fill_gaps
 from host.train import describe, input_units
 
 NAME = "evaluate"
@@ -17,9 +18,8 @@ HELP = "evaluate a model.json on a run: residual RMSE, peak, raw drift and reduc
 def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", metavar="MODEL.json")
     parser.add_argument("run", metavar="RUN.csv")
-    parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
-                        help="interpolate interior gaps of at most N samples (default: reject)")
     add_reference_argument(parser, training=False)
+    add_fill_gaps(parser)
     parser.add_argument("--json", action="store_true", help="print JSON on stdout")
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from host.commands._options import add_fill_gaps
+
 NAME = "report"
 HELP = "write an HTML report (with PNG figures) of a model on runs, its peers and effects"
 
@@ -20,8 +22,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="`python -m hil replay --json` results to show the box's own output")
     parser.add_argument("--no-peers", action="store_true",
                         help="do not fit the peer models of `host compare`")
-    parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
-                        help="interpolate gaps of at most N samples in the runs")
+    add_fill_gaps(parser)
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON instead of text")
 

@@ -11,6 +11,7 @@ from contract.box import BOX_CHANNELS
 from contract.errors import InputError
 from contract.model_file import jsonable, write_model, write_text_atomic
 from host.commands._arguments import add_reference_argument
+from host.commands._options import add_fill_gaps
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
 from host.train import summary, train_model
 
@@ -35,8 +36,7 @@ def add_data_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--aux", action="append", default=[], metavar="COL",
                         help="auxiliary input column, e.g. spindle_rpm (repeatable)")
     add_reference_argument(parser, training=True)
-    parser.add_argument("--fill-gaps", type=int, default=0, metavar="N",
-                        help="interpolate interior gaps of at most N samples (default: reject)")
+    add_fill_gaps(parser)
 
 
 def add_selection_arguments(parser: argparse.ArgumentParser) -> None:
