@@ -23,6 +23,7 @@ import socket
 import subprocess
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from hil.build import build_firmware
@@ -46,7 +47,8 @@ def _free_port() -> int:
 class QemuBox:
     """One QEMU process running the qemu_uartfeed image; same interface as NativeBox."""
 
-    def __init__(self, elf: str | Path, start_timeout: float = 15.0) -> None:
+    def __init__(self, elf: str | Path, start_timeout: float = 15.0,
+                 extra_args: Sequence[str] = ()) -> None:
         if not qemu_available():
             raise BoxStartError(f"{QEMU} is not installed (apt-get install --no-install-"
                                 "recommends qemu-system-arm)")
@@ -58,7 +60,7 @@ class QemuBox:
                 "-chardev", "pty,id=box", "-serial", "chardev:box",
                 "-chardev", f"socket,id=feed,host=127.0.0.1,port={port},server=on,wait=off,"
                 "nodelay=on", "-serial", "chardev:feed",
-                "-kernel", str(self.elf)]
+                "-kernel", str(self.elf), *extra_args]
         self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, bufsize=0)
         self.link: SerialLink | None = None
