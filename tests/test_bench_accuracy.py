@@ -1,0 +1,95 @@
+"""The accuracy bench's harness (bench/bench_accuracy.py): its start reference against a
+hand-computed example, its scoring, a peer's test error against a direct numpy fit on a tiny
+case, and its summary (geometric mean, the loop's check, the calibration count)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench import bench_accuracy as acc
+from host.io import write_run
+
+
+def test_reference_is_the_running_mean_of_the_first_k_samples():
+    x = np.array([1.0, 3.0, 5.0, 7.0, 11.0])
+    # k = 2: references 1, (1+3)/2, then frozen at 2
+    np.testing.assert_allclose(acc.referenced(x, 2), [0.0, 1.0, 3.0, 5.0, 9.0])
+    np.testing.assert_allclose(acc.referenced(x, 1), x - 1.0)
+    # k beyond the run: every sample is referenced to the mean so far
+    np.testing.assert_allclose(acc.referenced(x[:2], 5), [0.0, 1.0])
+    cols = np.column_stack([x, 2 * x])
+    np.testing.assert_allclose(acc.referenced(cols, 2)[:, 1], 2 * acc.referenced(x, 2))
+    assert acc.reference_window(60.0) == 5 and acc.reference_window(15.0) == 20
+    assert acc.reference_window(3600.0) == 1
+
+
+def test_score_start_ignores_a_constant_offset_none_does_not():
+    rng = np.random.default_rng(1)
+    y = np.cumsum(rng.normal(size=50))
+    assert acc.score(y, y + 7.0, "start", 60.0) == pytest.approx(0.0, abs=1e-12)
+    assert acc.score(y, y + 7.0, "none", 60.0) == pytest.approx(7.0)
+    pred = y + rng.normal(size=50)
+    k = acc.reference_window(60.0)
+    direct = np.sqrt(np.mean(((pred - pred[:k].mean()) - (y - y[:k].mean()))[k:] ** 2))
+    # after the first k samples the reference is the plain mean of the first k
+    full = acc.score(y, pred, "start", 60.0)
+    head = acc.referenced(pred, k)[:k] - acc.referenced(y, k)[:k]
+    assert full == pytest.approx(np.sqrt((np.sum(head ** 2) + direct ** 2 * (50 - k)) / 50))
+
+
+def _tiny_run(path: Path, seed: int, offset_c: float, n: int = 240) -> None:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 60.0
+    heat = 1 - np.exp(-t / 3000.0)
+    cols = {f"T{i:02d}": 20 + offset_c + (2 + i) * heat + 0.2 * np.sin(t / (900 + 300 * i))
+            + 0.02 * rng.normal(size=n) for i in range(1, 6)}
+    cols["spindle_rpm"] = np.full(n, 4000.0)
+    dz = 3 * (cols["T01"] - cols["T01"][0]) - 0.5 * (cols["T04"] - cols["T04"][0])
+    cols["dy_um"] = 0.5 * (cols["T02"] - cols["T02"][0]) + 0.05 * rng.normal(size=n)
+    cols["dz_um"] = dz + 0.05 * rng.normal(size=n)
+    write_run(path, t, cols)
+
+
+def test_peer_test_rmse_equals_a_direct_numpy_fit(tmp_path):
+    for i, off in enumerate((0.0, 1.0, 3.0)):  # the test day starts 3 K warmer
+        _tiny_run(tmp_path / f"r{i}.csv", i, off)
+    job = acc.Job("sim_dev", "tiny", (acc.RunSpec(str(tmp_path / "r0.csv")),
+                                      acc.RunSpec(str(tmp_path / "r1.csv"))),
+                  (acc.RunSpec(str(tmp_path / "r2.csv")),), ("dz_um",), "start")
+    rows, timings = acc.run_job(job)
+    (row,) = rows
+    assert set(row["rmse_um"]) == set(acc.OURS) | set(acc.PEERS)
+    assert timings["job"] > 0
+
+    def load(name):
+        data = np.genfromtxt(tmp_path / name, delimiter=",", names=True)
+        T = np.column_stack([data[f"T{i:02d}"] for i in range(1, 6)])
+        return acc.referenced(T, 5), acc.referenced(data["dz_um"], 5), data["dz_um"]
+
+    (X0, y0, _), (X1, y1, _), (Xt, _, yt) = load("r0.csv"), load("r1.csv"), load("r2.csv")
+    A = np.column_stack([np.vstack([X0, X1]), np.ones(2 * len(y0))])
+    coef, *_ = np.linalg.lstsq(A, np.concatenate([y0, y1]), rcond=None)
+    pred = np.column_stack([Xt, np.ones(len(yt))]) @ coef
+    direct = np.sqrt(np.mean((acc.referenced(pred, 5) - acc.referenced(yt, 5)) ** 2))
+    assert row["rmse_um"]["OLS all"] == pytest.approx(direct, rel=1e-6)
+    # the truth is a linear law of T01 and T04: the referenced peers recover it closely
+    assert row["rmse_um"]["best-4"] < 0.2
+    assert row["raw_um"] > 10 * row["rmse_um"]["OLS all"]
+
+
+def test_summary_geomean_loop_and_calibration():
+    def case(d, noeff, peer, promised):
+        c = acc.CaseResult("fl", "g", "t", "ch1_um", "none")
+        c.rmse_um = {"default": d, "no effects": noeff, "paper": d, "OLS all": peer,
+                     "HGB": 2 * peer, "best-5": float("nan")}
+        c.promised_um = {"default": promised}
+        return c
+
+    cases = [case(1.0, 1.0, 2.0, 1.5), case(4.0, 3.0, 2.0, 1.0)]
+    s = acc.summarise(cases)
+    assert s["per_source"]["fl"]["geomean default / best peer"] == pytest.approx(1.0)
+    assert cases[1].best_peer == ("OLS all", 2.0)
+    assert [w["default_um"] for w in s["loop_worse"]] == [4.0]
+    assert s["calibration"]["fl"]["within factor 2"] == 1  # 1/1.5 yes, 4/1 no
+    assert "loop" in acc.table(cases, s)
