@@ -82,26 +82,35 @@ CALIBRATION_FACTOR = 2.0
 
 # --------------------------------------------------------------------------- reference
 
+try:  # the project's start reference (issue 13); the same definition stands in before it
+    from host.fitting.reference import causal_reference, window_samples
+except ImportError:  # pragma: no cover - main before the reference landed
+    def causal_reference(values: np.ndarray, samples: int) -> np.ndarray:
+        values = np.asarray(values, dtype=float)
+        if values.shape[0] == 0:
+            return values.copy()
+        k = max(1, min(int(samples), values.shape[0]))
+        counts = np.arange(1, k + 1, dtype=float).reshape((-1,) + (1,) * (values.ndim - 1))
+        head = np.cumsum(values[:k], axis=0) / counts
+        return np.concatenate([head, np.repeat(head[-1:], values.shape[0] - k, axis=0)])
+
+    def window_samples(period_s: float, window_s: float = REF_WINDOW_S) -> int:
+        return int(max(1, min(64, round(window_s / period_s))))
+
+
 def reference_window(period_s: float) -> int:
-    """K, the number of samples in the start reference (at least 1)."""
-    return max(1, int(round(REF_WINDOW_S / period_s)))
+    """K, the number of samples in the start reference (host.fitting.reference)."""
+    return window_samples(period_s)
 
 
 def referenced(x: np.ndarray, k: int) -> np.ndarray:
     """``x`` minus its start reference: sample n minus the mean of samples 0..min(n, k-1).
 
-    Works on a series (n,) or on columns (n, m); the reference of one run (call it per run).
-    Local stand-in for the project's reference (host.fitting.reference, issue 13), same
-    definition.
+    A series (n,) or columns (n, m) of one run (call it per run); the reference is
+    host.fitting.reference.causal_reference, the one the model and the box use.
     """
     x = np.asarray(x, dtype=float)
-    if x.shape[0] == 0:
-        return x.copy()
-    k = max(1, min(int(k), x.shape[0]))
-    counts = np.arange(1, k + 1, dtype=float).reshape((-1,) + (1,) * (x.ndim - 1))
-    head = np.cumsum(x[:k], axis=0) / counts
-    ref = np.concatenate([head, np.repeat(head[-1:], x.shape[0] - k, axis=0)], axis=0)
-    return x - ref
+    return x - causal_reference(x, k)
 
 
 def score(measured: np.ndarray, predicted: np.ndarray, reference: str, period_s: float) -> float:
@@ -238,11 +247,25 @@ def _load(spec: RunSpec, targets: Sequence[str]):
 
 
 def train_kwargs(reference: str) -> dict:
-    """``reference=`` for train_model once it takes it (issue 13); nothing before."""
+    """``reference=`` for train_model when it takes it (issue 13); nothing before."""
     from host.train import train_model
 
     return {"reference": reference} if "reference" in inspect.signature(train_model).parameters \
         else {}
+
+
+def raw_prediction(model: dict, run) -> dict[str, np.ndarray]:
+    """The model's output before any reference (``score`` references it, as for the peers).
+
+    host.analysis.evaluate.predict references a ``start`` model's output at the run's start;
+    asked for ``none`` it returns the plain output, and referencing that is the same thing
+    (the reference is linear). A predict without ``reference=`` returns the plain output.
+    """
+    from host.analysis.evaluate import predict
+
+    if "reference" in inspect.signature(predict).parameters:
+        return predict(model, run, reference="none")
+    return predict(model, run)
 
 
 def peer_features(run, reference: str, lags: bool) -> np.ndarray:
@@ -332,7 +355,6 @@ def _worker_init() -> None:
 
 def run_job(job: Job) -> tuple[list[dict], dict]:
     """Train every column of one job and score each (test run, target); JSON-able rows."""
-    from host.analysis.evaluate import predict
     from host.fitting import fold_groups
     from host.train import train_model
 
@@ -357,7 +379,7 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
             timings[f"train {column}"] = timings.get(f"train {column}", 0.0) + \
                 time.perf_counter() - t0
             for s, run in test:
-                pred = predict(model, run)
+                pred = raw_prediction(model, run)
                 for t in group:
                     case = cases[(s.name, t)]
                     axis = model["axes"][t]
