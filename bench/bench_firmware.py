@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import tempfile
@@ -20,7 +21,7 @@ import serial
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from firmware_support import build, load_generator  # noqa: E402
+from firmware_support import build, load_generator, private_pty  # noqa: E402
 
 N_SAMPLES = 86_400
 
@@ -32,10 +33,17 @@ def _sizes(tmp: Path, header: Path) -> tuple[int, int]:
 
 
 def _replay_seconds(binary: Path) -> float:
-    proc = subprocess.Popen([str(binary)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            bufsize=0)
+    # the pty is ours (never a /dev/pts path another process may have been given): CI lost
+    # lines here once in ten runs when it was opened by path
+    master, slave = private_pty()
+    try:
+        proc = subprocess.Popen([str(binary), "--pty-fd", str(master)], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, bufsize=0, pass_fds=(master,))
+    finally:
+        os.close(master)
     assert proc.stdin is not None and proc.stdout is not None
-    port = serial.Serial(proc.stdout.readline().decode().split()[1], timeout=10)
+    proc.stdout.readline()  # "PTY <path>"
+    port = serial.Serial(f"/proc/self/fd/{slave}", timeout=10)
     feed = "".join(f"S {i % 12000} " + " ".join(str(2560 + (i // 60 + c) % 2000)
                                                 for c in range(8)) + "\n"
                    for i in range(N_SAMPLES)).encode()
@@ -58,6 +66,7 @@ def _replay_seconds(binary: Path) -> float:
     proc.stdin.write(b"Q\n")
     proc.wait(10)
     port.close()
+    os.close(slave)
     if seen != N_SAMPLES:
         raise RuntimeError(f"native board sent {seen} of {N_SAMPLES} lines")
     return dt

@@ -17,12 +17,12 @@ def serialise(model: QModel) -> bytes:
     out = bytearray(struct.pack("<IIII", len(model.channels), len(model.aux),
                                 len(model.axes), model.period_ms))
     for ch in model.channels:
-        out += struct.pack("<iiiiB", ch.min_code, ch.max_code, ch.window_lo_code,
-                           ch.window_hi_code, ch.tc_code)
+        out += struct.pack("<iiiiiB", ch.min_code, ch.max_code, ch.window_lo_code,
+                           ch.window_hi_code, ch.max_step_code, ch.tc_code)
     for a in model.aux:
         out += struct.pack("<ii", a.min, a.max)
     for ax in model.axes:
-        out += struct.pack("<BBq", ax.shift, len(ax.terms), ax.intercept_q)
+        out += struct.pack("<BBqi", ax.shift, len(ax.terms), ax.intercept_q, ax.max_step_nm)
         for t in ax.terms:
             out += struct.pack("<BBiq", t.kind_code, t.input, t.param, t.coef_q)
     return bytes(out)

@@ -1,5 +1,10 @@
 """The integer twin of firmware/src/model_eval.c: the expectation for firmware and HIL tests.
 
+Also the twins of the two pieces of the application around the model that decide what a
+sample line carries: ``ChannelGuard`` (firmware/src/channel_guard.c, the plausibility guard)
+and ``AxisOutput`` (firmware/src/axis_output.c: ZERO reference, hold, step limit, clamp),
+sample for sample, call for call.
+
 Same tables (``codegen.quantise``), same integer operations, same rounding (half away from
 zero, never shifting a negative value), same filter cold start, same frozen state while a
 channel is faulted, same treatment of out-of-range inputs as faults, same `time` counter.
@@ -21,6 +26,7 @@ from contract.fixed_point import (
     CODE_MIN,
     STATE_FRAC_BITS,
     UINT32_MAX,
+    div_round,
     rdiv,
 )
 from contract.terms import AUX_KINDS, FILTER_KINDS, TEMPERATURE_KINDS
@@ -243,3 +249,101 @@ class FixedModel:
         if arr.size and (arr.min() < -(1 << 31) or arr.max() > (1 << 31) - 1):
             raise ValueError(f"{name}: values must fit int32 like the box's inputs")
         return arr.astype(np.int64)
+
+
+# ---- the application's plausibility guard and output stage ----------------------------------
+
+GUARD_OK, GUARD_HELD, GUARD_FAULT = 0, 1, 2
+
+
+class ChannelGuard:
+    """Twin of channel_guard.c: one channel's plausibility guard (docs/firmware.md)."""
+
+    def __init__(self) -> None:
+        self.lost()
+
+    def lost(self) -> None:
+        """The channel had no usable reading (chip fault, no answer, out of range)."""
+        self.last_good, self.prev, self.bad_run, self.calm = 0, 0, 0, 0
+        self.has_ref, self.faulted = False, False
+
+    def _accept(self, code: int) -> tuple[int, int]:
+        self.last_good, self.has_ref, self.faulted, self.bad_run, self.calm = \
+            code, True, False, 0, 0
+        return GUARD_OK, code
+
+    def check(self, code: int, max_step: int, fault_after: int) -> tuple[int, int]:
+        """(verdict, code the model gets) for a reading that passed chip and range checks."""
+        if max_step <= 0 or not self.has_ref:
+            return self._accept(code)
+        if self.faulted:
+            self.calm = min(self.calm + 1, 255) if abs(code - self.prev) <= max_step else 0
+            self.prev = code
+            if self.calm >= fault_after:
+                return self._accept(code)
+            return GUARD_FAULT, code
+        if abs(code - self.last_good) <= max_step * (self.bad_run + 1):
+            return self._accept(code)
+        self.bad_run += 1
+        if self.bad_run >= fault_after:
+            self.faulted, self.calm, self.prev = True, 0, code
+            return GUARD_FAULT, code
+        return GUARD_HELD, self.last_good
+
+
+class AxisOutput:
+    """Twin of axis_output.c for one axis: ZERO reference, hold, step limit, clamp.
+
+    ``update`` returns the names of the status bits it raises (HOLD, SLEW, CLAMP, NO_DATA);
+    ``out_nm`` is what the sample line carries afterwards, ``ref_nm`` the reference.
+    """
+
+    def __init__(self, max_abs_nm: int, walk_step_nm: int, track_step_nm: int,
+                 zero_samples: int, cold_start_slew: bool) -> None:
+        self.max_abs, self.walk_step, self.track_step = max_abs_nm, walk_step_nm, track_step_nm
+        self.zero_samples, self.cold_start_slew = zero_samples, cold_start_slew
+        self.out_nm, self.has_output, self.walking = 0, False, False
+        self.zeroing, self.ref_nm, self.zero_n, self.zero_sum = False, 0, 0, 0
+
+    def zero(self) -> None:
+        self.zeroing, self.zero_n, self.zero_sum = True, 0, 0
+
+    def _clamp(self, v: int, flags: set[str]) -> int:
+        if v > self.max_abs or v < -self.max_abs:
+            flags.add("CLAMP")
+            return self.max_abs if v > 0 else -self.max_abs
+        return v
+
+    def update(self, valid: bool, computed_nm: int) -> set[str]:
+        flags: set[str] = set()
+        if not valid:
+            flags.add("HOLD")
+            if not self.has_output:
+                flags.add("NO_DATA")
+            else:
+                self.walking = True
+            return flags
+        if self.zeroing:
+            self.zero_sum += computed_nm
+            self.zero_n += 1
+            ref = div_round(self.zero_sum, self.zero_n)
+            if self.zero_n >= self.zero_samples:
+                self.zeroing = False
+            if self.has_output:
+                self.out_nm = self._clamp(self.out_nm - (ref - self.ref_nm), flags)
+            self.ref_nm = ref
+        target = self._clamp(computed_nm - self.ref_nm, flags)
+        if not self.has_output:
+            self.has_output = True
+            if not self.cold_start_slew:
+                self.out_nm = target
+                return flags
+            self.walking = True
+        step = min(self.track_step, self.walk_step) if self.walking else self.track_step
+        diff = target - self.out_nm
+        if -step <= diff <= step:
+            self.out_nm, self.walking = target, False
+        else:
+            self.out_nm += step if diff > 0 else -step
+            flags.add("SLEW")
+        return flags

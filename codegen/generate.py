@@ -56,9 +56,10 @@ def _check_bounds(bounds: list[AxisBound], model: QModel, max_error_um: float) -
 
 
 def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
-                       max_error_um: float) -> dict:
+                       max_error_um: float, zero_at_powerup: bool = False) -> dict:
     return {
         "header_format": HEADER_FORMAT,
+        "zero_at_powerup": zero_at_powerup,
         "codegen_version": CODEGEN_VERSION,
         "model_hash": model.model_hash,
         "crc32": f"0x{crc32:08X}",
@@ -69,7 +70,8 @@ def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
         "acc_limit": ACC_LIMIT,
         "channels": [{"channel": c.index, "sensor": c.sensor, "min_code": c.min_code,
                       "max_code": c.max_code, "window_lo_code": c.window_lo_code,
-                      "window_hi_code": c.window_hi_code} for c in model.channels],
+                      "window_hi_code": c.window_hi_code, "max_step_code": c.max_step_code,
+                      "max_step_source": c.max_step_source} for c in model.channels],
         "aux": [{"input": a.index, "name": a.name, "min": a.min, "max": a.max}
                 for a in model.aux],
         "axes": {
@@ -81,6 +83,8 @@ def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
                           for t in ax.terms],
                 "acc_max": ax.acc_max,
                 "out_max_nm": ax.out_max_nm,
+                "max_step_nm": ax.max_step_nm,
+                "max_step_source": ax.max_step_source,
                 **b.to_json(),
             }
             for ax, b in zip(model.axes, bounds, strict=True)
@@ -88,16 +92,21 @@ def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
     }
 
 
-def generate(model: Mapping, max_error_um: float = DEFAULT_MAX_ERROR_UM) -> GeneratedHeader:
-    """Quantise, prove and render ``model`` (a model.json dict); raises CodegenError."""
+def generate(model: Mapping, max_error_um: float = DEFAULT_MAX_ERROR_UM,
+             zero_at_powerup: bool = False) -> GeneratedHeader:
+    """Quantise, prove and render ``model`` (a model.json dict); raises CodegenError.
+
+    ``zero_at_powerup``: the header's TCM_ZERO_AT_POWERUP (the box behaves as if ZERO was
+    received before its first sample, docs/protocol.md)."""
     if not max_error_um > 0:
         raise CodegenError(f"--max-error-um must be positive, got {max_error_um!r}")
     q = quantise(model)
     bounds = model_bounds(q)
     _check_bounds(bounds, q, max_error_um)
     crc = model_crc32(q)
-    text = render(q, bounds, crc, CODEGEN_VERSION)
-    return GeneratedHeader(text, _fixed_point_block(q, bounds, crc, max_error_um), q,
+    text = render(q, bounds, crc, CODEGEN_VERSION, zero_at_powerup)
+    return GeneratedHeader(text, _fixed_point_block(q, bounds, crc, max_error_um,
+                                                    zero_at_powerup), q,
                            tuple(bounds), crc)
 
 
@@ -117,7 +126,8 @@ def fixed_point_path(header_path: str | Path) -> Path:
 
 
 def write_header(model_json_path: str | Path, header_path: str | Path,
-                 max_error_um: float = DEFAULT_MAX_ERROR_UM) -> GeneratedHeader:
+                 max_error_um: float = DEFAULT_MAX_ERROR_UM,
+                 zero_at_powerup: bool = False) -> GeneratedHeader:
     """Generate ``header_path`` from a model.json, and its fixed_point block beside it.
 
     The model file is only read, never rewritten (it is the user's); nothing is written unless
@@ -126,7 +136,7 @@ def write_header(model_json_path: str | Path, header_path: str | Path,
     model_json_path, header_path = Path(model_json_path), Path(header_path)
     model = load_model(model_json_path)
     try:
-        gen = generate(model, max_error_um)
+        gen = generate(model, max_error_um, zero_at_powerup)
     except CodegenError as exc:
         raise CodegenError(f"{model_json_path}: {exc}") from None
     write_text_atomic(header_path, gen.text)

@@ -18,6 +18,9 @@ from codegen.errors import CodegenError
 from contract.box import (
     CHANNEL_MAX_C,
     CHANNEL_MIN_C,
+    DEFAULT_AXIS_STEP_UM_PER_S,
+    DEFAULT_CHANNEL_STEP_C_PER_S,
+    DEFAULT_CHANNEL_STEP_MIN_C,
     RUNTIME_MAX_AUX,
     RUNTIME_MAX_AXES,
     RUNTIME_MAX_CHANNELS,
@@ -84,6 +87,8 @@ class QChannel:
     max_code: int
     window_lo_code: int  # training range widened by EXTRAPOLATION_MARGIN, in codes; the
     window_hi_code: int  # valid range when the model has no training range for the channel
+    max_step_code: int = 1  # largest plausible change per sample (codes, >= 1): IMPLAUSIBLE
+    max_step_source: str = "model"  # "model" (max_step_c) or "default" (older model.json)
 
 
 @dataclass(frozen=True)
@@ -131,6 +136,8 @@ class QAxis:
     terms: tuple[QTerm, ...]
     acc_max: int  # |intercept_q| + sum |coef_q| * max(xmax, 1)
     out_max_nm: int  # rdiv(acc_max, shift)
+    max_step_nm: int = 1  # the output never steps more than this per sample (nm, >= 1)
+    max_step_source: str = "model"  # "model" (max_step_um) or "default" (older model.json)
 
 
 @dataclass(frozen=True)
@@ -188,7 +195,7 @@ def _index_list(items: Sequence[Mapping], key: str, what: str) -> list[Mapping]:
     return [items[indices.index(i)] for i in range(len(items))]
 
 
-def _parse_channels(model: Mapping) -> tuple[QChannel, ...]:
+def _parse_channels(model: Mapping, period_s: float) -> tuple[QChannel, ...]:
     raw = model.get("channels", [])
     if not isinstance(raw, list):
         raise CodegenError("channels: expected a list")
@@ -214,7 +221,9 @@ def _parse_channels(model: Mapping) -> tuple[QChannel, ...]:
                 f"{lo}..{hi}; it must be non-empty and inside the chip's 19-bit range "
                 f"{CODE_MIN}..{CODE_MAX} ({CODE_MIN / 128:g}..{CODE_MAX / 128:g} degC)")
         win_lo, win_hi = _training_window(ch, where, sensor, lo, hi)
-        out.append(QChannel(i, sensor, tc, TC_TYPES[tc], min_c, max_c, lo, hi, win_lo, win_hi))
+        step, source = _channel_step(ch, where, sensor, period_s)
+        out.append(QChannel(i, sensor, tc, TC_TYPES[tc], min_c, max_c, lo, hi, win_lo, win_hi,
+                            step, source))
     if len({c.sensor for c in out}) != len(out):
         raise CodegenError("channels: sensor names must be unique")
     return tuple(out)
@@ -237,6 +246,40 @@ def _training_window(ch: Mapping, where: str, sensor: str, lo: int, hi: int
     w_lo = math.floor((Fraction(t_lo) - margin) * 128)
     w_hi = math.ceil((Fraction(t_hi) + margin) * 128)
     return min(max(w_lo, lo), hi), max(min(w_hi, hi), lo)
+
+
+def _channel_step(ch: Mapping, where: str, sensor: str, period_s: float) -> tuple[int, str]:
+    """The largest plausible change of the channel per sample, in codes: ``max_step_c``
+    (host train: the training runs' fastest change with a margin) rounded up to whole codes;
+    a model.json without it gets the conservative default max(1 degC, 0.1 degC/s x period)."""
+    if "max_step_c" in ch:
+        step_c = Fraction(_number(ch.get("max_step_c"), f"{where}.max_step_c"))
+        source = "model"
+        if step_c <= 0:
+            raise CodegenError(f"{where} ({sensor}): max_step_c {float(step_c)!r} degC must be "
+                               "positive (the largest plausible change per sample)")
+    else:
+        step_c = max(Fraction(DEFAULT_CHANNEL_STEP_MIN_C),
+                     Fraction(DEFAULT_CHANNEL_STEP_C_PER_S) * Fraction(period_s))
+        source = "default"
+    code = math.ceil(step_c * (1 << TEMP_FRAC_BITS))
+    return max(1, min(code, CODE_MAX - CODE_MIN)), source
+
+
+def _axis_step(ax: Mapping, name: str, period_s: float) -> tuple[int, str]:
+    """The largest output step per sample, in nm: ``max_step_um`` (host train: the training
+    runs' fastest change of the model output with a margin) rounded up; a model.json without
+    it gets the box's walk-back rate, 1 um/s x period."""
+    if "max_step_um" in ax:
+        step_um = Fraction(_number(ax.get("max_step_um"), f"axis '{name}': max_step_um"))
+        source = "model"
+        if step_um <= 0:
+            raise CodegenError(f"axis '{name}': max_step_um {float(step_um)!r} um must be "
+                               "positive (the largest output step per sample)")
+    else:
+        step_um = Fraction(DEFAULT_AXIS_STEP_UM_PER_S) * Fraction(period_s)
+        source = "default"
+    return max(1, min(math.ceil(step_um * 1000), INT32_MAX)), source
 
 
 def _parse_aux(model: Mapping) -> tuple[QAux, ...]:
@@ -439,10 +482,11 @@ def _parse_axis(index: int, name: str, ax: Mapping, channels: Sequence[QChannel]
         raise CodegenError(
             f"axis '{name}': the output can reach {out_max / 1000:.6g} um over the declared "
             f"input ranges, beyond the int32 nanometre limit {INT32_MAX / 1000:.6g} um{part}")
+    step, source = _axis_step(ax, name, period_s)
     return QAxis(index, name, unit, intercept, c0, shift, iq, tuple(
         QTerm(t.position, t.kind, KIND_CODES[t.kind], t.source, t.input, t.param, None,
               t.coef_um, t.c, q, t.xmax, t.label, t.params)
-        for t, q in zip(raw, cqs, strict=True)), acc, out_max)
+        for t, q in zip(raw, cqs, strict=True)), acc, out_max, step, source)
 
 
 def _number_states(axes: list[QAxis]) -> tuple[QAxis, ...]:
@@ -479,7 +523,7 @@ def quantise(model: Mapping) -> QModel:
     if schema != SCHEMA:
         raise CodegenError(f"schema {schema!r} is not supported (expected {SCHEMA!r})")
     period_s, period_ms = _period(model)
-    channels = _parse_channels(model)
+    channels = _parse_channels(model, period_s)
     aux = _parse_aux(model)
     time_max_s = model.get("time_max_s")
     time_max_samples = None

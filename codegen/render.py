@@ -101,7 +101,8 @@ def _term_view(t: QTerm, ax_prefix: str, model: QModel) -> dict:
     }
 
 
-def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: str) -> dict:
+def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: str,
+         zero_at_powerup: bool = False) -> dict:
     """Everything the template prints, as strings and flags."""
     axes = []
     for ax, b in zip(model.axes, bounds, strict=True):
@@ -118,6 +119,9 @@ def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: st
             "bound": {k: _num(v) for k, v in b.to_json().items()},
             "bound_pm": _ceil_pm(b.bound_exact_um),
             "input_pm": _ceil_pm(sum((e.input_um for e in b.terms), Fraction(0))),
+            "max_step_lit": c_int32(ax.max_step_nm),
+            "max_step_um": _num(ax.max_step_nm / 1000),
+            "max_step_default": ax.max_step_source == "default",
         })
     return {
         "codegen_version": codegen_version,
@@ -127,6 +131,7 @@ def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: st
         "model_hash": model.model_hash,
         "period_ms": model.period_ms,
         "crc32": f"0x{crc32:08X}",
+        "zero_at_powerup": 1 if zero_at_powerup else 0,
         "n_channels": len(model.channels),
         "n_aux": len(model.aux),
         "n_axes": len(model.axes),
@@ -142,6 +147,10 @@ def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: st
             "win_lo_lit": c_int32(ch.window_lo_code), "win_hi_lit": c_int32(ch.window_hi_code),
             "win_lo_c": _num(ch.window_lo_code / 128), "win_hi_c": _num(ch.window_hi_code / 128),
             "has_window": (ch.window_lo_code, ch.window_hi_code) != (ch.min_code, ch.max_code),
+            "step_macro": f"TCM_CH{ch.index}_MAX_STEP",
+            "step_lit": c_int32(ch.max_step_code),
+            "step_c": _num(ch.max_step_code / 128),
+            "step_default": ch.max_step_source == "default",
         } for ch in model.channels],
         "aux": [{
             "index": a.index, "name": a.name,
@@ -161,5 +170,7 @@ def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: st
     }
 
 
-def render(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: str) -> str:
-    return _ENV.get_template("model.h.j2").render(view(model, bounds, crc32, codegen_version))
+def render(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: str,
+           zero_at_powerup: bool = False) -> str:
+    return _ENV.get_template("model.h.j2").render(
+        view(model, bounds, crc32, codegen_version, zero_at_powerup))

@@ -18,7 +18,22 @@ RUNTIME_MAX_AUX = 8
 RUNTIME_MAX_AXES = 32
 RUNTIME_MAX_STATES = 32
 RUNTIME_MAX_TERMS_PER_AXIS = 255
-RUNTIME_FORMAT = 2  # TCM_RUNTIME_FORMAT: channels carry the training window (EXTRAP)
+# TCM_RUNTIME_FORMAT: 2 channels carry the training window (EXTRAP); 3 channels carry their
+# largest plausible step (IMPLAUSIBLE) and axes their output step limit, both CRC-covered
+RUNTIME_FORMAT = 3
 HEADER_FORMAT = RUNTIME_FORMAT
 CHANNEL_MIN_C = -40.0  # default valid range of a thermocouple channel
 CHANNEL_MAX_C = 200.0
+
+# ---- Step limits (issue 14): how fast a channel and an axis output may physically change ----
+# host train derives them from the training runs (host/train/ranges.py) and stores them in
+# model.json (channels[i].max_step_c, axes[a].max_step_um); codegen writes them into the header
+# (max_step_code per channel, max_step_nm per axis) where the box applies them.
+STEP_MARGIN = 4  # limit = margin x the fastest change per sample seen in training
+CHANNEL_STEP_FLOOR_C = 8 / 128  # at least 8 codes (1/16 degC): sensor noise is never flagged
+AXIS_STEP_FLOOR_UM = 0.5  # at least 0.5 um per sample: a nearly static model is not frozen
+# A model.json from before the limits (no max_step_c / max_step_um): codegen's documented
+# conservative defaults per sample period of period_s seconds.
+DEFAULT_CHANNEL_STEP_C_PER_S = 0.1  # a structure thermocouple moves far slower
+DEFAULT_CHANNEL_STEP_MIN_C = 1.0
+DEFAULT_AXIS_STEP_UM_PER_S = 1.0  # the box's walk-back rate (BOX_SLEW_NM_PER_S default)

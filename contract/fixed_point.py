@@ -41,6 +41,17 @@ def rdiv(v: int, f: int) -> int:
     return (v + half) >> f if v >= 0 else -((-v + half) >> f)
 
 
+def div_round(v: int, n: int) -> int:
+    """v / n rounded half away from zero, for any n >= 1 (rdiv is the case n = 2^f).
+
+    The box's ZERO reference is the mean of n int32 nanometre values this way:
+    ``sign(v) * floor((2|v| + n) / 2n)`` (firmware axis_output_mean_nm)."""
+    if n < 1:
+        raise InputError(f"div_round needs n >= 1 (got {n})")
+    q = (2 * abs(v) + n) // (2 * n)
+    return q if v >= 0 else -q
+
+
 def quantise_alpha(tau_s: float, period_s: float) -> float:
     """alpha = 1 - exp(-period/tau), rounded to Q30 as the box stores it (never 0)."""
     if tau_s <= 0 or period_s <= 0:

@@ -71,9 +71,10 @@ def model_hash(model: Mapping) -> str:
     """First 16 hex digits of SHA-256 over the canonical JSON of the model's function.
 
     Canonical = sorted keys, no spaces, of ``{sample_period_s, channels, aux, time_max_s,
-    axes: {name: {unit, intercept, terms}}}`` (docs/model-json.md); metrics, selection
-    traces, the stored ``model_hash`` and the ``fixed_point`` block do not change it. A missing
-    optional key hashes as ``null`` (``aux`` as ``[]``).
+    axes: {name: {unit, intercept, terms[, max_step_um]}}}`` (docs/model-json.md); metrics,
+    selection traces, the stored ``model_hash`` and the ``fixed_point`` block do not change it.
+    A missing optional key hashes as ``null`` (``aux`` as ``[]``; ``max_step_um``, the box's
+    output step limit, is left out when absent so that older models keep their hash).
     """
     core = {
         "sample_period_s": model.get("sample_period_s"),
@@ -82,7 +83,8 @@ def model_hash(model: Mapping) -> str:
         "time_max_s": model.get("time_max_s"),
         "axes": {
             name: {"unit": ax.get("unit"), "intercept": ax.get("intercept"),
-                   "terms": ax.get("terms", [])}
+                   "terms": ax.get("terms", []),
+                   **({"max_step_um": ax["max_step_um"]} if "max_step_um" in ax else {})}
             for name, ax in model.get("axes", {}).items()
         },
     }
@@ -296,6 +298,15 @@ class _Checker:
                       f"(one per entry), got {sorted(indices)}")
         return [raw[indices.index(i)] for i in range(len(raw))]
 
+    def step_limit(self, e: Mapping, where: str, label: str, key: str, unit: str) -> None:
+        """An optional step limit (issue 14): a positive finite number when present."""
+        if key not in e:
+            return  # a model written before the step limits were kept
+        v = self.number(e[key], f"{where}.{key}")
+        if not v > 0:
+            self.fail(f"{where}.{key} ({label}): {v!r} {unit} per sample must be positive (the "
+                      "largest change the box accepts per sample)")
+
     def trained(self, e: Mapping, where: str, label: str, keys: tuple[str, str]
                 ) -> tuple[float | None, float | None]:
         if not any(k in e for k in keys):
@@ -344,6 +355,7 @@ def check_model(model: Any, where: str = "model", *, output_range: bool = True) 
             c.fail(f"{key} ({sensor}): valid range {lo:g}..{hi:g} degC is empty "
                    "(min_c must be below max_c)")
         t_lo, t_hi = c.trained(ch, key, sensor, ("trained_min_c", "trained_max_c"))
+        c.step_limit(ch, key, sensor, "max_step_c", "degC")
         channels.append(ChannelSpec(ch["channel"], sensor, tc, lo, hi, t_lo, t_hi))
     sensors = [ch.sensor for ch in channels]
     if len(set(sensors)) != len(sensors):
@@ -397,6 +409,7 @@ def _check_axis(c: _Checker, name: object, ax: object, channels: list[ChannelSpe
     if unit != "um":
         c.fail(f"axis '{name}': unit {unit!r} is not supported (only 'um')")
     intercept = c.number(ax.get("intercept"), f"axis '{name}': intercept")
+    c.step_limit(ax, f"axis '{name}'", name, "max_step_um", "um")
     raw = ax.get("terms")
     if not isinstance(raw, list):
         c.fail(f"axis '{name}': 'terms' must be a list")

@@ -38,6 +38,8 @@ class Status(IntFlag):
     WDT_RESET = 1 << 8
     NO_DATA = 1 << 9
     EXTRAP = 1 << 10  # a valid reading beyond its training window: advice, still corrected
+    REFERENCED = 1 << 11  # a ZERO reference is in force: corrections are the change since it
+    IMPLAUSIBLE = 1 << 12  # a reading changed faster than its channel can: the model held it
 
 
 STATUS_BITS = tuple(s.name for s in Status)  # bit order: STATUS_BITS[i] is bit i
@@ -56,6 +58,7 @@ class ChannelFault(IntFlag):
     CJRANGE = 0x80
     RANGE = 1 << 8  # code outside the channel's valid range
     NO_RESPONSE = 1 << 9  # bus error or the chip did not read its configuration back
+    IMPLAUSIBLE = 1 << 10  # the plausibility guard rejected the reading (held or faulted)
 
 
 class ProtocolError(InputError):
@@ -108,17 +111,24 @@ class Sample:
 
 @dataclass(frozen=True)
 class StatusReport:
-    """``$S``: answer to STATUS."""
+    """``$S``: answer to STATUS.
+
+    ``zero_seq``: seq of the first sample of the ZERO reference in force, None when there is
+    none (the box sends ``-``) or when the box predates ZERO (no such field).
+    """
 
     status: int
     seq: int
     uptime_s: int
     channel_faults: tuple[int, ...]
+    zero_seq: int | None = None
+    has_zero_field: bool = True  # False: a box from before ZERO (the line ends after faults)
 
 
 @dataclass(frozen=True)
 class Ack:
-    """``$OK``: a command was accepted (``$OK,RATE,<n>``)."""
+    """``$OK``: a command was accepted: ``$OK,RATE,<n>``, or ``$OK,ZERO,<seq>`` with the seq of
+    the latest sample (0 before the first)."""
 
     command: str
     value: int
@@ -242,16 +252,26 @@ def _decode_status(f: _Fields) -> StatusReport:
             f.pos -= 1
             raise f.fail(f"channel fault word {item!r} is not 4 upper-case hex digits")
         faults.append(int(item, 16))
+    if f.pos == len(f.fields):  # firmware before ZERO: no zero_seq field
+        return StatusReport(status, seq, uptime, tuple(faults), None, has_zero_field=False)
+    zero_seq = None
+    if f.fields[f.pos] == "-":
+        f.take("zero_seq")
+    else:
+        zero_seq = f.udec("zero_seq", 2**32 - 1)
     f.end()
-    return StatusReport(status, seq, uptime, tuple(faults))
+    return StatusReport(status, seq, uptime, tuple(faults), zero_seq)
 
 
 def _decode_ok(f: _Fields) -> Ack:
     command = f.take("command")
-    if command != "RATE":
+    if command == "RATE":
+        value = f.udec("n", RATE_MAX, RATE_MIN)
+    elif command == "ZERO":
+        value = f.udec("seq", 2**32 - 1)
+    else:
         f.pos -= 1
-        raise f.fail(f"acknowledged command {command!r} is not RATE")
-    value = f.udec("n", RATE_MAX, RATE_MIN)
+        raise f.fail(f"acknowledged command {command!r} is neither RATE nor ZERO")
     f.end()
     return Ack(command, value)
 
@@ -325,7 +345,10 @@ def encode_info(info: Info) -> bytes:
 
 def encode_status(report: StatusReport) -> bytes:
     faults = ";".join(f"{w:04X}" for w in report.channel_faults)
-    return encode_line("S", [f"{report.status:04X}", report.seq, report.uptime_s, faults])
+    fields: list[object] = [f"{report.status:04X}", report.seq, report.uptime_s, faults]
+    if report.has_zero_field:
+        fields.append("-" if report.zero_seq is None else report.zero_seq)
+    return encode_line("S", fields)
 
 
 def encode(message: Message) -> bytes:
@@ -345,11 +368,12 @@ def encode(message: Message) -> bytes:
 
 
 def encode_command(command: str, arg: int | None = None) -> bytes:
-    """A command line for the box: ``INFO``, ``STATUS`` or ``RATE <n>``, CR LF terminated."""
-    if command in ("INFO", "STATUS") and arg is None:
+    """A command line for the box: ``INFO``, ``STATUS``, ``ZERO`` or ``RATE <n>``, CR LF
+    terminated."""
+    if command in ("INFO", "STATUS", "ZERO") and arg is None:
         return command.encode() + b"\r\n"
     if command == "RATE" and arg is not None:
         if not RATE_MIN <= arg <= RATE_MAX:
             raise InputError(f"RATE {arg} outside {RATE_MIN}..{RATE_MAX}")
         return f"RATE {arg}\r\n".encode()
-    raise InputError(f"unknown command {command!r} (INFO, STATUS or RATE <n>)")
+    raise InputError(f"unknown command {command!r} (INFO, STATUS, ZERO or RATE <n>)")

@@ -41,14 +41,20 @@ class ModelBuild:
     def bound_um(self, axis: str) -> float:
         return float(self.generated.fixed_point["axes"][axis]["bound_um"])
 
+    @property
+    def zero_at_powerup(self) -> bool:
+        return bool(self.generated.fixed_point.get("zero_at_powerup", False))
 
-def prepare_header(model_json: str | Path, build_dir: str | Path) -> ModelBuild:
-    """Load model.json and write its header to ``build_dir/model-<hash>.h`` (atomic)."""
+
+def prepare_header(model_json: str | Path, build_dir: str | Path,
+                   zero_at_powerup: bool = False) -> ModelBuild:
+    """Load model.json and write its header to ``build_dir/model-<hash>[-z].h`` (atomic);
+    ``-z``: generated with ``--zero-at-powerup``."""
     model = load_model(model_json)
-    gen = generate(model)
+    gen = generate(model, zero_at_powerup=zero_at_powerup)
     build_dir = Path(build_dir)
     build_dir.mkdir(parents=True, exist_ok=True)
-    header = build_dir / f"model-{gen.model.model_hash}.h"
+    header = build_dir / f"model-{gen.model.model_hash}{'-z' if zero_at_powerup else ''}.h"
     if not header.is_file() or header.read_text(encoding="utf-8") != gen.text:
         tmp = header.with_suffix(f".h.{os.getpid()}.tmp")
         tmp.write_text(gen.text, encoding="utf-8")

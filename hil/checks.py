@@ -6,11 +6,18 @@ output stage), bit for bit, and so do the status word and the echoed temperature
 proved, wherever the box outputs the model value directly; 3. no sample line is lost,
 duplicated or reordered (``seq``); 4. the residual measured − correction beside the raw
 displacement, per axis, RMS and peak. The lines are decoded with contract/protocol.py only.
+
+And the judgement of issue 14 (``Judging``): a box that matches its twin can still be useless
+or alarming: it fails when it held (HOLD/NO_DATA) or limited (SLEW) more than a stated share
+of the samples, or never corrected at all (a model trained in Kelvin: every reading out of
+range, every sample held).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -22,6 +29,20 @@ from hil.runner import Capture, Session
 from host.fitting import design_matrix
 
 MAX_PROBLEMS = 20  # detail lines kept in a report; counts are always complete
+
+
+@dataclass(frozen=True)
+class Judging:
+    """How much holding and limiting a replay may show before it fails (issue 14).
+
+    The defaults: a box that holds (a faulted input, HOLD/NO_DATA) or limits its output step
+    (SLEW: walking back or the per-axis limit) on more than 10 % of the samples of a run is
+    not compensating that run, whatever its twin says; one that never corrects fails always.
+    """
+
+    max_held_fraction: float = 0.10
+    max_limited_fraction: float = 0.10
+    require_correction: bool = True
 
 
 @dataclass
@@ -70,6 +91,9 @@ class ReplayReport:
     errors: list[str] = field(default_factory=list)  # $E reasons received, in order
     fw_out_nm: np.ndarray | None = None  # (n, axes) what the box sent; missing rows = 0
     fw_status: np.ndarray | None = None  # (n,) status words; -1 where no line arrived
+    fw_seq: np.ndarray | None = None  # (n,) seq of the line of each sample; -1 where none
+    fw_session: np.ndarray | None = None  # (n,) session (power-up) of each sample's line
+    judging: Judging | None = None
     elapsed_s: float | None = None
     problems_fatal: bool = False  # the replay itself broke (timeout, crash)
     extra_checks: dict[str, bool] = field(default_factory=dict)  # e.g. qemu_equals_native
@@ -79,6 +103,41 @@ class ReplayReport:
         return all(a.float_max_diff_um is None or a.bound_um is None
                    or a.float_max_diff_um <= a.bound_um + 1e-9 for a in self.axes.values())
 
+    def _share(self, bits: int) -> float:
+        """Share of the received samples whose status carries any of ``bits``."""
+        if self.fw_status is None:
+            return 0.0
+        got = self.fw_status[self.fw_status >= 0]
+        return float(np.mean((got & bits) != 0)) if got.size else 0.0
+
+    @property
+    def held_fraction(self) -> float:
+        return self._share(HOLD | NO_DATA)
+
+    @property
+    def limited_fraction(self) -> float:
+        return self._share(SLEW)
+
+    @property
+    def corrected_samples(self) -> int:
+        """Received samples on which every axis had its correction (no HOLD, NO_DATA or
+        MODEL_BAD)."""
+        if self.fw_status is None:
+            return 0
+        got = self.fw_status[self.fw_status >= 0]
+        return int(np.count_nonzero((got & (HOLD | NO_DATA | MODEL_BAD)) == 0))
+
+    @property
+    def judgement(self) -> dict[str, bool]:
+        j = self.judging
+        if j is None:
+            return {}
+        out = {"held_within_limit": self.held_fraction <= j.max_held_fraction,
+               "limited_within_limit": self.limited_fraction <= j.max_limited_fraction}
+        if j.require_correction:
+            out["corrected"] = self.corrected_samples > 0
+        return out
+
     @property
     def checks(self) -> dict[str, bool]:
         return {
@@ -87,8 +146,35 @@ class ReplayReport:
             "float_within_bound": self.float_ok,
             "no_lost_duplicated_reordered": self.lost == 0 and self.duplicated == 0
             and self.reordered == 0 and self.bad_lines == 0,
+            **self.judgement,
             **self.extra_checks,
         }
+
+    def judgement_reasons(self) -> list[str]:
+        """Why the judgement failed, in words (empty when it passed)."""
+        j, out = self.judging, []
+        if j is None:
+            return out
+        counts = self.status_counts
+        faults = ", ".join(f"{k} on {v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])
+                           if k in ("RANGE", "OPEN", "TC_FAULT", "AUX_FAULT", "IMPLAUSIBLE",
+                                    "MODEL_BAD"))
+        received = int((self.fw_status >= 0).sum()) if self.fw_status is not None else 0
+        if j.require_correction and received and self.corrected_samples == 0:
+            out.append(f"the box never corrected: all {received} samples held"
+                       + (f" ({faults})" if faults else "")
+                       + "; readings outside their channels' valid range on every sample "
+                       "point at a model trained in other units (Kelvin?) or a wiring fault")
+        if self.held_fraction > j.max_held_fraction:
+            out.append(f"the box held on {100 * self.held_fraction:.1f} % of the samples "
+                       f"(HOLD/NO_DATA; limit {100 * j.max_held_fraction:g} %, "
+                       f"--max-held-fraction)" + (f": {faults}" if faults else ""))
+        if self.limited_fraction > j.max_limited_fraction:
+            out.append(f"the box limited its output step on {100 * self.limited_fraction:.1f} % "
+                       f"of the samples (SLEW; limit {100 * j.max_limited_fraction:g} %, "
+                       "--max-limited-fraction): the model output changes faster than its "
+                       "step limit")
+        return out
 
     @property
     def status_counts(self) -> dict[str, int]:
@@ -118,6 +204,11 @@ class ReplayReport:
             "received": self.received,
             "status_mismatches": self.status_mismatches,
             "status_counts": self.status_counts,
+            "held_fraction": round(self.held_fraction, 6),
+            "limited_fraction": round(self.limited_fraction, 6),
+            "corrected_samples": self.corrected_samples,
+            "judging": None if self.judging is None else dict(self.judging.__dict__),
+            "judgement_problems": self.judgement_reasons(),
             "code_mismatches": self.code_mismatches,
             "lost": self.lost,
             "duplicated": self.duplicated,
@@ -185,11 +276,17 @@ def float_predictions(model: dict, feed: Feed, codes: np.ndarray, rows: slice) -
 
 
 def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
-          bounds_um: dict[str, float]) -> ReplayReport:
-    """Compare every session's lines with its expectation and compute the residuals."""
+          bounds_um: dict[str, float], judging: Judging | None = None,
+          zero_at: Sequence[int] = ()) -> ReplayReport:
+    """Compare every session's lines with its expectation and compute the residuals.
+
+    ``zero_at``: samples before which ZERO was sent (each reply must name the sample before).
+    """
     n = capture.n_samples
     n_axes = len(feed.axes)
-    rep = ReplayReport(samples=n, sessions=len(capture.sessions))
+    rep = ReplayReport(samples=n, sessions=len(capture.sessions), judging=judging)
+    fw_seq = np.full(n, -1, dtype=np.int64)
+    fw_session = np.full(n, -1, dtype=np.int64)
     rep.axes = {a: AxisReport(a, bound_um=bounds_um.get(a)) for a in feed.axes}
     fw_out = np.zeros((n, n_axes), dtype=np.int64)
     fw_status = np.full(n, -1, dtype=np.int64)
@@ -211,6 +308,14 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
         for b in lines.bad:
             rep.note(f"session {s_index}: undecodable line: {b}")
         rep.errors += [e.reason for e in lines.errors]
+        zs = [z for z in zero_at if session.first_sample <= z < session.first_sample +
+              max(session.n_fed, 1)]
+        acks = [decode(a).value for a in session.zero_acks]
+        want_acks = [max(z - session.first_sample - 1, 0) for z in zs]
+        if acks != want_acks:
+            rep.status_mismatches += 1
+            rep.note(f"session {s_index}: ZERO replies name samples {acks}, expected "
+                     f"{want_acks} (the latest sample before each ZERO)")
         seqs = [s.seq for s in lines.samples]
         lost, dup, reord = sequence_problems(seqs, session.n_fed)
         rep.lost += lost
@@ -228,6 +333,7 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
             j = line.seq
             got[i] = True
             fw_status[i] = line.status
+            fw_seq[i], fw_session[i] = line.seq, s_index
             want_out = exp.out_nm[j]
             if len(line.corrections_nm) != want_out.shape[0]:
                 rep.mismatches += 1
@@ -265,8 +371,15 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
             direct = clean & ((exp.status & (HOLD | SLEW | CLAMP | NO_DATA | MODEL_BAD)) == 0)
             direct &= got[rows]
             if direct.any():
-                pred = float_predictions(model, feed, codes_fed, rows)
-                d = np.abs(fw_out[rows][local[direct]] / 1000.0 - pred[local[direct]])
+                # the float model on what the box's model got (the guard's held codes), and
+                # the box's output with its ZERO reference added back
+                float_codes = codes_fed.copy()
+                if exp.model_codes is not None:
+                    float_codes[rows] = exp.model_codes
+                pred = float_predictions(model, feed, float_codes, rows)
+                ref = exp.ref_nm if exp.ref_nm is not None else np.zeros_like(exp.out_nm)
+                d = np.abs((fw_out[rows][local[direct]] + ref[local[direct]]) / 1000.0
+                           - pred[local[direct]])
                 float_diff = np.maximum(float_diff, d.max(axis=0))
                 float_count += int(direct.sum())
 
@@ -276,6 +389,9 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
         rep.note(f"{never_fed} samples were never fed (the replay stopped early)")
     rep.received = int(got.sum())
     rep.fw_out_nm, rep.fw_status = fw_out, fw_status
+    rep.fw_seq, rep.fw_session = fw_seq, fw_session
+    for reason in rep.judgement_reasons():
+        rep.note(reason)
     for a, name in enumerate(feed.axes):
         ax = rep.axes[name]
         if float_count[a]:
@@ -312,3 +428,30 @@ def capture_differences(a: Capture, b: Capture) -> tuple[int, str]:
         if len(la) != len(lb):
             first = f"{len(la)} sample lines vs {len(lb)}"
     return diff, first
+
+
+def write_box_csv(report: ReplayReport, feed: Feed, path: str | Path) -> Path:
+    """What the box sent for every sample: ``time_s, session, seq, status, status_names`` and
+    the correction of each axis in um (empty where no line arrived). Anyone can look at a
+    glitch's effect without the runner."""
+    import csv
+
+    path = Path(path)
+    n = report.samples
+    status = report.fw_status if report.fw_status is not None else np.full(n, -1)
+    seq = report.fw_seq if report.fw_seq is not None else np.full(n, -1)
+    session = report.fw_session if report.fw_session is not None else np.full(n, -1)
+    out = report.fw_out_nm if report.fw_out_nm is not None else np.zeros((n, len(feed.axes)))
+    time_s = feed.run.time_s
+    with path.open("w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(["time_s", "session", "seq", "status", "status_names",
+                    *[f"{a}" for a in feed.axes]])
+        for i in range(n):
+            if status[i] < 0:
+                w.writerow([f"{time_s[i]:.6g}", "", "", "", "", *[""] * len(feed.axes)])
+                continue
+            w.writerow([f"{time_s[i]:.6g}", int(session[i]), int(seq[i]),
+                        f"{int(status[i]):04X}", status_text(int(status[i])),
+                        *[f"{v / 1000:.3f}" for v in out[i]]])
+    return path

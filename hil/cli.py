@@ -11,7 +11,7 @@ import json
 import sys
 
 from hil.build import BuildError
-from hil.checks import ReplayReport
+from hil.checks import Judging, ReplayReport, write_box_csv
 from hil.link import LinkTimeout
 from hil.native import BoxStartError
 
@@ -45,6 +45,15 @@ def format_table(report: ReplayReport, data: str) -> str:
                  f"  ({report.lost} lost, {report.duplicated} duplicated, {report.reordered} "
                  f"reordered, {report.bad_lines} bad lines)")
     lines.append("4. residuals                      reported above (measured - correction)")
+    if report.judging is not None:
+        j = report.judging
+        lines.append(f"6. held, limited, corrected       "
+                     f"{'PASS' if all(report.judgement.values()) else 'FAIL'}"
+                     f"  (held {100 * report.held_fraction:.1f} % <= "
+                     f"{100 * j.max_held_fraction:g} %, limited "
+                     f"{100 * report.limited_fraction:.1f} % <= "
+                     f"{100 * j.max_limited_fraction:g} %, corrected on "
+                     f"{report.corrected_samples} samples)")
     if report.status_counts:
         lines.append("   status bits the box raised (samples): " + ", ".join(
             f"{k} {v}" for k, v in report.status_counts.items())
@@ -81,29 +90,57 @@ def build_parser() -> argparse.ArgumentParser:
                    help="samples in flight between feed and answer (default 256)")
     p.add_argument("--target", choices=["native", "qemu"], default="native",
                    help="native build over a pty (default) or the STM32F405 image in QEMU")
+    p.add_argument("--out", default=None, metavar="BOX.csv",
+                   help="write what the box sent for every sample: time_s, session, seq, "
+                        "status (hex and names), each axis's correction in um")
+    p.add_argument("--zero-at", type=int, action="append", default=[], metavar="SAMPLE",
+                   help="send ZERO before this sample (repeatable); the twin follows")
+    p.add_argument("--zero-at-powerup", action="store_true",
+                   help="build the header with TCM_ZERO_AT_POWERUP (as host codegen "
+                        "--zero-at-powerup)")
+    d = Judging()
+    p.add_argument("--max-held-fraction", type=float, default=d.max_held_fraction,
+                   help="fail when more than this share of the samples held (HOLD/NO_DATA; "
+                        f"default {d.max_held_fraction:g})")
+    p.add_argument("--max-limited-fraction", type=float, default=d.max_limited_fraction,
+                   help="fail when more than this share of the samples had their output "
+                        f"step limited (SLEW; default {d.max_limited_fraction:g})")
     return parser
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
     from hil import replay as hil_replay
+    from hil.runner import Zero
 
+    for name in ("max_held_fraction", "max_limited_fraction"):
+        v = getattr(args, name)
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"--{name.replace('_', '-')} {v:g} must be between 0 and 1")
     setup = hil_replay.prepare(args.model, args.data, args.build_dir, args.box_cflags,
-                               args.firmware)
+                               args.firmware, zero_at_powerup=args.zero_at_powerup)
+    n = setup.feed.n_samples
+    bad = [z for z in args.zero_at if not 0 <= z < n]
+    if bad:
+        raise ValueError(f"--zero-at {bad[0]}: the run has samples 0..{n - 1}")
+    setup.judging = Judging(args.max_held_fraction, args.max_limited_fraction)
+    events = [Zero(z) for z in sorted(set(args.zero_at))]
     if args.target == "qemu":
         from hil import qemu
         from hil.checks import capture_differences
 
         start_box = qemu.box_factory(setup, args.build_dir, args.box_cflags)
-        report, capture = hil_replay.run(setup, quiet=args.json, window=args.window,
+        report, capture = hil_replay.run(setup, events, quiet=args.json, window=args.window,
                                          start_box=start_box)
         # The emulated STM32F405 must send exactly what the native build sends.
-        _, native = hil_replay.run(setup, quiet=True, window=args.window)
+        _, native = hil_replay.run(setup, events, quiet=True, window=args.window)
         differing, first = capture_differences(capture, native)
         report.extra_checks["qemu_equals_native"] = differing == 0
         if differing:
             report.note(f"QEMU vs native: {differing} sample lines differ; first: {first}")
     else:
-        report, _ = hil_replay.run(setup, quiet=args.json, window=args.window)
+        report, _ = hil_replay.run(setup, events, quiet=args.json, window=args.window)
+    if args.out:
+        write_box_csv(report, setup.feed, args.out)
     if args.json:
         doc = {**report.to_json(), "data": args.data, "model": args.model,
                "target": args.target}

@@ -15,6 +15,7 @@ import numpy as np
 from contract import model_file as model_io
 from contract.terms import Term, make_lag, make_rate, make_speed, make_temp
 from host.fitting import design_matrix
+from host.fitting.step_limits import add_step_limits
 from host.io import load_run
 
 
@@ -42,7 +43,7 @@ def fit_example_model(data: str | Path, axes: dict[str, list[Term]],
             "terms": [{**t.to_json(), "coef": float(c)} for t, c in zip(terms, coef[1:],
                                                                        strict=True)],
         }
-    return {
+    model = {
         "schema": "thermal-model/1",
         "tool_version": "0.1.0",
         "sample_period_s": period,
@@ -55,6 +56,8 @@ def fit_example_model(data: str | Path, axes: dict[str, list[Term]],
         "training": {"runs": [str(data)], "targets": list(axes), "sensors": sensors,
                      "aux": aux_names},
     }
+    add_step_limits(model, [run])  # as host train does: the box's IMPLAUSIBLE and step limits
+    return model
 
 
 def default_terms(sensors: list[str], period_s: float, aux: str | None = None) -> list[Term]:

@@ -2,11 +2,14 @@
 
 The model part is the integer twin ``codegen.fixed.FixedModel`` (bit-exact by contract). Around
 it sit the parts of the application the wire protocol and the firmware's documented behaviour
-define: which channel is faulted (chip fault status register, valid code range), which status
-bits that raises, and the output stage of ``firmware/include/axis_output.h`` (hold on a fault,
-walk back at the slew limit, clamp). Its configuration is read from ``box_config.h`` (the
-defaults the firmware is built with) plus any ``-D`` overrides passed to the build. Nothing
-here looks at what the firmware sent.
+define: which channel is faulted (chip fault status register, valid code range), the
+plausibility guard of ``firmware/include/channel_guard.h`` (IMPLAUSIBLE: a glitch held at the
+last good code, repeated ones a fault), which status bits that raises, and the output stage of
+``firmware/include/axis_output.h`` (ZERO reference, hold on a fault, the per-axis step limit,
+walk back at the slew limit, clamp) -- the guard and the output stage are the sample-by-sample
+twins ``codegen.fixed.ChannelGuard`` / ``AxisOutput``. Configuration is read from
+``box_config.h`` (the defaults the firmware is built with) plus any ``-D`` overrides passed
+to the build. Nothing here looks at what the firmware sent.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.fixed import FixedModel
+from codegen.fixed import GUARD_FAULT, GUARD_HELD, AxisOutput, ChannelGuard, FixedModel
 from contract.errors import InputError
 from contract.protocol import STATUS_BITS, ChannelFault, Status, status_names
 from contract.terms import AUX_KINDS, TEMPERATURE_KINDS
@@ -27,6 +30,7 @@ from contract.terms import AUX_KINDS, TEMPERATURE_KINDS
 MODEL_BAD, HOLD, SLEW, CLAMP = Status.MODEL_BAD, Status.HOLD, Status.SLEW, Status.CLAMP
 RANGE, OPEN, TC_FAULT, AUX_FAULT = Status.RANGE, Status.OPEN, Status.TC_FAULT, Status.AUX_FAULT
 WDT_RESET, NO_DATA, EXTRAP = Status.WDT_RESET, Status.NO_DATA, Status.EXTRAP
+REFERENCED, IMPLAUSIBLE = Status.REFERENCED, Status.IMPLAUSIBLE
 STATUS_NAMES = STATUS_BITS
 SR_OPEN = int(ChannelFault.OPEN)  # MAX31856 fault status register bit OPEN
 
@@ -48,6 +52,8 @@ class OutputConfig:
     max_channels: int = 8
     max_axes: int = 6
     max_aux: int = 2
+    implausible_after: int = 3  # BOX_IMPLAUSIBLE_FAULT_SAMPLES
+    zero_samples: int = 8  # BOX_ZERO_SAMPLES
 
     def step_nm(self, period_ms: int) -> int:
         """Slew step per sample period, as axis_output_step_nm: rounded, at least 1 nm."""
@@ -59,7 +65,8 @@ class OutputConfig:
         text = config_h.read_text(encoding="utf-8")
         values: dict[str, int] = {}
         for name in ("BOX_SLEW_NM_PER_S", "BOX_MAX_CORRECTION_NM", "BOX_COLD_START_SLEW",
-                     "BOX_MAX_CHANNELS", "BOX_MAX_AXES", "BOX_MAX_AUX"):
+                     "BOX_MAX_CHANNELS", "BOX_MAX_AXES", "BOX_MAX_AUX",
+                     "BOX_IMPLAUSIBLE_FAULT_SAMPLES", "BOX_ZERO_SAMPLES"):
             m = re.search(rf"^#define {name} (\d+)\s*$", text, re.M)
             if m is None:
                 raise InputError(f"{config_h}: no '#define {name} <number>' default")
@@ -69,7 +76,8 @@ class OutputConfig:
                 values[m.group(1)] = int(m.group(2))
         return cls(values["BOX_SLEW_NM_PER_S"], values["BOX_MAX_CORRECTION_NM"],
                    bool(values["BOX_COLD_START_SLEW"]), values["BOX_MAX_CHANNELS"],
-                   values["BOX_MAX_AXES"], values["BOX_MAX_AUX"])
+                   values["BOX_MAX_AXES"], values["BOX_MAX_AUX"],
+                   values["BOX_IMPLAUSIBLE_FAULT_SAMPLES"], values["BOX_ZERO_SAMPLES"])
 
     def check_fits(self, n_channels: int, n_axes: int, n_aux: int, what: str) -> None:
         """The firmware refuses (MODEL_BAD) a model larger than its build-time capacity."""
@@ -90,6 +98,8 @@ class Expected:
     computed: np.ndarray  # (n, n_axes) bool: the model computed the axis at this sample
     status: np.ndarray  # (n,) int: expected status word
     codes: np.ndarray  # (n, n_channels): the codes the chips report (echoed in the line)
+    model_codes: np.ndarray | None = None  # (n, n_channels): what the model got (guarded)
+    ref_nm: np.ndarray | None = None  # (n, n_axes): the ZERO reference in force (0 without)
 
 
 def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
@@ -115,52 +125,81 @@ def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
     return valid, bits
 
 
-def output_stage(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
-                 step: int) -> tuple[np.ndarray, np.ndarray]:
-    """The axis output logic over a session: (out_nm [n, axes], status bits [n])."""
+def guard_channels(codes: np.ndarray, in_range: np.ndarray, max_step: Sequence[int],
+                   fault_after: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plausibility guard over a session (codegen.fixed.ChannelGuard per channel).
+
+    ``in_range`` [n, ch]: the chip reported no fault and the code is in its valid range.
+    Returns (model codes [n, ch], valid [n, ch], implausible [n, ch]): the code the model gets
+    (the channel's last good code while a glitch is held), whether the channel counts as
+    valid, and whether the guard rejected the reading (held or faulted).
+    """
+    model_codes = codes.copy()
+    valid = in_range.copy()
+    implausible = np.zeros(codes.shape, dtype=bool)
+    for c in range(codes.shape[1]):
+        g = ChannelGuard()
+        col, ok = codes[:, c].tolist(), in_range[:, c].tolist()
+        for i in range(len(col)):
+            if not ok[i]:
+                g.lost()
+                continue
+            verdict, use = g.check(col[i], max_step[c], fault_after)
+            if verdict != 0:
+                implausible[i, c] = True
+                if verdict == GUARD_FAULT:
+                    valid[i, c] = False
+                elif verdict == GUARD_HELD:
+                    model_codes[i, c] = use
+    return model_codes, valid, implausible
+
+
+def output_stage_ref(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
+                     step: int, track: Sequence[int] | None = None,
+                     zero_before: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray,
+                                                               np.ndarray]:
+    """The axis output stage over a session (codegen.fixed.AxisOutput per axis):
+    (out_nm [n, axes], status bits [n], reference [n, axes]).
+
+    ``step``: the walk-back step (BOX_SLEW_NM_PER_S per period); ``track``: each axis's
+    step limit from the header (None: unlimited while tracking); ``zero_before``: samples
+    before which ZERO is received (0 = at power-up)."""
     n, n_axes = computed_nm.shape
     out = np.zeros((n, n_axes), dtype=np.int64)
+    ref = np.zeros((n, n_axes), dtype=np.int64)
     bits = np.zeros(n, dtype=np.int64)
-    lim = cfg.max_abs_nm
+    zeros = set(zero_before)
     for a in range(n_axes):
-        value, has, walking = 0, False, False
+        lim = (2**31 - 1) if track is None else int(track[a])
+        ax = AxisOutput(cfg.max_abs_nm, step, lim, cfg.zero_samples, cfg.cold_start_slew)
         col_v = computed_nm[:, a].tolist()
         col_ok = computed[:, a].tolist()
         for i in range(n):
-            if not col_ok[i]:
-                bits[i] |= HOLD
-                if not has:
-                    bits[i] |= NO_DATA
-                else:
-                    walking = True
-                out[i, a] = value
-                continue
-            target = col_v[i]
-            if target > lim or target < -lim:
-                target = lim if target > 0 else -lim
-                bits[i] |= CLAMP
-            if not has:
-                has, walking = True, cfg.cold_start_slew
-            if not walking:
-                value = target
-            else:
-                diff = target - value
-                if -step <= diff <= step:
-                    value, walking = target, False
-                else:
-                    value += step if diff > 0 else -step
-                    bits[i] |= SLEW
-            out[i, a] = value
+            if i in zeros:
+                ax.zero()
+            for name in ax.update(bool(col_ok[i]), int(col_v[i])):
+                bits[i] |= Status[name]
+            out[i, a], ref[i, a] = ax.out_nm, ax.ref_nm
+    return out, bits, ref
+
+
+def output_stage(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
+                 step: int, track: Sequence[int] | None = None,
+                 zero_before: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """The axis output logic over a session: (out_nm [n, axes], status bits [n])."""
+    out, bits, _ = output_stage_ref(computed_nm, computed, cfg, step, track, zero_before)
     return out, bits
 
 
 def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.ndarray,
                    cfg: OutputConfig, wdt_reset: bool = False,
-                   model_bad: bool = False) -> Expected:
+                   model_bad: bool = False, zero_before: Sequence[int] = (),
+                   zero_at_powerup: bool = False) -> Expected:
     """Expected lines for samples fed to one freshly powered-up box.
 
     ``codes`` [n, ch] are the chips' readings, ``sr`` [n, ch] their fault status registers,
-    ``aux`` [n, n_aux] the aux inputs.
+    ``aux`` [n, n_aux] the aux inputs; ``zero_before``: local sample indices before which the
+    CNC side sends ZERO; ``zero_at_powerup``: the header's TCM_ZERO_AT_POWERUP.
     """
     m = twin.model
     n = codes.shape[0]
@@ -168,20 +207,30 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
     hi = np.array([c.max_code for c in m.channels], dtype=np.int64)
     wlo = np.array([c.window_lo_code for c in m.channels], dtype=np.int64)
     whi = np.array([c.window_hi_code for c in m.channels], dtype=np.int64)
-    valid, bits = channel_faults(codes, sr, lo, hi, wlo, whi)
+    in_range, bits = channel_faults(codes, sr, lo, hi)
+    zeros = sorted({0} | set(zero_before) if zero_at_powerup else set(zero_before))
+    if zeros:  # REFERENCED from the first sample of the first reference on
+        bits |= np.where(np.arange(n) >= zeros[0], int(REFERENCED), 0)
     if m.aux:
         alo = np.array([a.min for a in m.aux], dtype=np.int64)
         ahi = np.array([a.max for a in m.aux], dtype=np.int64)
         bits |= np.where(((aux < alo) | (aux > ahi)).any(axis=1), AUX_FAULT, 0)
     sticky = (WDT_RESET if wdt_reset else 0) | (MODEL_BAD if model_bad else 0)
     bits |= sticky
-    if model_bad:  # no corrections at all, temperatures still reported
+    if model_bad:  # no corrections at all, no guard, temperatures still reported
+        bits |= np.where((in_range & ((codes < wlo) | (codes > whi))).any(axis=1), EXTRAP, 0)
         empty = np.zeros((n, 0), dtype=np.int64)
-        return Expected(empty, empty, empty.astype(bool), bits, codes)
-    computed_nm, computed = twin.evaluate_run(codes, aux if m.aux else None, valid,
+        return Expected(empty, empty, empty.astype(bool), bits, codes, codes, empty)
+    model_codes, valid, implausible = guard_channels(
+        codes, in_range, [c.max_step_code for c in m.channels], cfg.implausible_after)
+    bits |= np.where(implausible.any(axis=1), int(IMPLAUSIBLE), 0)
+    beyond = valid & ((model_codes < wlo) | (model_codes > whi))
+    bits |= np.where(beyond.any(axis=1), EXTRAP, 0)
+    computed_nm, computed = twin.evaluate_run(model_codes, aux if m.aux else None, valid,
                                               return_mask=True)
-    out, out_bits = output_stage(computed_nm, computed, cfg, cfg.step_nm(m.period_ms))
-    return Expected(out, computed_nm, computed, bits | out_bits, codes)
+    out, out_bits, ref = output_stage_ref(computed_nm, computed, cfg, cfg.step_nm(m.period_ms),
+                                          [ax.max_step_nm for ax in m.axes], zeros)
+    return Expected(out, computed_nm, computed, bits | out_bits, codes, model_codes, ref)
 
 
 def axis_inputs(twin: FixedModel) -> list[tuple[set[int], set[int]]]:

@@ -3,6 +3,12 @@
 docs/native-board.md is the contract: the binary prints ``PTY <slave path>`` on stdout, reads
 feed commands (``S``, ``F``, ``Q``) on stdin and speaks the wire protocol on the pty. This
 module is only process glue; what is sent and checked lives in hil.runner.
+
+The runner creates the pseudo-terminal itself and hands the master to the firmware
+(``--pty-fd``), keeping the slave open for as long as the session lasts; pyserial opens that
+very descriptor through ``/proc/self/fd/<n>``. A ``/dev/pts/N`` path is never opened: the
+kernel reuses pty numbers as soon as their owner exits, so between a power cut and the next
+boot (or with tests running in parallel) a path could lead to another process's port.
 """
 
 from __future__ import annotations
@@ -11,7 +17,9 @@ import os
 import select
 import subprocess
 import tempfile
+import termios
 import time
+import tty
 from pathlib import Path
 
 from hil.link import SerialLink
@@ -29,17 +37,27 @@ class NativeBox:
         self.binary = Path(binary)
         if not self.binary.is_file():
             raise BoxStartError(f"{self.binary}: firmware binary not found (build it first)")
-        args = [str(self.binary)]
-        if wdt_reset:
-            args.append("--wdt-reset")
-        # stderr goes to a file, not a pipe nobody drains (a chatty binary would block on it).
-        self._stderr = tempfile.TemporaryFile()
-        self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=self._stderr, bufsize=0)
+        # The pty pair is ours: the firmware gets the master, we keep the slave.
+        master, self._slave = os.openpty()
+        try:
+            tty.setraw(self._slave, termios.TCSANOW)
+            args = [str(self.binary), "--pty-fd", str(master)]
+            if wdt_reset:
+                args.append("--wdt-reset")
+            # stderr goes to a file, not a pipe nobody drains (a chatty binary would block).
+            self._stderr = tempfile.TemporaryFile()
+            self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=self._stderr, bufsize=0, pass_fds=(master,))
+        except BaseException:
+            os.close(self._slave)
+            raise
+        finally:
+            os.close(master)  # only the firmware holds it: its exit hangs the port up
         try:
             self.pty_path = self._read_pty_line(start_timeout)
-            # Open the port before anything is fed (pyserial flushes input on open).
-            self.link = SerialLink(self.pty_path)
+            # Open the port before anything is fed (pyserial flushes input on open), by our
+            # own descriptor: no other process can have been given it.
+            self.link = SerialLink(f"/proc/self/fd/{self._slave}")
         except BaseException:
             self.kill()
             raise
@@ -109,6 +127,9 @@ class NativeBox:
         link = getattr(self, "link", None)
         if link is not None:
             link.close()
+        if getattr(self, "_slave", -1) >= 0:
+            os.close(self._slave)
+            self._slave = -1
         for stream in (self.proc.stdin, self.proc.stdout):
             if stream is not None and not stream.closed:
                 try:

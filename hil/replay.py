@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +17,11 @@ import numpy as np
 from codegen.fixed import FixedModel
 from contract.fixed_point import CODE_MAX, CODE_MIN
 from hil.build import ModelBuild, build_firmware, prepare_header
-from hil.checks import ReplayReport, judge
+from hil.checks import Judging, ReplayReport, judge
 from hil.expect import Expected, OutputConfig, expect_session, sr_timeline
 from hil.feed import Feed, build_feed
 from hil.native import NativeBox
-from hil.runner import Box, Capture, ChipFault, Event, replay
+from hil.runner import Box, Capture, ChipFault, Event, Zero, replay
 
 
 @dataclass
@@ -33,6 +33,7 @@ class ReplaySetup:
     twin: FixedModel
     binary: Path
     output: OutputConfig
+    judging: Judging = field(default_factory=Judging)  # how much HOLD/SLEW fails a replay
 
     @property
     def model(self) -> dict:
@@ -48,10 +49,11 @@ def default_build_dir(model_json: str | Path) -> Path:
 
 
 def prepare(model_json: str | Path, data: str | Path, build_dir: str | Path | None = None,
-            cflags: str = "", binary: str | Path | None = None) -> ReplaySetup:
+            cflags: str = "", binary: str | Path | None = None,
+            zero_at_powerup: bool = False) -> ReplaySetup:
     """Generate the header, build the native firmware (unless ``binary``) and load the run."""
     build_dir = Path(build_dir) if build_dir is not None else default_build_dir(model_json)
-    mb = prepare_header(model_json, build_dir)
+    mb = prepare_header(model_json, build_dir, zero_at_powerup)
     output = OutputConfig.from_build(cflags)
     q = mb.generated.model
     output.check_fits(len(q.channels), len(q.axes), len(q.aux), str(model_json))
@@ -68,11 +70,16 @@ def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],
     codes = codes.reshape(capture.n_samples, setup.feed.codes.shape[1])
     faults = [(e.at, e.channel, e.sr) for e in events if isinstance(e, ChipFault)]
     sr = sr_timeline(capture.n_samples, codes.shape[1], faults)
+    zeros = [e.at for e in events if isinstance(e, Zero)]
     out = []
     for s in capture.sessions:
         rows = slice(s.first_sample, s.first_sample + s.n_fed)
+        local = [z - s.first_sample for z in zeros
+                 if s.first_sample <= z < s.first_sample + s.n_fed]
         out.append(expect_session(setup.twin, codes[rows], setup.feed.aux[rows], sr[rows],
-                                  setup.output, wdt_reset=s.wdt_reset, model_bad=model_bad))
+                                  setup.output, wdt_reset=s.wdt_reset, model_bad=model_bad,
+                                  zero_before=local,
+                                  zero_at_powerup=setup.build.zero_at_powerup))
     return out
 
 
@@ -86,7 +93,10 @@ def run(setup: ReplaySetup, events: Sequence[Event] = (), model_bad: bool = Fals
     t0 = time.perf_counter()
     capture = replay(setup.feed, start_box or native, events, window=window, quiet=quiet)
     elapsed = time.perf_counter() - t0
+    # a deliberately corrupted model is expected to correct nothing
+    judging = replace(setup.judging, require_correction=False) if model_bad else setup.judging
     report = judge(capture, expectations(setup, capture, events, model_bad), setup.feed,
-                   setup.model, setup.bounds_um())
+                   setup.model, setup.bounds_um(), judging,
+                   [e.at for e in events if isinstance(e, Zero)])
     report.elapsed_s = elapsed
     return report, capture

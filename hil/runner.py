@@ -16,6 +16,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import numpy as np
+
 from hil.feed import Feed
 from hil.link import LinkTimeout, SerialLink
 from hil.native import BoxStartError
@@ -55,6 +57,29 @@ class CodeOverride:
 
 
 @dataclass(frozen=True)
+class CodeOffset:
+    """Samples [start, stop): channel ``channel`` reads ``offset + per_sample * (i - start)``
+    codes more than the run's value (a glitch, a slow drift)."""
+
+    start: int
+    stop: int
+    channel: int
+    offset: int
+    per_sample: int = 0
+
+
+@dataclass(frozen=True)
+class ChannelSwap:
+    """Samples [start, stop): channels ``a`` and ``b`` read each other's values (two sensor
+    cables swapped at the box)."""
+
+    start: int
+    stop: int
+    a: int
+    b: int
+
+
+@dataclass(frozen=True)
 class SerialNoise:
     """Before sample ``at`` (all earlier lines received): ``data`` arrives on the box's UART.
 
@@ -68,6 +93,14 @@ class SerialNoise:
 
 
 @dataclass(frozen=True)
+class Zero:
+    """Before sample ``at`` (all earlier lines received): the CNC side sends ``ZERO``; the
+    runner waits for ``$OK,ZERO`` so the next sample is the first of the new reference."""
+
+    at: int
+
+
+@dataclass(frozen=True)
 class Restart:
     """Before sample ``at``: the box loses power (process killed) and boots again."""
 
@@ -75,7 +108,8 @@ class Restart:
     wdt_reset: bool = False
 
 
-Event = ChipFault | CodeOverride | SerialNoise | Restart
+Event = ChipFault | CodeOverride | CodeOffset | ChannelSwap | SerialNoise | Zero | Restart
+INPUT_EVENTS = (CodeOverride, CodeOffset, ChannelSwap)  # change what the chips read
 
 
 @dataclass
@@ -90,6 +124,7 @@ class Session:
     error: str = ""  # why the session ended early (timeout, crash), empty if it did not
     exit_code: int | None = None
     power_cut: bool = False  # ended by the runner (Restart, or after a timeout), not by Q
+    zero_acks: list[bytes] = field(default_factory=list)  # the $OK,ZERO replies, in order
 
 
 @dataclass
@@ -104,18 +139,29 @@ class Capture:
 BoxFactory = Callable[[bool], Box]  # wdt_reset -> a started box
 
 
+def input_codes(codes: np.ndarray, events: Sequence[Event]) -> np.ndarray:
+    """The chips' readings after the input events, in the order given (not clipped)."""
+    out = np.array(codes, dtype=np.int64, copy=True)
+    for e in events:
+        if isinstance(e, CodeOverride):
+            out[e.start:e.stop, e.channel] = e.code
+        elif isinstance(e, CodeOffset):
+            k = np.arange(max(e.stop - e.start, 0), dtype=np.int64)[:len(out[e.start:e.stop])]
+            out[e.start:e.stop, e.channel] += e.offset + e.per_sample * k
+        elif isinstance(e, ChannelSwap):
+            out[e.start:e.stop, [e.a, e.b]] = out[e.start:e.stop, [e.b, e.a]]
+    return out
+
+
 def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), window: int = 256,
            chunk: int = 64, timeout: float = 20.0, quiet: bool = False,
            desc: str = "replay") -> Capture:
     """Feed every sample of ``feed`` to boxes made by ``start_box``; collect what they send."""
     n = feed.n_samples
-    overrides = [e for e in events if isinstance(e, CodeOverride)]
-    codes = feed.codes.copy()
-    for o in overrides:
-        codes[o.start:o.stop, o.channel] = o.code
+    codes = input_codes(feed.codes, events)
     before: dict[int, list[Event]] = {}
     for e in events:
-        if not isinstance(e, CodeOverride):
+        if not isinstance(e, INPUT_EVENTS):
             before.setdefault(e.at, []).append(e)
     lines = feed.feed_lines(codes)
     sr_now: dict[int, int] = {}  # chip faults in force (physical: they survive a restart)
@@ -162,6 +208,9 @@ def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), wind
                     box.link.wait_count(start + e.replies, timeout,
                                         f"{e.replies} replies to serial noise before sample "
                                         f"{point}")
+                elif isinstance(e, Zero):
+                    sync()
+                    session.zero_acks.append(box.link.command("ZERO", b"$OK,ZERO,", timeout))
                 elif isinstance(e, Restart):
                     sync()  # the power cut falls between two samples, not inside one
                     finish(session, box, kill=True)

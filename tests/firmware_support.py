@@ -8,9 +8,12 @@ used by `make -C firmware test`), loaded here by path.
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 import select
 import subprocess
+import termios
+import tty
 from pathlib import Path
 
 import serial
@@ -40,19 +43,33 @@ def build(header: Path, out_dir: Path, board: str = "native", sanitize: bool = T
     return proc
 
 
+def private_pty() -> tuple[int, int]:
+    """(master, slave) of a fresh raw pty: the master goes to the firmware (--pty-fd), the
+    slave stays ours and is opened by descriptor, never by a /dev/pts path another process
+    could have been given (docs/hil.md)."""
+    master, slave = os.openpty()
+    tty.setraw(slave, termios.TCSANOW)
+    return master, slave
+
+
 class Box:
     """One native firmware process: ``feed`` writes stdin, ``lines`` reads the pty."""
 
     def __init__(self, binary: Path, *args: str) -> None:
-        self.proc = subprocess.Popen([str(binary), *args], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0)
+        master, self._slave = private_pty()
+        try:
+            self.proc = subprocess.Popen([str(binary), "--pty-fd", str(master), *args],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=subprocess.PIPE, bufsize=0, pass_fds=(master,))
+        finally:
+            os.close(master)
         assert self.proc.stdout is not None
         ready, _, _ = select.select([self.proc.stdout], [], [], 30.0)
         first = self.proc.stdout.readline().decode() if ready else ""
         if not first.startswith("PTY "):
             self.proc.kill()
             raise RuntimeError(f"no 'PTY <path>' line, got {first!r}")
-        self.port = serial.Serial(first.split()[1], 115200, timeout=20.0)
+        self.port = serial.Serial(f"/proc/self/fd/{self._slave}", 115200, timeout=20.0)
 
     def feed(self, text: str) -> None:
         assert self.proc.stdin is not None
@@ -88,6 +105,9 @@ class Box:
             rc = self.proc.wait(timeout)
         finally:
             self.port.close()
+            if self._slave >= 0:
+                os.close(self._slave)
+                self._slave = -1
             if self.proc.poll() is None:
                 self.proc.kill()
         assert self.proc.stderr is not None

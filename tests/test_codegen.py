@@ -140,8 +140,10 @@ def test_model_hash_is_the_documented_canonical_sha256():
     m = model("all_kinds")
     core = {"sample_period_s": m["sample_period_s"], "channels": m["channels"],
             "aux": m["aux"], "time_max_s": m["time_max_s"],
-            "axes": {k: {"unit": v["unit"], "intercept": v["intercept"], "terms": v["terms"]}
+            "axes": {k: {"unit": v["unit"], "intercept": v["intercept"], "terms": v["terms"],
+                         **({"max_step_um": v["max_step_um"]} if "max_step_um" in v else {})}
                      for k, v in m["axes"].items()}}
+    assert "max_step_um" in m["axes"]["dz_um"]  # hashed when present
     expected = hashlib.sha256(json.dumps(core, sort_keys=True, separators=(",", ":"))
                               .encode()).hexdigest()[:16]
     assert codegen.model_hash(m) == expected
@@ -165,9 +167,10 @@ def test_model_hash_ignores_traces_but_not_the_function():
 
 def _one_term_crc() -> int:
     data = struct.pack("<IIII", 1, 0, 1, 1000)  # channels, aux, axes, period ms
-    data += struct.pack("<iiiiB", -5120, 25600, -5120, 25600, 0)  # T01: -40..200 degC, no
-    # training range (window = valid range), type K
-    data += struct.pack("<BBq", ONE_SHIFT, 1, ONE_INTERCEPT_Q)
+    data += struct.pack("<iiiiiB", -5120, 25600, -5120, 25600, 128, 0)  # T01: -40..200 degC,
+    # no training range (window = valid range), no max_step_c (default 1 degC = 128 codes per
+    # 1 s sample), type K
+    data += struct.pack("<BBqi", ONE_SHIFT, 1, ONE_INTERCEPT_Q, 1000)  # default 1 um/s x 1 s
     data += struct.pack("<BBiq", 0, 0, 0, ONE_COEF_Q)  # temp, channel 0, no param
     return zlib.crc32(data)
 
@@ -180,7 +183,7 @@ GOLDEN = """\
  * Model {hash} (schema thermal-model/1), sample period 1000 ms.
  * Output: per axis, int32_t nanometres. Inputs: int32_t temperature codes, LSB 1/128 degC
  * (MAX31856 LTCB >> 5, sign-extended); a code outside its channel's range below is a fault.
- * Arithmetic: docs/fixed-point.md (runtime format 2); bounds: docs/codegen.md.
+ * Arithmetic: docs/fixed-point.md (runtime format 3); bounds: docs/codegen.md.
  * Include this file from exactly one firmware source file.
  */
 #ifndef TCM_GENERATED_MODEL_H
@@ -190,9 +193,9 @@ GOLDEN = """\
 
 #include "model_eval.h"
 
-#define TCM_HEADER_FORMAT 2
+#define TCM_HEADER_FORMAT 3
 #if TCM_HEADER_FORMAT != TCM_RUNTIME_FORMAT
-#error "model.h is header format 2 but model_eval.h is another runtime format: regenerate \
+#error "model.h is header format 3 but model_eval.h is another runtime format: regenerate \
 model.h with the codegen matching this firmware (host codegen)"
 #endif
 
@@ -206,6 +209,9 @@ model.h with the codegen matching this firmware (host codegen)"
 #define TCM_N_STATES 0u
 #define TCM_SAMPLE_PERIOD_MS 1000u
 #define TCM_MODEL_CRC32 UINT32_C({crc}) /* CRC-32 of the tables (docs/fixed-point.md) */
+/* 1: the box behaves as if ZERO was received before the first sample (host codegen
+ * --zero-at-powerup); 0: corrections are absolute until the CNC side sends ZERO. */
+#define TCM_ZERO_AT_POWERUP 0
 
 /* ---- Input contract ------------------------------------------------------------------- */
 /* Temperature code LSB = 1/128 degC; valid range per channel (inclusive): */
@@ -215,6 +221,9 @@ model.h with the codegen matching this firmware (host codegen)"
 /* no training range: the window is the valid range (EXTRAP never set) */
 #define TCM_CH0_WINDOW_LO INT32_C(-5120)
 #define TCM_CH0_WINDOW_HI INT32_C(25600)
+/* largest plausible change 1.0 degC per sample: the conservative default (model.json has no \
+max_step_c) */
+#define TCM_CH0_MAX_STEP INT32_C(128)
 
 /* ---- Axis 0: dz_um ----
  * out_nm = rdiv(intercept_q + sum_j coef_q[j] * x_j, 2^43): each integer below is
@@ -241,6 +250,10 @@ model.h with the codegen matching this firmware (host codegen)"
      TCM_ACC_TERM(TCM_AXIS0_TERM0_COEF_Q, TCM_AXIS0_TERM0_XMAX))
 #define TCM_AXIS0_BOUND_PM 500u /* error bound, picometres (rounded up) */
 #define TCM_AXIS0_INPUT_QUANT_PM 5860u /* input quantisation, picometres */
+/* output step limit 1.0 um per sample: the default (model.json has no max_step_um) */
+#define TCM_AXIS0_MAX_STEP_NM INT32_C(1000)
+_Static_assert(TCM_AXIS0_MAX_STEP_NM >= 1, "axis 0 (dz_um): output step limit must be at least \
+1 nm");
 _Static_assert(TCM_AXIS0_SHIFT <= TCM_MAX_SHIFT, "axis 0 (dz_um): shift out of range");
 _Static_assert(TCM_AXIS0_ACC_MAX <= TCM_ACC_LIMIT,
                "axis 0 (dz_um): the int64 accumulator could overflow");
@@ -259,12 +272,13 @@ TCM_CH0_MAX_CODE <= TCM_CODE_MAX,
 _Static_assert(TCM_CH0_MIN_CODE <= TCM_CH0_WINDOW_LO && TCM_CH0_WINDOW_LO <= TCM_CH0_WINDOW_HI \
 && TCM_CH0_WINDOW_HI <= TCM_CH0_MAX_CODE,
                "channel 0 (T01): training window outside the valid range");
+_Static_assert(TCM_CH0_MAX_STEP >= 1, "channel 0 (T01): plausible step must be at least 1 code");
 
 /* ---- Tables --------------------------------------------------------------------------- */
 static const tcm_channel_t tcm_channels[] = {{
     {{.min_code = TCM_CH0_MIN_CODE, .max_code = TCM_CH0_MAX_CODE, \
-.window_lo_code = TCM_CH0_WINDOW_LO, .window_hi_code = TCM_CH0_WINDOW_HI, .tc_type = TCM_TC_K, \
-.sensor = "T01"}},
+.window_lo_code = TCM_CH0_WINDOW_LO, .window_hi_code = TCM_CH0_WINDOW_HI, \
+.max_step_code = TCM_CH0_MAX_STEP, .tc_type = TCM_TC_K, .sensor = "T01"}},
 }};
 _Static_assert(sizeof tcm_channels / sizeof tcm_channels[0] == TCM_N_CHANNELS, \
 "channel table size");
@@ -278,7 +292,7 @@ _Static_assert(sizeof tcm_terms / sizeof tcm_terms[0] == TCM_N_TERMS, "term tabl
 
 static const tcm_axis_t tcm_axes[] = {{
     {{.shift = TCM_AXIS0_SHIFT, .n_terms = TCM_AXIS0_N_TERMS, \
-.intercept_q = TCM_AXIS0_INTERCEPT_Q, .name = "dz_um"}},
+.intercept_q = TCM_AXIS0_INTERCEPT_Q, .max_step_nm = TCM_AXIS0_MAX_STEP_NM, .name = "dz_um"}},
 }};
 _Static_assert(sizeof tcm_axes / sizeof tcm_axes[0] == TCM_N_AXES, "axis table size");
 

@@ -74,7 +74,7 @@ def test_header_compiles_warning_free_on_host_and_cortex_m4(name, tmp_path):
 @pytest.mark.skipif(GCC is None, reason="needs gcc")
 def test_stale_header_format_is_a_compile_error(tmp_path):
     gen = _write_header(tmp_path, "one_term")
-    stale = gen.text.replace("#define TCM_HEADER_FORMAT 2", "#define TCM_HEADER_FORMAT 1")
+    stale = gen.text.replace("#define TCM_HEADER_FORMAT 3", "#define TCM_HEADER_FORMAT 2")
     assert stale != gen.text
     (tmp_path / "model.h").write_text(stale)
     r = _compile(GCC, ["-c", "use.c", "-o", "/dev/null"], tmp_path)
@@ -122,7 +122,11 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
             margin = (t_hi - t_lo) / 20
             w_lo = min(max(math.floor((t_lo - margin) * 128), lo), hi)
             w_hi = max(min(math.ceil((t_hi + margin) * 128), hi), lo)
-        out += struct.pack("<iiiiB", lo, hi, w_lo, w_hi, {"K": 0, "J": 1}[c["tc_type"]])
+        # docs/codegen.md: ceil(max_step_c * 128); without it max(1 degC, 0.1 degC/s * period)
+        step_c = Fraction(c["max_step_c"]) if "max_step_c" in c else \
+            max(Fraction(1), Fraction(1, 10) * Fraction(m["sample_period_s"]))
+        step = max(1, math.ceil(step_c * 128))
+        out += struct.pack("<iiiiiB", lo, hi, w_lo, w_hi, step, {"K": 0, "J": 1}[c["tc_type"]])
     for a in aux:
         out += struct.pack("<ii", int(np.ceil(a["min"])), int(np.floor(a["max"])))
     kinds = ["temp", "lag", "rate", "speed", "speed2", "square", "time"]
@@ -130,7 +134,11 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
     aux_index = {a["name"]: a["input"] for a in aux}
     for name, ax in m["axes"].items():
         fp = fixed_point["axes"][name]
-        out += struct.pack("<BBq", fp["shift"], len(ax["terms"]), fp["intercept_q"])
+        # ceil(max_step_um * 1000) nm; without it 1 um/s * period
+        step_um = Fraction(ax["max_step_um"]) if "max_step_um" in ax else \
+            Fraction(m["sample_period_s"])
+        out += struct.pack("<BBqi", fp["shift"], len(ax["terms"]), fp["intercept_q"],
+                           max(1, math.ceil(step_um * 1000)))
         for t, ft in zip(ax["terms"], fp["terms"], strict=True):
             k = t["kind"]
             if k in ("lag", "rate"):

@@ -42,7 +42,8 @@ def one_term() -> dict:
 def all_kinds() -> dict:
     """3 channels, 1 aux, 3 axes (5, 3 and 1 terms): every kind, negative intercepts."""
     p = 1.0
-    trained = {"trained_min_c": 18.3, "trained_max_c": 41.7}  # as host train writes it
+    trained = {"trained_min_c": 18.3, "trained_max_c": 41.7,  # as host train writes them
+               "max_step_c": 0.3171}
     near_edge = {"trained_min_c": -19.0, "trained_max_c": 119.5}  # window clipped to the range
     m = base(period_s=p, channels=[{**channel(0, "T01"), **trained},
                                    channel(1, "T02", tc="J"),
@@ -59,7 +60,7 @@ def all_kinds() -> dict:
         term(make_speed("spindle_rpm", squared=True), -3.1e-8),
         term(make_lag("T01", 300.0, p), 0.9)]}
     m["axes"]["dz_um"] = {"unit": "um", "intercept": -12.5, "terms": [
-        term(make_rate("T02", 120.0, p), -6.0)]}
+        term(make_rate("T02", 120.0, p), -6.0)], "max_step_um": 2.0004}
     return m
 
 

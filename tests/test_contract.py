@@ -53,6 +53,7 @@ def test_status_word_bits_match_status_h():
     assert c_bits == {s.name: int(s) for s in protocol.Status}
     assert c["CHFAULT_RANGE"] == protocol.ChannelFault.RANGE
     assert c["CHFAULT_NO_RESPONSE"] == protocol.ChannelFault.NO_RESPONSE
+    assert c["CHFAULT_IMPLAUSIBLE"] == protocol.ChannelFault.IMPLAUSIBLE
     assert c["CHFAULT_SR_MASK"] == 0xFF
 
 

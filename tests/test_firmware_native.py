@@ -30,12 +30,15 @@ def fw(tmp_path_factory):
             "tmp": tmp}
 
 
-def feed_session(box: Box, s: dict[str, np.ndarray]) -> None:
-    """S lines for every sample, preceded by F lines where a chip's fault register changes."""
+def feed_session(box: Box, s: dict[str, np.ndarray], start: int = 0,
+                 stop: int | None = None) -> None:
+    """S lines for samples [start, stop), preceded by F lines where a chip's fault register
+    changes."""
     n, n_ch = s["codes"].shape
-    prev = np.zeros(n_ch, dtype=np.int64)
+    stop = n if stop is None else stop
+    prev = s["sr"][start - 1] if start > 0 else np.zeros(n_ch, dtype=np.int64)
     out = []
-    for i in range(n):
+    for i in range(start, stop):
         for c in range(n_ch):
             if s["sr"][i, c] != prev[c]:
                 out.append(f"F {c} {int(s['sr'][i, c]):02X}\n")
@@ -53,8 +56,14 @@ def test_session_matches_host_expectation_bit_for_bit(fw):
     e = gen.expected(fw["model"], s, cfg["BOX_MAX_CORRECTION_NM"], step,
                      bool(cfg["BOX_COLD_START_SLEW"]))
     box = Box(fw["binary"])
-    feed_session(box, s)
-    lines = box.lines(gen.N_SAMPLES)
+    lines, start = [], 0
+    for z in (*gen.ZERO_BEFORE, gen.N_SAMPLES):  # the CNC side sends ZERO between samples
+        feed_session(box, s, start, z)
+        lines += box.lines(z - start)
+        if z < gen.N_SAMPLES:
+            box.send(p.encode_command("ZERO"))
+            assert p.decode(box.lines(1)[0]) == p.Ack("ZERO", z - 1)
+        start = z
     rc, err = box.finish()
     assert rc == 0, err
     samples = [p.decode(line) for line in lines]  # every line passes the decoder's CRC check
@@ -208,11 +217,53 @@ def test_end_of_feed_exits_cleanly(fw):
     assert box.proc.wait(10) == 0
 
 
+def test_a_slow_reader_loses_no_line(fw):
+    """The pty fills up while nobody reads (a loaded CI machine): the board waits, it never
+    drops a line (issue 14, "In CI")."""
+    import threading
+    import time
+
+    n = 20_000  # ~1.3 MB of sample lines, far more than a pty buffers
+    box = Box(fw["binary"])
+    feed = "".join(f"S {i % 12000} " + " ".join(str(2560 + (i + c) % 50) for c in range(8))
+                   + "\n" for i in range(n))
+    # fed from a thread: the board stops reading its feed while it waits on the full pty
+    feeder = threading.Thread(target=box.feed, args=(feed,), daemon=True)
+    feeder.start()
+    time.sleep(1.0)  # the board is blocked on a full pty by now
+    assert feeder.is_alive()  # ... and so is the feed behind it
+    box.port.timeout = 0.5
+    chunks = []
+    while sum(c.count(b"\n") for c in chunks) < n:
+        data = box.port.read(1 << 16)
+        assert data, "the board stopped sending"
+        chunks.append(data)
+    box.port.timeout = 20.0
+    feeder.join(10)
+    lines = b"".join(chunks).splitlines(keepends=True)
+    rc, err = box.finish()
+    assert rc == 0, err
+    assert [p.decode(line).seq for line in lines] == list(range(n))
+
+
+def test_pty_fd_must_be_a_pty_master(fw, tmp_path):
+    import os
+    import subprocess
+
+    fd = os.open(tmp_path / "plain", os.O_RDWR | os.O_CREAT)
+    try:
+        r = subprocess.run([str(fw["binary"]), "--pty-fd", str(fd)], capture_output=True,
+                           text=True, pass_fds=(fd,), timeout=10)
+    finally:
+        os.close(fd)
+    assert r.returncode == 1 and "is not a pseudo-terminal master" in r.stderr
+
+
 def test_help_names_the_options(fw):
     import subprocess
 
     r = subprocess.run([str(fw["binary"]), "--help"], capture_output=True, text=True)
-    assert r.returncode == 0 and "--wdt-reset" in r.stdout
+    assert r.returncode == 0 and "--wdt-reset" in r.stdout and "--pty-fd" in r.stdout
     r = subprocess.run([str(fw["binary"]), "--bogus"], capture_output=True, text=True)
     assert r.returncode == 2 and re.search(r"unknown option '--bogus'", r.stderr)
 

@@ -69,7 +69,8 @@ def test_fl_thermal_replay_matches_twin_bit_for_bit(fl_setup, fl_result):
     n = len(cols["time_s"])
     assert report.samples == n and report.received == n
     assert report.checks == {"twin_bit_exact": True, "float_within_bound": True,
-                             "no_lost_duplicated_reordered": True}, report.problems
+                             "no_lost_duplicated_reordered": True, "held_within_limit": True,
+                             "limited_within_limit": True, "corrected": True}, report.problems
     assert report.mismatches == 0 and report.max_abs_diff_nm == 0
     assert report.ok
     assert capture.sessions[0].exit_code == 0  # the firmware exited cleanly on Q

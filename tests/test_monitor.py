@@ -246,12 +246,17 @@ def test_cli_counts_samples_from_a_pty(tmp_path, capsys):
 ROOT = Path(__file__).resolve().parents[1]
 NATIVE_MODEL = {
     "schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": 1.0,
-    "channels": [{"channel": 0, "sensor": "T05", "tc_type": "K", "min_c": -40.0, "max_c": 200.0},
-                 {"channel": 1, "sensor": "T12", "tc_type": "K", "min_c": -40.0, "max_c": 200.0}],
+    # The tests step temperatures by up to 10 degC from one sample to the next on purpose:
+    # the model allows it (max_step_c, max_step_um), so the box neither flags IMPLAUSIBLE nor
+    # limits the output step (docs/firmware.md).
+    "channels": [{"channel": 0, "sensor": "T05", "tc_type": "K", "min_c": -40.0, "max_c": 200.0,
+                  "max_step_c": 50.0},
+                 {"channel": 1, "sensor": "T12", "tc_type": "K", "min_c": -40.0, "max_c": 200.0,
+                  "max_step_c": 50.0}],
     "aux": [], "time_max_s": 604800.0,
-    "axes": {"dx_um": {"unit": "um", "intercept": -12.5,
+    "axes": {"dx_um": {"unit": "um", "intercept": -12.5, "max_step_um": 100.0,
                        "terms": [{"kind": "temp", "source": "T05", "coef": 0.75}]},
-             "dz_um": {"unit": "um", "intercept": 3.0,
+             "dz_um": {"unit": "um", "intercept": 3.0, "max_step_um": 100.0,
                        "terms": [{"kind": "temp", "source": "T05", "coef": -1.25},
                                  {"kind": "temp", "source": "T12", "coef": 2.0}]}},
     "training": {"runs": [], "targets": ["dx_um", "dz_um"], "sensors": "T*"},

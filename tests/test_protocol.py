@@ -28,6 +28,8 @@ def test_sample_line_decodes_to_typed_fields():
                          temp_codes=(2560, -1))
     assert m.flags == p.Status.WDT_RESET | p.Status.CLAMP | p.Status.SLEW
     assert p.status_names(m.status) == ["SLEW", "CLAMP", "WDT_RESET"]
+    both = p.decode(framed("C,43,1800,0,0"))
+    assert p.status_names(both.status) == ["REFERENCED", "IMPLAUSIBLE"]
 
 
 def test_sample_with_model_bad_has_no_axes():
@@ -44,9 +46,16 @@ def test_info_line_decodes_axes_and_channel_map():
 
 
 def test_status_ok_and_error_lines():
-    assert p.decode(framed("S,0202,17,18,0001;0000;0200")) == p.StatusReport(
-        0x0202, 17, 18, (p.ChannelFault.OPEN, 0, p.ChannelFault.NO_RESPONSE))
+    assert p.decode(framed("S,0202,17,18,0001;0000;0200,-")) == p.StatusReport(
+        0x0202, 17, 18, (p.ChannelFault.OPEN, 0, p.ChannelFault.NO_RESPONSE), None)
+    assert p.decode(framed("S,0A00,17,18,0400,9")) == p.StatusReport(
+        p.Status.REFERENCED | p.Status.NO_DATA, 17, 18, (p.ChannelFault.IMPLAUSIBLE,), 9)
+    # a box from before ZERO ends the line after the channel faults
+    old = p.decode(framed("S,0202,17,18,0001;0000;0200"))
+    assert old.zero_seq is None and old.has_zero_field is False
     assert p.decode(framed("OK,RATE,60")) == p.Ack("RATE", 60)
+    assert p.decode(framed("OK,ZERO,0")) == p.Ack("ZERO", 0)
+    assert p.decode(framed("OK,ZERO,4294967295")) == p.Ack("ZERO", 2**32 - 1)
     for reason in ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG"):
         assert p.decode(framed(f"E,{reason}")) == p.ErrorReply(reason)
 
@@ -80,6 +89,10 @@ def test_every_single_bit_flip_is_detected():
     ("OK,RATE,0", "RATE"),
     ("OK,RATE,3601", "RATE"),
     ("OK,INFO,1", "RATE"),
+    ("OK,ZERO,-1", "seq"),
+    ("OK,ZERO", "missing field"),
+    ("S,0000,1,2,0001,x", "zero_seq"),
+    ("S,0000,1,2,0001,-,3", "unexpected field"),
     ("E,NOPE", "reason"),
     ("X,1", "unknown line type"),
 ])
@@ -118,7 +131,10 @@ def test_encoders_round_trip_random_records():
         assert p.decode(p.encode(sample)) == sample
     info = p.Info("1.2.3", "ffffffffffffffff", False, 250, ("dz_um",), (p.Channel(3, "T3", "J"),))
     report = p.StatusReport(0x3FF, 2**32 - 1, 86400, (0x200, 0x1FF))
-    for message in (info, report, p.Ack("RATE", 3600), p.ErrorReply("TOO_LONG")):
+    zeroed = p.StatusReport(0x1800, 5, 6, (0x400,), 2**32 - 1)
+    old = p.StatusReport(0x0000, 5, 6, (0,), None, has_zero_field=False)
+    for message in (info, report, zeroed, old, p.Ack("RATE", 3600), p.Ack("ZERO", 77),
+                    p.ErrorReply("TOO_LONG")):
         assert p.decode(p.encode(message)) == message
 
 
@@ -129,6 +145,7 @@ def test_encoded_sample_is_byte_identical_to_a_hand_built_line():
 def test_commands_are_encoded_and_checked():
     assert p.encode_command("INFO") == b"INFO\r\n"
     assert p.encode_command("RATE", 10) == b"RATE 10\r\n"
+    assert p.encode_command("ZERO") == b"ZERO\r\n"
     with pytest.raises(ValueError, match="RATE 0 outside"):
         p.encode_command("RATE", 0)
     with pytest.raises(ValueError, match="unknown command"):

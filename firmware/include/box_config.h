@@ -39,6 +39,19 @@
 #define BOX_COLD_START_SLEW 1
 #endif
 
+/* Plausibility guard: a channel whose reading changes by more than its model limit
+ * (TCM channel max_step_code per sample) this many samples in a row becomes a fault (HOLD);
+ * fewer implausible readings are replaced by the channel's last good value (IMPLAUSIBLE). */
+#ifndef BOX_IMPLAUSIBLE_FAULT_SAMPLES
+#define BOX_IMPLAUSIBLE_FAULT_SAMPLES 3
+#endif
+
+/* ZERO: the reference of each axis is the mean model correction of this many samples (valid
+ * for that axis) starting with the first sample after the command. */
+#ifndef BOX_ZERO_SAMPLES
+#define BOX_ZERO_SAMPLES 8
+#endif
+
 /* Independent-watchdog timeout: the main loop passes at least once per millisecond tick. */
 #ifndef BOX_WATCHDOG_MS
 #define BOX_WATCHDOG_MS 500
@@ -65,6 +78,9 @@ _Static_assert(BOX_SLEW_NM_PER_S > 0 && BOX_SLEW_NM_PER_S <= 4194304,
 _Static_assert(BOX_MAX_CORRECTION_NM > 0 && BOX_MAX_CORRECTION_NM < 2000000000,
                "clamp must be positive and fit int32");
 _Static_assert(BOX_WATCHDOG_MS >= 10 && BOX_WATCHDOG_MS <= 4000, "IWDG range at 1 kHz");
+_Static_assert(BOX_IMPLAUSIBLE_FAULT_SAMPLES >= 1 && BOX_IMPLAUSIBLE_FAULT_SAMPLES <= 255,
+               "implausible readings before a fault: 1..255");
+_Static_assert(BOX_ZERO_SAMPLES >= 1 && BOX_ZERO_SAMPLES <= 3600, "ZERO reference samples: 1..3600");
 _Static_assert(BOX_TC_AVGSEL >= 0 && BOX_TC_AVGSEL <= 4, "AVGSEL code 0..4");
 
 #endif

@@ -16,6 +16,7 @@ typedef enum {
     CMD_INFO,
     CMD_STATUS,
     CMD_RATE,
+    CMD_ZERO,
     CMD_ERROR,
 } cmd_kind_t;
 

@@ -14,5 +14,7 @@ uint32_t model_binding_expected_crc(void);
 const char *model_binding_hash(void);
 /* TCM_SAMPLE_PERIOD_MS: a compile-time copy, used even when the tables fail their CRC. */
 uint32_t model_binding_period_ms(void);
+/* TCM_ZERO_AT_POWERUP (codegen --zero-at-powerup): behave as if ZERO came before sample 0. */
+int model_binding_zero_at_powerup(void);
 
 #endif

@@ -23,7 +23,7 @@
 #include <stdint.h>
 
 /* A generated model.h must carry the same number (nanopb style check in the header). */
-#define TCM_RUNTIME_FORMAT 2
+#define TCM_RUNTIME_FORMAT 3
 
 /* Capacity of the runtime (state is statically sized; codegen refuses bigger models). */
 #define TCM_MAX_CHANNELS 32u /* valid_mask is a uint32_t */
@@ -80,13 +80,16 @@
 /* rdiv of a non-negative constant (identity for f = 0). */
 #define TCM_RDIV_CONST(v, f) (((int64_t)(v) + ((INT64_C(1) << (f)) >> 1)) >> (f))
 
-/* One thermocouple channel: the valid code range (a code outside it is a fault) and the
- * training window (a valid code outside it is an extrapolation: status EXTRAP). */
+/* One thermocouple channel: the valid code range (a code outside it is a fault), the
+ * training window (a valid code outside it is an extrapolation: status EXTRAP) and the largest
+ * plausible change per sample (a faster one is status IMPLAUSIBLE; the application's guard,
+ * not this runtime, applies it). */
 typedef struct {
     int32_t min_code;       /* ceil(min_c * 128) */
     int32_t max_code;       /* floor(max_c * 128) */
     int32_t window_lo_code; /* training range widened by 5 % of its span, in codes */
     int32_t window_hi_code; /* (the valid range when the model has no training range) */
+    int32_t max_step_code;  /* codes per sample period, >= 1 (docs/codegen.md) */
     uint8_t tc_type;    /* TCM_TC_K / TCM_TC_J */
     const char *sensor; /* sensor name, for INFO (not part of the CRC) */
 } tcm_channel_t;
@@ -116,6 +119,7 @@ typedef struct {
     uint8_t shift;       /* F: out_nm = rdiv(acc, F) */
     uint8_t n_terms;
     int64_t intercept_q; /* nanometres times 2^shift */
+    int32_t max_step_nm; /* the output never steps more than this per sample period, >= 1 */
     const char *name;    /* e.g. "dz_um" (not part of the CRC) */
 } tcm_axis_t;
 

@@ -15,11 +15,14 @@
 #define STATUS_WDT_RESET ((uint16_t)1u << 8)
 #define STATUS_NO_DATA ((uint16_t)1u << 9)
 #define STATUS_EXTRAP ((uint16_t)1u << 10) /* a valid reading beyond its training window */
+#define STATUS_REFERENCED ((uint16_t)1u << 11) /* a ZERO reference is in force */
+#define STATUS_IMPLAUSIBLE ((uint16_t)1u << 12) /* a reading changed faster than physics allows */
 
 /* Per-channel fault word reported by STATUS: bits 0-7 are the MAX31856 fault status register
  * as last read, then the box's own findings. */
 #define CHFAULT_SR_MASK ((uint16_t)0x00FFu)
 #define CHFAULT_RANGE ((uint16_t)1u << 8)       /* code outside the channel's valid range */
 #define CHFAULT_NO_RESPONSE ((uint16_t)1u << 9) /* bus error or configuration not read back */
+#define CHFAULT_IMPLAUSIBLE ((uint16_t)1u << 10) /* reading rejected by the plausibility guard */
 
 #endif

@@ -6,6 +6,7 @@
 
 #include "axis_output.h"
 #include "box_config.h"
+#include "channel_guard.h"
 #include "cmd.h"
 #include "hal_aux.h"
 #include "hal_board.h"
@@ -51,13 +52,19 @@ typedef struct {
     uint32_t rate;
     uint32_t rate_left; /* samples until the next emitted line */
 
+    bool zero_pending; /* ZERO received (or at power-up): the next sample starts a reference */
+    bool referenced;   /* a ZERO reference is in force (REFERENCED) */
+    uint32_t zero_seq; /* seq of the first sample of that reference */
+
     tcm_state_t tcm;
-    int32_t codes[BOX_MAX_CHANNELS];
+    int32_t codes[BOX_MAX_CHANNELS];       /* as read (sent on the line) */
+    int32_t model_codes[BOX_MAX_CHANNELS]; /* what the model gets (guarded) */
     uint16_t ch_fault[BOX_MAX_CHANNELS];
+    channel_guard_t guards[BOX_MAX_CHANNELS];
     int32_t aux[BOX_MAX_AUX];
     int32_t computed_nm[BOX_MAX_AXES];
     axis_output_t axes[BOX_MAX_AXES];
-    axis_output_cfg_t out_cfg;
+    axis_output_cfg_t out_cfg[BOX_MAX_AXES];
 
     cmd_reader_t reader;
     line_t line;
@@ -119,12 +126,23 @@ void app_init(void)
         (void)max31856_configure((uint8_t)ch, app.model->channels[ch].tc_type);
     }
     tcm_state_init(&app.tcm);
+    for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
+        channel_guard_init(&app.guards[ch]);
+    }
+    const int32_t walk_step = axis_output_step_nm(BOX_SLEW_NM_PER_S, app.period_ms);
     for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
         axis_output_init(&app.axes[a]);
+        axis_output_cfg_t *cfg = &app.out_cfg[a];
+        cfg->max_abs_nm = BOX_MAX_CORRECTION_NM;
+        cfg->step_nm = walk_step;
+        /* The model's per-axis limit (CRC-checked); a table that claims less than 1 nm
+         * would freeze the output, so it is taken as 1 nm. */
+        int32_t track = a < app.n_axes ? app.model->axes[a].max_step_nm : walk_step;
+        cfg->track_step_nm = track < 1 ? 1 : track;
+        cfg->zero_samples = BOX_ZERO_SAMPLES;
+        cfg->cold_start_slew = BOX_COLD_START_SLEW != 0;
     }
-    app.out_cfg.max_abs_nm = BOX_MAX_CORRECTION_NM;
-    app.out_cfg.step_nm = axis_output_step_nm(BOX_SLEW_NM_PER_S, app.period_ms);
-    app.out_cfg.cold_start_slew = BOX_COLD_START_SLEW != 0;
+    app.zero_pending = model_binding_zero_at_powerup() != 0;
 
     app.status = app.sticky | (app.n_axes > 0u ? STATUS_NO_DATA : 0u);
     app.rate = 1u;
@@ -160,10 +178,27 @@ static uint16_t sample_channels(uint32_t *valid_mask)
             fault |= CHFAULT_RANGE;
             st |= STATUS_RANGE;
         } else {
-            *valid_mask |= (uint32_t)1u << ch;
-            if (r.code < c->window_lo_code || r.code > c->window_hi_code) {
-                st |= STATUS_EXTRAP; /* still corrected: advice, not a fault */
+            int32_t use = r.code;
+            guard_result_t g = GUARD_OK;
+            if (app.model_ok) {
+                g = channel_guard_check(&app.guards[ch], r.code, c->max_step_code,
+                                        (uint8_t)BOX_IMPLAUSIBLE_FAULT_SAMPLES, &use);
             }
+            if (g != GUARD_OK) {
+                fault |= CHFAULT_IMPLAUSIBLE;
+                st |= STATUS_IMPLAUSIBLE;
+            }
+            if (g != GUARD_FAULT) {
+                *valid_mask |= (uint32_t)1u << ch;
+                if (use < c->window_lo_code || use > c->window_hi_code) {
+                    st |= STATUS_EXTRAP; /* still corrected: advice, not a fault */
+                }
+            }
+            app.model_codes[ch] = use;
+        }
+        if (fault & (uint16_t)~CHFAULT_IMPLAUSIBLE) {
+            channel_guard_lost(&app.guards[ch]); /* accepted afresh when it comes back */
+            app.model_codes[ch] = r.code;
         }
         app.codes[ch] = r.code;
         app.ch_fault[ch] = fault;
@@ -215,21 +250,33 @@ static void send_sample_line(uint32_t seq)
 static void take_sample(void)
 {
     uint32_t valid_mask;
+    uint32_t seq = app.seq++;
     uint16_t st = app.sticky;
+    if (app.zero_pending) {
+        /* ZERO: this sample is the first of the new reference. */
+        app.zero_pending = false;
+        app.referenced = true;
+        app.zero_seq = seq;
+        for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
+            axis_output_zero(&app.axes[a]);
+        }
+    }
+    if (app.referenced) {
+        st |= STATUS_REFERENCED;
+    }
     st |= sample_channels(&valid_mask);
     st |= sample_aux();
     if (app.model_ok) {
         /* Called every period, also with every channel faulted, so the time term counts. */
-        uint32_t ok = tcm_step(app.model, &app.tcm, app.codes, valid_mask,
+        uint32_t ok = tcm_step(app.model, &app.tcm, app.model_codes, valid_mask,
                                app.n_aux > 0u ? app.aux : NULL, app.computed_nm);
         for (uint32_t a = 0; a < app.n_axes; a++) {
-            st |= axis_output_update(&app.axes[a], &app.out_cfg, ((ok >> a) & 1u) != 0u,
+            st |= axis_output_update(&app.axes[a], &app.out_cfg[a], ((ok >> a) & 1u) != 0u,
                                      app.computed_nm[a]);
         }
     }
     app.status = st;
     app.sampled = true;
-    uint32_t seq = app.seq++;
     if (--app.rate_left == 0u) {
         app.rate_left = app.rate;
         send_sample_line(seq);
@@ -294,6 +341,22 @@ static void send_status(void)
         }
         line_put_hex(l, app.ch_fault[ch], 4);
     }
+    line_sep(l);
+    if (app.referenced) {
+        line_put_u32(l, app.zero_seq);
+    } else {
+        line_put_char(l, '-');
+    }
+    send_line();
+}
+
+static void send_ok(const char *what, uint32_t value)
+{
+    line_begin(&app.line, "OK");
+    line_sep(&app.line);
+    line_put_str(&app.line, what);
+    line_sep(&app.line);
+    line_put_u32(&app.line, value);
     send_line();
 }
 
@@ -309,12 +372,11 @@ static void handle_command(const cmd_t *c)
     case CMD_RATE:
         app.rate = c->arg;
         app.rate_left = 1u; /* the next sample goes out, then every n-th */
-        line_begin(&app.line, "OK");
-        line_sep(&app.line);
-        line_put_str(&app.line, "RATE");
-        line_sep(&app.line);
-        line_put_u32(&app.line, c->arg);
-        send_line();
+        send_ok("RATE", c->arg);
+        break;
+    case CMD_ZERO:
+        app.zero_pending = true; /* the reference starts with the next sample */
+        send_ok("ZERO", app.sampled ? app.seq - 1u : 0u);
         break;
     case CMD_ERROR:
     default:

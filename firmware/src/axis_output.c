@@ -7,6 +7,17 @@ void axis_output_init(axis_output_t *a)
     a->out_nm = 0;
     a->has_output = false;
     a->walking = false;
+    a->zeroing = false;
+    a->ref_nm = 0;
+    a->zero_n = 0;
+    a->zero_sum = 0;
+}
+
+void axis_output_zero(axis_output_t *a)
+{
+    a->zeroing = true;
+    a->zero_n = 0;
+    a->zero_sum = 0;
 }
 
 int32_t axis_output_step_nm(uint32_t slew_nm_per_s, uint32_t period_ms)
@@ -27,6 +38,38 @@ int32_t axis_output_step_nm(uint32_t slew_nm_per_s, uint32_t period_ms)
     return step < 1u ? 1 : (int32_t)step;
 }
 
+int32_t axis_output_mean_nm(int64_t sum, uint32_t n)
+{
+    /* round(|sum| / n) = floor((2|sum| + n) / 2n). With |sum| <= n * 2^31 and n <= 32767 the
+     * dividend is below 2^48 and the divisor below 2^16: long division in 16-bit digits needs
+     * only 32-bit divisions (the Cortex-M4's UDIV; a 64-bit division would pull in a 700-byte
+     * library routine). The remainder stays below the divisor, so (r << 16) fits 32 bits. */
+    uint64_t mag = sum < 0 ? (uint64_t)0 - (uint64_t)sum : (uint64_t)sum;
+    uint64_t dividend = 2u * mag + n;
+    uint32_t divisor = 2u * n;
+    uint64_t q = 0;
+    uint32_t r = 0;
+    for (int shift = 48; shift >= 0; shift -= 16) {
+        uint32_t cur = (r << 16) | (uint32_t)((dividend >> shift) & 0xFFFFu);
+        q = (q << 16) | (cur / divisor);
+        r = cur % divisor;
+    }
+    return sum < 0 ? (int32_t)(-(int64_t)q) : (int32_t)q;
+}
+
+static int32_t clamp_nm(int64_t v, int32_t max_abs, uint16_t *flags)
+{
+    if (v > max_abs) {
+        *flags |= STATUS_CLAMP;
+        return max_abs;
+    }
+    if (v < -(int64_t)max_abs) {
+        *flags |= STATUS_CLAMP;
+        return -max_abs;
+    }
+    return (int32_t)v;
+}
+
 uint16_t axis_output_update(axis_output_t *a, const axis_output_cfg_t *cfg, bool valid,
                             int32_t computed_nm)
 {
@@ -41,30 +84,42 @@ uint16_t axis_output_update(axis_output_t *a, const axis_output_cfg_t *cfg, bool
         return flags;
     }
 
-    int32_t target = computed_nm;
-    if (target > cfg->max_abs_nm) {
-        target = cfg->max_abs_nm;
-        flags |= STATUS_CLAMP;
-    } else if (target < -cfg->max_abs_nm) {
-        target = -cfg->max_abs_nm;
-        flags |= STATUS_CLAMP;
+    if (a->zeroing) {
+        a->zero_sum += computed_nm;
+        a->zero_n++;
+        int32_t ref = axis_output_mean_nm(a->zero_sum, a->zero_n);
+        if (a->zero_n >= cfg->zero_samples) {
+            a->zeroing = false;
+        }
+        if (a->has_output) {
+            /* Re-base the limiter: the datum moved, the tool did not. */
+            a->out_nm = clamp_nm((int64_t)a->out_nm - ((int64_t)ref - a->ref_nm),
+                                 cfg->max_abs_nm, &flags);
+        }
+        a->ref_nm = ref;
     }
+
+    int32_t target = clamp_nm((int64_t)computed_nm - a->ref_nm, cfg->max_abs_nm, &flags);
 
     if (!a->has_output) {
         a->has_output = true;
-        a->walking = cfg->cold_start_slew; /* from out_nm == 0 */
+        if (!cfg->cold_start_slew) {
+            a->out_nm = target;
+            return flags;
+        }
+        a->walking = true; /* from out_nm == 0 */
     }
-    if (!a->walking) {
-        a->out_nm = target;
-        return flags;
+    int32_t step = cfg->track_step_nm;
+    if (a->walking && cfg->step_nm < step) {
+        step = cfg->step_nm;
     }
     /* Both values are within +-max_abs_nm < 2^31, so the difference fits int64 trivially. */
     int64_t diff = (int64_t)target - a->out_nm;
-    if (diff <= cfg->step_nm && diff >= -(int64_t)cfg->step_nm) {
+    if (diff <= step && diff >= -(int64_t)step) {
         a->out_nm = target;
         a->walking = false;
     } else {
-        a->out_nm += diff > 0 ? cfg->step_nm : -cfg->step_nm;
+        a->out_nm += diff > 0 ? step : -step;
         flags |= STATUS_SLEW;
     }
     return flags;

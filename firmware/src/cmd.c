@@ -79,6 +79,10 @@ cmd_t cmd_parse(const char *line, uint8_t len)
         cmd_t c = {CMD_STATUS, 0, 0};
         return c;
     }
+    if (equals(line, len, "ZERO")) {
+        cmd_t c = {CMD_ZERO, 0, 0};
+        return c;
+    }
     if (equals(line, len, "RATE")) {
         return error("BAD_ARG");
     }

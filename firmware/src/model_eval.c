@@ -91,6 +91,7 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
         crc = crc_i32(crc, m->channels[c].max_code);
         crc = crc_i32(crc, m->channels[c].window_lo_code);
         crc = crc_i32(crc, m->channels[c].window_hi_code);
+        crc = crc_i32(crc, m->channels[c].max_step_code);
         crc = crc_u8(crc, m->channels[c].tc_type);
     }
     for (uint32_t k = 0; k < m->n_aux; ++k) {
@@ -103,6 +104,7 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
         crc = crc_u8(crc, ax->shift);
         crc = crc_u8(crc, ax->n_terms);
         crc = crc_i64(crc, ax->intercept_q);
+        crc = crc_i32(crc, ax->max_step_nm);
         for (uint32_t j = 0; j < ax->n_terms; ++j, ++t) {
             const tcm_term_t *term = &m->terms[t];
             crc = crc_u8(crc, term->kind);

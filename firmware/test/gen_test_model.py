@@ -1,11 +1,14 @@
 """Writes the model header and the expected outputs the firmware's C application test checks.
 
 Usage: gen_test_model.py OUT_DIR --clamp-nm N --slew-nm-per-s N --cold-start-slew 0|1
+                         [--implausible-after N] [--zero-samples K]
 
 The expectations come from the host, never from the firmware: the model is built with
 contract.terms and rendered by codegen; the per-sample model outputs come from ``codegen.fixed``
-(the integer twin of the runtime); channel validity, status bits and the hold / slew / clamp
-output stage are computed here from the rules in docs/firmware.md and docs/protocol.md.
+(the integer twin of the runtime); channel validity, the plausibility guard, status bits, the
+ZERO reference and the hold / step limit / clamp output stage are computed here from the rules
+in docs/firmware.md and docs/protocol.md (written out again here, not taken from the twins of
+codegen.fixed, so the C application test and the HIL check two independent statements).
 
 Files: model_test.h (the header), model_bad.h (the same header with one table value changed
 but its CRC macro kept: what a corrupted flash looks like to the box), vectors.h (inputs and
@@ -32,8 +35,9 @@ N_CHANNELS = 8
 SEED = 20240605
 
 # docs/protocol.md status bits
-MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA, EXTRAP = (
-    1 << i for i in range(11))
+(MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA, EXTRAP,
+ REFERENCED, IMPLAUSIBLE) = (1 << i for i in range(13))
+ZERO_BEFORE = (120, 331)  # the CNC side sends ZERO before these samples
 SR_OPEN = 0x01
 
 
@@ -49,6 +53,10 @@ def test_model(period: float = 1.0) -> dict:
     # T01 was trained between 10 and 40 degC (window 8.5..41.5 degC): its +30 degC step below
     # leaves it, EXTRAP. The other channels have no training range (window = valid range).
     channels[0].update({"trained_min_c": 10.0, "trained_max_c": 40.0})
+    # Plausible change per sample: 2 degC (the session's random walk has sigma 0.3 degC) on
+    # every channel but T08, which has none and gets codegen's default (1 degC at 1 s).
+    for c in channels[:7]:
+        c["max_step_c"] = 2.0
     m = {"schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": period,
          "channels": channels,
          "aux": [{"input": 0, "name": "spindle_rpm", "min": 0.0, "max": 12000.0}],
@@ -64,6 +72,9 @@ def test_model(period: float = 1.0) -> dict:
     m["axes"]["dz_um"] = {"unit": "um", "intercept": -10.0, "terms": [
         term(make_temp("T07"), 2.5), term(make_rate("T08", 60.0, period), -4.0),
         term(make_lag("T01", 1800.0, period), 1.1)]}
+    # Output step limits: dx 5 um, dz 3 um per sample; dy none (codegen's default, 1 um/s).
+    m["axes"]["dx_um"]["max_step_um"] = 5.0
+    m["axes"]["dz_um"]["max_step_um"] = 3.0
     return m
 
 
@@ -74,7 +85,8 @@ def session(rng: np.random.Generator) -> dict[str, np.ndarray]:
     temp[150:, 0] += 30.0  # a step: drives dx past the clamp
     temp[200:205, 4] = 210.0  # above T05's valid range: RANGE, dy holds
     temp[60:64, 3] = -3.0  # below T04's 0 degC minimum: RANGE, dx holds
-    temp[10:20, 6] -= 80.0  # negative codes, still inside T07's range
+    temp[10:20, 6] -= 80.0  # negative codes, still inside T07's range: implausible steps
+    temp[260, 4] += 100.0  # a one-sample glitch of T05, inside its range: IMPLAUSIBLE, held
     codes = np.round(temp * 128.0).astype(np.int64)
     sr = np.zeros((n, N_CHANNELS), dtype=np.int64)
     sr[100:120, 2] = SR_OPEN
@@ -91,10 +103,43 @@ def session(rng: np.random.Generator) -> dict[str, np.ndarray]:
     return {"codes": codes, "sr": sr, "present": present, "aux": aux, "aux_ok": aux_ok}
 
 
+def plausible_step_codes(model: dict, period_s: float) -> list[int]:
+    """max_step_code per channel from the rule of docs/codegen.md: ceil(max_step_c * 128), or
+    the default max(1 degC, 0.1 degC/s * period)."""
+    out = []
+    for c in model["channels"]:
+        step_c = Fraction(c["max_step_c"]) if "max_step_c" in c else \
+            max(Fraction(1), Fraction(1, 10) * Fraction(period_s))
+        out.append(max(1, math.ceil(step_c * 128)))
+    return out
+
+
+def axis_step_nm(model: dict, period_s: float) -> list[int]:
+    """max_step_nm per axis: ceil(max_step_um * 1000), or 1 um/s * period."""
+    return [max(1, math.ceil(Fraction(ax["max_step_um"]) * 1000)) if "max_step_um" in ax
+            else max(1, math.ceil(Fraction(period_s) * 1000)) for ax in model["axes"].values()]
+
+
+def mean_half_away(total: int, n: int) -> int:
+    q = (2 * abs(total) + n) // (2 * n)
+    return q if total >= 0 else -q
+
+
 def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
-             cold_start_slew: bool) -> dict[str, np.ndarray]:
+             cold_start_slew: bool, fault_after: int = 3,
+             zero_samples: int = 8) -> dict[str, np.ndarray]:
     twin = FixedModel.from_model(model)
     chans = twin.model.channels
+    max_step = plausible_step_codes(model, model["sample_period_s"])
+    track = axis_step_nm(model, model["sample_period_s"])
+    # guard state per channel: last good, previous reading, implausible run, calm run, flags
+    last = [0] * len(chans)
+    prev = [0] * len(chans)
+    bad = [0] * len(chans)
+    calm = [0] * len(chans)
+    has_ref = [False] * len(chans)
+    faulted = [False] * len(chans)
+    referenced = False
     aux_lo, aux_hi = twin.model.aux[0].min, twin.model.aux[0].max
     n_axes = twin.n_axes
     out = np.zeros((N_SAMPLES, n_axes), dtype=np.int64)
@@ -103,11 +148,22 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
     value = [0] * n_axes
     has = [False] * n_axes
     walking = [False] * n_axes
+    ref = [0] * n_axes
+    zero_n = [-1] * n_axes  # samples in the reference so far; -1: not averaging
+    zero_sum = [0] * n_axes
+    model_codes = np.where(s["present"], s["codes"], 0)
     for i in range(N_SAMPLES):
         bits = 0
+        if i in ZERO_BEFORE:
+            referenced = True
+            zero_n = [0] * n_axes
+            zero_sum = [0] * n_axes
+        if referenced:
+            bits |= REFERENCED
         valid_mask = 0
         for c, ch in enumerate(chans):
             code, sr = int(s["codes"][i, c]), int(s["sr"][i, c])
+            in_range = False
             if not s["present"][i, c]:
                 bits |= TC_FAULT
             elif sr:
@@ -115,6 +171,31 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
             elif not ch.min_code <= code <= ch.max_code:
                 bits |= RANGE
             else:
+                in_range = True
+            if not in_range:  # any other fault: the guard forgets its reference
+                has_ref[c], faulted[c], bad[c], calm[c] = False, False, 0, 0
+                continue
+            # the plausibility guard (docs/firmware.md)
+            verdict = "ok"
+            if not has_ref[c]:
+                pass
+            elif faulted[c]:
+                calm[c] = calm[c] + 1 if abs(code - prev[c]) <= max_step[c] else 0
+                prev[c] = code
+                verdict = "ok" if calm[c] >= fault_after else "fault"
+            elif abs(code - last[c]) > max_step[c] * (bad[c] + 1):
+                bad[c] += 1
+                verdict = "fault" if bad[c] >= fault_after else "held"
+                if verdict == "fault":
+                    faulted[c], calm[c], prev[c] = True, 0, code
+            if verdict == "ok":
+                last[c], has_ref[c], faulted[c], bad[c], calm[c] = code, True, False, 0, 0
+            else:
+                bits |= IMPLAUSIBLE
+            if verdict == "held":
+                code = last[c]
+                model_codes[i, c] = code
+            if verdict != "fault":
                 valid_mask |= 1 << c
                 # the training window, from docs/protocol.md: lo = floor((min - 5 % span) * 128)
                 t_lo, t_hi = model["channels"][c].get("trained_min_c"), \
@@ -128,25 +209,42 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
         aux = int(s["aux"][i]) if s["aux_ok"][i] else aux_lo - 1
         if not s["aux_ok"][i] or not aux_lo <= aux <= aux_hi:
             bits |= AUX_FAULT
-        computed, ok_mask = twin.step([int(x) for x in shown[i]], valid_mask, [aux])
+        computed, ok_mask = twin.step([int(x) for x in model_codes[i]], valid_mask, [aux])
+
+        def clamped(v: int) -> int:
+            nonlocal bits
+            if abs(v) > clamp:
+                bits |= CLAMP
+                return clamp if v > 0 else -clamp
+            return v
+
         for a in range(n_axes):
             if not (ok_mask >> a) & 1:
                 bits |= HOLD | (0 if has[a] else NO_DATA)
                 walking[a] = walking[a] or has[a]
-            else:
-                target = computed[a]
-                if abs(target) > clamp:
-                    target = clamp if target > 0 else -clamp
-                    bits |= CLAMP
-                if not has[a]:
-                    has[a], walking[a] = True, cold_start_slew
-                if not walking[a]:
+                out[i, a] = value[a]
+                continue
+            if 0 <= zero_n[a] < zero_samples:
+                zero_sum[a] += computed[a]
+                zero_n[a] += 1
+                new_ref = mean_half_away(zero_sum[a], zero_n[a])
+                if has[a]:  # the datum moves, the tool does not
+                    value[a] = clamped(value[a] - (new_ref - ref[a]))
+                ref[a] = new_ref
+            target = clamped(computed[a] - ref[a])
+            if not has[a]:
+                has[a] = True
+                if not cold_start_slew:
                     value[a] = target
-                elif abs(target - value[a]) <= step:
-                    value[a], walking[a] = target, False
-                else:
-                    value[a] += step if target > value[a] else -step
-                    bits |= SLEW
+                    out[i, a] = value[a]
+                    continue
+                walking[a] = True
+            lim = min(step, track[a]) if walking[a] else track[a]
+            if abs(target - value[a]) <= lim:
+                value[a], walking[a] = target, False
+            else:
+                value[a] += lim if target > value[a] else -lim
+                bits |= SLEW
             out[i, a] = value[a]
         status[i] = bits
     return {"out": out, "status": status, "shown": shown}
@@ -176,6 +274,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--clamp-nm", type=int, required=True)
     ap.add_argument("--slew-nm-per-s", type=int, required=True)
     ap.add_argument("--cold-start-slew", type=int, choices=(0, 1), required=True)
+    ap.add_argument("--implausible-after", type=int, default=3)
+    ap.add_argument("--zero-samples", type=int, default=8)
     args = ap.parse_args(argv)
 
     model = test_model()
@@ -183,13 +283,15 @@ def main(argv: list[str]) -> int:
     period_ms = gen.model.period_ms
     step = max(1, (args.slew_nm_per_s * period_ms + 500) // 1000)
     s = session(np.random.default_rng(SEED))
-    e = expected(model, s, args.clamp_nm, step, bool(args.cold_start_slew))
+    e = expected(model, s, args.clamp_nm, step, bool(args.cold_start_slew),
+                 args.implausible_after, args.zero_samples)
 
     # The session must exercise what it claims to: every status bit it is built for.
     seen = int(np.bitwise_or.reduce(e["status"]))
     for bit, name in ((HOLD, "HOLD"), (SLEW, "SLEW"), (CLAMP, "CLAMP"), (RANGE, "RANGE"),
                       (OPEN, "OPEN"), (TC_FAULT, "TC_FAULT"), (AUX_FAULT, "AUX_FAULT"),
-                      (NO_DATA, "NO_DATA"), (EXTRAP, "EXTRAP")):
+                      (NO_DATA, "NO_DATA"), (EXTRAP, "EXTRAP"), (REFERENCED, "REFERENCED"),
+                      (IMPLAUSIBLE, "IMPLAUSIBLE")):
         if not seen & bit:
             raise SystemExit(f"gen_test_model: the test session never raises {name}")
 
@@ -217,6 +319,8 @@ def main(argv: list[str]) -> int:
 #define VEC_CLAMP_NM {args.clamp_nm}
 #define VEC_SLEW_NM_PER_S {args.slew_nm_per_s}
 #define VEC_COLD_START_SLEW {args.cold_start_slew}
+#define VEC_IMPLAUSIBLE_AFTER {args.implausible_after}
+#define VEC_ZERO_SAMPLES {args.zero_samples}
 
 static const int32_t vec_codes[VEC_N][VEC_N_CHANNELS] = {{
 {c_rows(s["codes"])}
@@ -237,6 +341,8 @@ static const int32_t vec_out_nm[VEC_N][VEC_N_AXES] = {{
 {c_rows(e["out"])}
 }};
 static const uint16_t vec_status[VEC_N] = {{{c_list(e["status"])}}};
+/* ZERO is sent before these samples */
+static const bool vec_zero_before[VEC_N] = {{{c_list(np.isin(np.arange(N_SAMPLES), ZERO_BEFORE).astype(int))}}};
 
 #endif
 """)

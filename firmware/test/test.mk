@@ -11,10 +11,11 @@ TEST_LIBS := -lcmocka
 # module -> its sources (the test file provides the fakes it needs)
 TEST_SRC_max31856   := src/max31856.c emul/max31856_sim.c
 TEST_SRC_axis_output := src/axis_output.c
+TEST_SRC_channel_guard := src/channel_guard.c
 TEST_SRC_cmd        := src/cmd.c
 TEST_SRC_line       := src/line.c src/crc16.c
 
-UNIT_TESTS := max31856 axis_output cmd line
+UNIT_TESTS := max31856 axis_output channel_guard cmd line
 UNIT_BINS := $(addprefix $(TEST_BUILD)/test_,$(UNIT_TESTS))
 
 .SECONDEXPANSION:

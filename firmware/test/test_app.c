@@ -21,6 +21,8 @@
 _Static_assert(BOX_MAX_CORRECTION_NM == VEC_CLAMP_NM, "build and vectors disagree on the clamp");
 _Static_assert(BOX_SLEW_NM_PER_S == VEC_SLEW_NM_PER_S, "build and vectors disagree on the slew");
 _Static_assert(BOX_COLD_START_SLEW == VEC_COLD_START_SLEW, "build and vectors disagree");
+_Static_assert(BOX_IMPLAUSIBLE_FAULT_SAMPLES == VEC_IMPLAUSIBLE_AFTER, "build and vectors disagree");
+_Static_assert(BOX_ZERO_SAMPLES == VEC_ZERO_SAMPLES, "build and vectors disagree");
 
 typedef struct {
     long seq;
@@ -105,7 +107,17 @@ static void test_App_ShouldMatchHostVectorsBitForBit(void **state)
 {
     (void)state;
     char payload[300];
+    int zeros = 0;
     for (int i = 0; i < VEC_N; i++) {
+        if (vec_zero_before[i]) {
+            fake_uart_send("ZERO\r\n");
+            app_poll();
+            char want[32];
+            snprintf(want, sizeof want, "OK,ZERO,%d", i > 0 ? i - 1 : 0);
+            assert_string_equal(next_line(fake_uart_take(), payload, sizeof payload), "");
+            assert_string_equal(payload, want);
+            zeros++;
+        }
         load_vector(i);
         advance_and_poll(VEC_PERIOD_MS);
         const char *out = fake_uart_take();
@@ -129,6 +141,7 @@ static void test_App_ShouldMatchHostVectorsBitForBit(void **state)
             assert_int_equal(s.codes[c], vec_shown[i][c]);
         }
     }
+    assert_true(zeros >= 2);
 }
 
 static void test_App_ShouldConfigureEveryChipForItsThermocoupleType(void **state)
@@ -213,7 +226,7 @@ static void test_App_ShouldAnswerStatusWithPerChannelFaults(void **state)
     char payload[300];
     next_line(fake_uart_take(), payload, sizeof payload);
     /* Before any sample: NO_DATA, seq 0, uptime 5 s, no channel faults yet. */
-    assert_string_equal(payload, "S,0200,0,5,0000;0000;0000;0000;0000;0000;0000;0000");
+    assert_string_equal(payload, "S,0200,0,5,0000;0000;0000;0000;0000;0000;0000;0000,-");
 
     load_vector(0);
     max31856_sim_set_fault(&fake_chips[1], 0x01); /* OPEN */
@@ -228,7 +241,88 @@ static void test_App_ShouldAnswerStatusWithPerChannelFaults(void **state)
      * vector 0; dz: T07 out of range) and none had data yet: HOLD 0x002 | RANGE 0x010 |
      * OPEN 0x020 | TC_FAULT 0x040 | AUX_FAULT 0x080 | NO_DATA 0x200 = 0x02F2. Channel words:
      * SR OPEN 0x0001, NO_RESPONSE 0x0200, RANGE 0x0100. */
-    assert_string_equal(payload, "S,02F2,0,6,0000;0001;0000;0200;0000;0000;0100;0000");
+    assert_string_equal(payload, "S,02F2,0,6,0000;0001;0000;0200;0000;0000;0100;0000,-");
+}
+
+static void test_App_ShouldReferenceFromTheFirstSampleAfterZero(void **state)
+{
+    (void)state;
+    char payload[300];
+    fake_uart_send("ZERO\n"); /* before any sample: seq 0, the reference starts at sample 0 */
+    app_poll();
+    next_line(fake_uart_take(), payload, sizeof payload);
+    assert_string_equal(payload, "OK,ZERO,0");
+    fake_uart_send("STATUS\n"); /* not in force before its first sample */
+    app_poll();
+    next_line(fake_uart_take(), payload, sizeof payload);
+    assert_string_equal(payload + strlen(payload) - 2, ",-");
+    for (int i = 0; i < 3; i++) {
+        load_vector(i);
+        advance_and_poll(VEC_PERIOD_MS);
+        next_line(fake_uart_take(), payload, sizeof payload);
+        sample_line_t s;
+        parse_sample(payload, &s);
+        assert_true(s.status & 0x0800u); /* REFERENCED */
+    }
+    fake_uart_send("STATUS\nZERO\n");
+    app_poll();
+    const char *rest = next_line(fake_uart_take(), payload, sizeof payload);
+    assert_string_equal(payload + strlen(payload) - 2, ",0");
+    next_line(rest, payload, sizeof payload);
+    assert_string_equal(payload, "OK,ZERO,2");
+    load_vector(3);
+    advance_and_poll(VEC_PERIOD_MS);
+    (void)fake_uart_take();
+    fake_uart_send("STATUS\n");
+    app_poll();
+    next_line(fake_uart_take(), payload, sizeof payload);
+    assert_string_equal(payload + strlen(payload) - 2, ",3");
+}
+
+static void steady_sample(int32_t t05_extra, sample_line_t *out)
+{
+    char payload[300];
+    for (int c = 0; c < VEC_N_CHANNELS; c++) {
+        fake_chips[c].present = true;
+        max31856_sim_set_temperature(&fake_chips[c], 25 * 128 + (c == 4 ? t05_extra : 0));
+        max31856_sim_set_fault(&fake_chips[c], 0);
+    }
+    fake_aux = 3000;
+    fake_aux_ok = true;
+    advance_and_poll(VEC_PERIOD_MS);
+    next_line(fake_uart_take(), payload, sizeof payload);
+    parse_sample(payload, out);
+}
+
+static void test_App_ShouldFlagAGlitchAndHoldTheChannelsLastGoodValue(void **state)
+{
+    (void)state;
+    /* Every channel steady at 25 degC until the output has settled; then T05 (dy reads it,
+     * 0.9 um/degC) reads +100 degC for one sample. */
+    sample_line_t before, glitch, after;
+    for (int i = 0; i < 200; i++) {
+        steady_sample(0, &before);
+    }
+    assert_int_equal(before.status & 0x1006u, 0); /* settled: no IMPLAUSIBLE, HOLD, SLEW */
+    steady_sample(12800, &glitch);
+    char payload[300];
+    fake_uart_send("STATUS\n");
+    app_poll();
+    next_line(fake_uart_take(), payload, sizeof payload);
+    steady_sample(0, &after);
+    assert_int_equal(glitch.status & 0x1000u, 0x1000u); /* IMPLAUSIBLE */
+    assert_int_equal(glitch.status & 0x0002u, 0);       /* no HOLD: the axes keep correcting */
+    assert_int_equal(glitch.codes[4], 25 * 128 + 12800); /* the line shows the code as read */
+    /* channel 4's word: implausible (0x0400) */
+    const char *words = ",0000;0000;0000;0000;0400;0000;0000;0000,-";
+    assert_string_equal(payload + strlen(payload) - strlen(words), words);
+    assert_int_equal(after.status & 0x1000u, 0);
+    /* the model got T05's last good value and its filters never saw the glitch: every axis
+     * is exactly where it was */
+    for (int a = 0; a < VEC_N_AXES; a++) {
+        assert_int_equal(glitch.corr[a], before.corr[a]);
+        assert_int_equal(after.corr[a], before.corr[a]);
+    }
 }
 
 static void test_App_ShouldEmitEveryNthSampleAfterRate(void **state)
@@ -288,6 +382,8 @@ int main(void)
         cmocka_unit_test_setup(test_App_ShouldAnswerStatusWithPerChannelFaults, boot),
         cmocka_unit_test_setup(test_App_ShouldEmitEveryNthSampleAfterRate, boot),
         cmocka_unit_test_setup(test_App_ShouldAnswerErrorsAndKeepSampling, boot),
+        cmocka_unit_test_setup(test_App_ShouldReferenceFromTheFirstSampleAfterZero, boot),
+        cmocka_unit_test_setup(test_App_ShouldFlagAGlitchAndHoldTheChannelsLastGoodValue, boot),
     };
     return cmocka_run_group_tests_name("app", tests, NULL, NULL);
 }

@@ -46,6 +46,17 @@ static void test_Cmd_ShouldRecogniseInfoAndStatus(void **state)
     assert_int_equal(results[1].kind, CMD_STATUS);
 }
 
+static void test_Cmd_ShouldRecogniseZeroWithoutArgumentsOnly(void **state)
+{
+    (void)state;
+    FEED("ZERO\r\nZERO 1\nzero\nZERO \nZEROS\n");
+    assert_int_equal(n_results, 5);
+    assert_int_equal(results[0].kind, CMD_ZERO);
+    for (int i = 1; i < 5; i++) {
+        assert_error(i, "UNKNOWN");
+    }
+}
+
 static void test_Cmd_ShouldAcceptCrLfAndBareCrAsLineEnds(void **state)
 {
     (void)state;
@@ -154,6 +165,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_Cmd_ShouldRecogniseInfoAndStatus),
+        cmocka_unit_test(test_Cmd_ShouldRecogniseZeroWithoutArgumentsOnly),
         cmocka_unit_test(test_Cmd_ShouldAcceptCrLfAndBareCrAsLineEnds),
         cmocka_unit_test(test_Cmd_ShouldParseRateWithinOneTo3600),
         cmocka_unit_test(test_Cmd_ShouldRejectBadRateArguments),

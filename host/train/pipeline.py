@@ -35,6 +35,7 @@ from host.fitting import (
     validation_rmse,
     variance_inflation,
 )
+from host.fitting.step_limits import add_step_limits
 from host.io import Run, load_runs
 from host.progress import progress
 from host.selection import (
@@ -290,7 +291,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     wired = _channels(axes, names, dict(channels or {}), tc_type)
     aux_inputs = _aux(axes, runs)
     add_training_ranges(wired, aux_inputs, runs)
-    return {
+    model = {
         "schema": SCHEMA,
         "tool_version": __version__,
         "sample_period_s": float(period_s),
@@ -316,5 +317,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "max_channels": int(max_channels),
         },
     }
+    # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
+    add_step_limits(model, runs)
+    return model
 
 

@@ -15,8 +15,9 @@ void native_set_chip_count(uint8_t count);
 /* The next SPI transfer never completes (a locked-up bus): for the watchdog test. */
 void native_spi_hang_once(void);
 
-/* Pseudo-terminal UART: open it and print "PTY <path>"; false with a message on failure. */
-bool native_uart_open(void);
+/* Pseudo-terminal UART: create one (inherited_fd < 0) or use the pty master the caller passed
+ * down (--pty-fd), and print "PTY <slave path>"; false with a message on failure. */
+bool native_uart_open(int inherited_fd);
 /* File descriptor of the pty master, for polling. */
 int native_uart_fd(void);
 

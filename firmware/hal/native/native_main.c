@@ -325,18 +325,21 @@ bool hal_wait_for_event(uint32_t wake_at_ms)
 
 static void usage(FILE *to)
 {
-    fputs("usage: thermal_box [--wdt-reset] [--hang-after-samples N]\n"
+    fputs("usage: thermal_box [--wdt-reset] [--hang-after-samples N] [--pty-fd N]\n"
           "Runs the box firmware on a pseudo-terminal (printed as 'PTY <path>') with a sample\n"
           "feed on stdin: 'S <aux0> <code0> ...', 'F <ch> <sr_hex>', 'Q'\n"
           "(docs/native-board.md).\n"
           "  --wdt-reset  start as if the last reset came from the watchdog\n"
           "  --hang-after-samples N  (test) the SPI bus locks up once, after N S lines: the\n"
-          "               watchdog must reset the firmware\n",
+          "               watchdog must reset the firmware\n"
+          "  --pty-fd N   use the pseudo-terminal master inherited as file descriptor N as\n"
+          "               the UART (the caller holds the slave) instead of creating one\n",
           to);
 }
 
 int main(int argc, char **argv)
 {
+    int pty_fd = -1;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--wdt-reset") == 0) {
             native_set_reset_cause_watchdog(true);
@@ -347,6 +350,13 @@ int main(int argc, char **argv)
                 return 2;
             }
             hang_after_samples = n;
+        } else if (strcmp(argv[i], "--pty-fd") == 0 && i + 1 < argc) {
+            long n;
+            if (!parse_long(argv[++i], 10, 0, INT_MAX, &n)) {
+                fprintf(stderr, "thermal_box: --pty-fd needs a file descriptor number\n");
+                return 2;
+            }
+            pty_fd = (int)n;
         } else if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) {
             usage(stdout);
             return 0;
@@ -356,7 +366,7 @@ int main(int argc, char **argv)
             return 2;
         }
     }
-    if (!native_uart_open()) {
+    if (!native_uart_open(pty_fd)) {
         return 1;
     }
     struct sigaction sa;

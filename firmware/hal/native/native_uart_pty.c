@@ -1,6 +1,13 @@
-/* UART HAL of the native board: a pseudo-terminal. The slave side is set raw and kept open by
- * this process, so the line discipline never echoes or translates bytes and the master never
- * reports a hang-up before the runner has opened the port. */
+/* UART HAL of the native board: a pseudo-terminal.
+ *
+ * Either the board creates the pty itself (the slave side is set raw and kept open by this
+ * process, so the line discipline never echoes or translates bytes and the master never
+ * reports a hang-up before the runner has opened the port), or the runner creates it and
+ * passes the master down (--pty-fd N): then the runner holds the slave from the start and
+ * never has to open a /dev/pts path that another process could have been given meanwhile.
+ *
+ * Writes never drop a byte: when the reader is behind, the write waits until the pty takes
+ * more (like the box's transmit, which polls TXE); the HIL counts every line. */
 #define _XOPEN_SOURCE 600
 #include <errno.h>
 #include <fcntl.h>
@@ -17,7 +24,17 @@
 static int master_fd = -1;
 static int slave_fd = -1;
 
-bool native_uart_open(void)
+static bool set_nonblocking(int fd)
+{
+    int flags = fcntl(fd, F_GETFL);
+    if (flags < 0 || fcntl(fd, F_SETFL, flags | O_NONBLOCK) != 0) {
+        fprintf(stderr, "thermal_box: fcntl: %s\n", strerror(errno));
+        return false;
+    }
+    return true;
+}
+
+static bool create_pty(void)
 {
     master_fd = posix_openpt(O_RDWR | O_NOCTTY);
     if (master_fd < 0 || grantpt(master_fd) != 0 || unlockpt(master_fd) != 0) {
@@ -42,12 +59,25 @@ bool native_uart_open(void)
         fprintf(stderr, "thermal_box: cannot set %s raw: %s\n", path, strerror(errno));
         return false;
     }
-    int flags = fcntl(master_fd, F_GETFL);
-    if (flags < 0 || fcntl(master_fd, F_SETFL, flags | O_NONBLOCK) != 0) {
-        fprintf(stderr, "thermal_box: fcntl: %s\n", strerror(errno));
+    return true;
+}
+
+bool native_uart_open(int inherited_fd)
+{
+    if (inherited_fd >= 0) {
+        master_fd = inherited_fd;
+        if (fcntl(master_fd, F_SETFD, FD_CLOEXEC) != 0 || ptsname(master_fd) == NULL) {
+            fprintf(stderr, "thermal_box: --pty-fd %d is not a pseudo-terminal master\n",
+                    inherited_fd);
+            return false;
+        }
+    } else if (!create_pty()) {
         return false;
     }
-    printf("PTY %s\n", path);
+    if (!set_nonblocking(master_fd)) {
+        return false;
+    }
+    printf("PTY %s\n", ptsname(master_fd));
     fflush(stdout);
     return true;
 }
@@ -59,18 +89,29 @@ int native_uart_fd(void)
 
 void hal_uart_write(const uint8_t *data, size_t len)
 {
-    /* Like the box's transmit queue: wait while full, never drop (the HIL counts lines). */
+    /* Like the box's transmit: wait while the pty is full, never drop (the HIL counts lines). */
     while (len > 0u) {
         ssize_t n = write(master_fd, data, len);
         if (n > 0) {
             data += n;
             len -= (size_t)n;
-        } else if (n < 0 && errno != EAGAIN && errno != EINTR) {
-            fprintf(stderr, "thermal_box: pty write failed: %s\n", strerror(errno));
+            continue;
+        }
+        if (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+            fprintf(stderr, "thermal_box: pty write failed (%zu bytes of a line unsent): %s\n",
+                    len, strerror(errno));
             exit(1);
-        } else {
-            struct pollfd p = {.fd = master_fd, .events = POLLOUT};
-            (void)poll(&p, 1, -1);
+        }
+        /* Full (or a zero-length write): wait until the reader has taken some. */
+        struct pollfd p = {.fd = master_fd, .events = POLLOUT};
+        int r = poll(&p, 1, 1000);
+        if (r < 0 && errno != EINTR) {
+            fprintf(stderr, "thermal_box: poll on the pty failed: %s\n", strerror(errno));
+            exit(1);
+        }
+        if (r > 0 && (p.revents & POLLNVAL)) {
+            fprintf(stderr, "thermal_box: the pty was closed under the firmware\n");
+            exit(1);
         }
     }
 }

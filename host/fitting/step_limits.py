@@ -1,0 +1,61 @@
+"""How fast a channel and an axis output can physically change: the box's step limits.
+
+A thermocouple on a machine structure cannot move 100 degC in one sample, and the thermal
+drift of a machine does not step. ``host train`` measures, on the training runs, the fastest
+change per sample of every wired sensor and of every axis's model output, and stores a limit
+of ``STEP_MARGIN`` times that (never below a floor) in model.json: ``channels[i].max_step_c``
+(degC per sample) and ``axes[a].max_step_um`` (um per sample). codegen puts them into the
+header; the box flags a faster reading IMPLAUSIBLE and holds the channel's last good value,
+and never steps an output by more than its limit (docs/firmware.md). A model.json without
+them gets codegen's conservative defaults (docs/codegen.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from contract.box import AXIS_STEP_FLOOR_UM, CHANNEL_STEP_FLOOR_C, STEP_MARGIN
+from host.fitting.features import axis_terms, design_matrix
+from host.io import Run
+
+
+def fastest_step(values: np.ndarray, time_s: np.ndarray, period_s: float) -> float:
+    """The largest |change| between consecutive samples, per sample period: a gap of k
+    periods counts as k samples (a change over a gap is spread over it); samples closer than
+    a period count as one."""
+    values = np.asarray(values, dtype=float)
+    if values.size < 2:
+        return 0.0
+    samples = np.maximum(np.diff(np.asarray(time_s, dtype=float)) / period_s, 1.0)
+    return float(np.max(np.abs(np.diff(values)) / samples))
+
+
+def step_limits(model: dict, runs: Sequence[Run]) -> tuple[dict[str, float], dict[str, float]]:
+    """({sensor: max_step_c}, {axis: max_step_um}) from the training runs."""
+    period = float(model["sample_period_s"])
+    channels = {}
+    for c in model["channels"]:
+        fastest = max(fastest_step(r.column(c["sensor"]), r.time_s, period) for r in runs)
+        channels[c["sensor"]] = max(STEP_MARGIN * fastest, CHANNEL_STEP_FLOOR_C)
+    axes = {}
+    for name in model["axes"]:
+        terms, coefs, intercept = axis_terms(model, name)
+        fastest = 0.0
+        for r in runs:
+            pred = intercept + (design_matrix(terms, r.columns(), period) @ coefs
+                                if terms else np.zeros(r.n_samples))
+            fastest = max(fastest, fastest_step(pred, r.time_s, period))
+        axes[name] = max(STEP_MARGIN * fastest, AXIS_STEP_FLOOR_UM)
+    return channels, axes
+
+
+def add_step_limits(model: dict, runs: Sequence[Run]) -> None:
+    """Write ``max_step_c`` into every channel and ``max_step_um`` into every axis of a
+    model.json dict (both part of what the box computes: hashed, CRC-covered)."""
+    channels, axes = step_limits(model, runs)
+    for c in model["channels"]:
+        c["max_step_c"] = channels[c["sensor"]]
+    for name, ax in model["axes"].items():
+        ax["max_step_um"] = axes[name]
