@@ -259,8 +259,9 @@ def _channel_step(ch: Mapping, where: str, sensor: str, period_s: float) -> tupl
             raise CodegenError(f"{where} ({sensor}): max_step_c {float(step_c)!r} degC must be "
                                "positive (the largest plausible change per sample)")
     else:
-        step_c = max(Fraction(DEFAULT_CHANNEL_STEP_MIN_C),
-                     Fraction(DEFAULT_CHANNEL_STEP_C_PER_S) * Fraction(period_s))
+        # the documented decimal rates, exactly (Fraction(0.1) is 0.1000000000000000055...)
+        step_c = max(Fraction(str(DEFAULT_CHANNEL_STEP_MIN_C)),
+                     Fraction(str(DEFAULT_CHANNEL_STEP_C_PER_S)) * Fraction(period_s))
         source = "default"
     code = math.ceil(step_c * (1 << TEMP_FRAC_BITS))
     return max(1, min(code, CODE_MAX - CODE_MIN)), source
@@ -277,7 +278,7 @@ def _axis_step(ax: Mapping, name: str, period_s: float) -> tuple[int, str]:
             raise CodegenError(f"axis '{name}': max_step_um {float(step_um)!r} um must be "
                                "positive (the largest output step per sample)")
     else:
-        step_um = Fraction(DEFAULT_AXIS_STEP_UM_PER_S) * Fraction(period_s)
+        step_um = Fraction(str(DEFAULT_AXIS_STEP_UM_PER_S)) * Fraction(period_s)
         source = "default"
     return max(1, min(math.ceil(step_um * 1000), INT32_MAX)), source
 

@@ -504,6 +504,105 @@ def test_cli_writes_the_header_and_maps_refusals_to_exit_2(tmp_path, capsys):
     assert not (tmp_path / "x.h").exists()
 
 
+# ---- step limits (issue 14) and ZERO at power-up (issue 13) -----------------------------------
+
+def test_step_limits_round_up_to_whole_codes_and_nanometres():
+    m = model("one_term")
+    m["channels"][0]["max_step_c"] = 0.3  # 38.4 codes -> 39 (never tighter than training)
+    m["axes"]["dz_um"]["max_step_um"] = 2.0001  # 2000.1 nm -> 2001
+    gen = codegen.generate(m)
+    assert gen.model.channels[0].max_step_code == 39
+    assert gen.model.axes[0].max_step_nm == 2001
+    assert "#define TCM_CH0_MAX_STEP INT32_C(39)" in gen.text
+    assert "#define TCM_AXIS0_MAX_STEP_NM INT32_C(2001)" in gen.text
+    fp = gen.fixed_point
+    assert fp["channels"][0]["max_step_code"] == 39
+    assert fp["channels"][0]["max_step_source"] == "model"
+    assert fp["axes"]["dz_um"]["max_step_nm"] == 2001
+    assert fp["axes"]["dz_um"]["max_step_source"] == "model"
+    # the limits are in the CRC: another limit, another CRC (and another model hash)
+    other = copy.deepcopy(m)
+    other["axes"]["dz_um"]["max_step_um"] = 2.5
+    assert codegen.generate(other).crc32 != gen.crc32
+    assert codegen.model_hash(other) != codegen.model_hash(m)
+
+
+def test_a_model_without_step_limits_gets_the_documented_defaults():
+    """docs/codegen.md: max(1 degC, 0.1 degC/s x period) per channel, 1 um/s x period per axis;
+    recorded as 'default' and said in the header."""
+    for period, code, nm in ((1.0, 128, 1000), (15.0, 192, 15000), (60.0, 768, 60000)):
+        m = model("one_term")
+        m["sample_period_s"] = period
+        gen = codegen.generate(m)
+        assert gen.model.channels[0].max_step_code == code
+        assert gen.model.axes[0].max_step_nm == nm
+        assert gen.fixed_point["channels"][0]["max_step_source"] == "default"
+        assert "the conservative default (model.json has no max_step_c)" in gen.text
+
+
+@pytest.mark.parametrize("where, value", [("channel", 0.0), ("channel", -1.0),
+                                          ("axis", 0.0), ("axis", "fast"), ("axis", True)])
+def test_step_limits_that_are_not_positive_numbers_are_refused(where, value):
+    m = model("one_term")
+    if where == "channel":
+        m["channels"][0]["max_step_c"] = value
+    else:
+        m["axes"]["dz_um"]["max_step_um"] = value
+    key = "max_step_c" if where == "channel" else "max_step_um"
+    with pytest.raises(codegen.CodegenError, match=key):
+        codegen.generate(m)
+
+
+def test_the_model_file_validator_names_a_bad_step_limit():
+    from contract.model_file import ModelFormatError, check_model
+
+    m = model("one_term")
+    m["channels"][0]["max_step_c"] = -0.5
+    with pytest.raises(ModelFormatError, match=r"channels\[0\]\.max_step_c \(T01\).*positive"):
+        check_model(m)
+    m = model("one_term")
+    m["axes"]["dz_um"]["max_step_um"] = float("nan")
+    with pytest.raises(ModelFormatError, match="max_step_um"):
+        check_model(m)
+
+
+def test_zero_at_powerup_is_a_header_option(tmp_path, capsys):
+    m = model("one_term")
+    assert "#define TCM_ZERO_AT_POWERUP 0" in codegen.generate(m).text
+    gen = codegen.generate(m, zero_at_powerup=True)
+    assert "#define TCM_ZERO_AT_POWERUP 1" in gen.text
+    assert gen.fixed_point["zero_at_powerup"] is True
+    assert gen.crc32 == codegen.generate(m).crc32  # an option, not a table
+    p = tmp_path / "model.json"
+    p.write_text(json.dumps(m))
+    assert host_main(["codegen", str(p), "--zero-at-powerup"]) == 0
+    out = capsys.readouterr().out
+    assert "ZERO at power-up" in out and "conservative defaults for T01, dz_um" in out
+    assert "#define TCM_ZERO_AT_POWERUP 1" in (tmp_path / "model.h").read_text()
+
+
+def test_host_derives_step_limits_from_the_training_runs(tmp_path):
+    """4x the fastest change per sample (a gap of k periods counts as k samples), floors
+    1/16 degC and 0.5 um; computed here with plain numpy."""
+    from host.fitting.step_limits import add_step_limits, fastest_step
+    from host.io import load_run, write_run
+
+    t = np.array([0.0, 1.0, 2.0, 4.0, 5.0])  # a 2 s gap between samples 2 and 3
+    temp = np.array([20.0, 20.5, 20.5, 21.5, 21.5])  # 0.5 per sample, 1.0 over the gap
+    flat = np.full(5, 30.0)
+    write_run(tmp_path / "r.csv", t, {"T01": temp, "T02": flat, "dz_um": temp}, precision=6)
+    run = load_run(tmp_path / "r.csv", targets=["dz_um"], sensors=["T01", "T02"])
+    assert fastest_step(temp, t, 1.0) == pytest.approx(0.5)
+    m = base(channels=[channel(0, "T01"), channel(1, "T02")])
+    m["axes"]["dz_um"] = {"unit": "um", "intercept": 1.0,
+                          "terms": [term(make_temp("T01"), 3.0), term(make_temp("T02"), 1.0)]}
+    add_step_limits(m, [run])
+    assert m["channels"][0]["max_step_c"] == pytest.approx(4 * 0.5)
+    assert m["channels"][1]["max_step_c"] == pytest.approx(1 / 16)  # constant: the floor
+    assert m["axes"]["dz_um"]["max_step_um"] == pytest.approx(4 * 3.0 * 0.5)
+    codegen.generate(m)  # and codegen takes them
+
+
 # ---- the twin: filter states, faults, every kind by hand ------------------------------------
 
 def test_twin_kinds_cold_start_and_frozen_state_by_hand():
