@@ -14,6 +14,7 @@ import re
 
 import numpy as np
 import pytest
+from direct_fits import direct_out_of_fold_residual
 
 from contract.terms import make_lag, make_rate, make_speed, make_temp, make_time
 from host.effects import (
@@ -29,12 +30,12 @@ from host.effects import (
     lag1_autocorrelation,
     noise_floor,
     partial_correlation,
-    score,
     search_effects,
     state_quantisation_um,
     tau_grid,
 )
-from host.fitting import design_matrix
+from host.effects.scoring import ACTIVE_SHARE
+from host.fitting import design_matrix, fit_linear, rmse
 from host.io import Run
 from host.train import axis_with_effects
 
@@ -286,6 +287,26 @@ def test_codegen_refusal_takes_the_next_candidate():
 # ------------------------------------------------------------------ building blocks
 
 
+def _direct_score(X: np.ndarray, y: np.ndarray, groups: np.ndarray, n_new: int
+                  ) -> tuple[Scored, np.ndarray]:
+    """What ``GramScorer.score`` stands for, by refitting the raw rows without each fold: the
+    out-of-fold RMSE (overall, per fold) and residual, and the last ``n_new`` columns'
+    contribution fitted without each fold against the all-data fit."""
+    residual, coefs = direct_out_of_fold_residual(X, y, groups)
+    folds = np.array([rmse(residual[groups == g]) for g in np.unique(groups)])
+    scored = Scored(None, rmse(residual), folds)
+    if n_new:
+        Z = X[:, X.shape[1] - n_new:]
+        Z = Z - Z.mean(axis=0)
+        full = Z @ fit_linear(X, y).coef[X.shape[1] - n_new:]
+        size = rmse(full)
+        scored.fold_spread = (max(rmse(Z @ c[X.shape[1] - n_new:] - full) for c in coefs) / size
+                              if size > 0 else math.inf)
+        scored.fold_active = np.array([float(np.std(full[groups == g])) >= ACTIVE_SHARE * size
+                                       for g in np.unique(groups)])
+    return scored, residual
+
+
 def test_gram_scorer_equals_direct_refits():
     rng = np.random.default_rng(0)
     n = 300
@@ -294,7 +315,7 @@ def test_gram_scorer_equals_direct_refits():
     groups = np.repeat([0, 1, 2], n // 3)
     gram = GramScorer(X, y, groups)
     for cols, new in (([0, 1], []), ([0, 1, 2], [2]), ([0, 2, 3], [2, 3])):
-        direct, resid = score(X[:, cols], y, groups, None, len(new))
+        direct, resid = _direct_score(X[:, cols], y, groups, len(new))
         fast = gram.score(cols, new)
         assert fast.validation_rmse_um == pytest.approx(direct.validation_rmse_um, rel=1e-9)
         np.testing.assert_allclose(fast.fold_rmse_um, direct.fold_rmse_um, rtol=1e-9)

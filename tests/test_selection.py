@@ -6,8 +6,8 @@ import itertools
 
 import numpy as np
 import pytest
+from direct_fits import direct_validation_rmse
 
-from host.fitting import validation_rmse
 from host.selection import (
     GramCache,
     ec_reduction,
@@ -34,7 +34,7 @@ def test_gram_fits_equal_direct_least_squares():
     for cols in ([0], [1, 4], [0, 2, 3, 5], list(range(6))):
         assert cache.train_rmse(cols) == pytest.approx(_lstsq_rmse(X[:, cols], y), rel=1e-9)
         assert cache.validation_rmse(cols) == pytest.approx(
-            validation_rmse(X[:, cols], y, folds), rel=1e-8)
+            direct_validation_rmse(X[:, cols], y, folds), rel=1e-8)
 
 
 def test_gram_fit_survives_duplicate_columns():
@@ -180,7 +180,7 @@ def _greedy_trap(n: int = 900, p_noise: float = 0.6, seed: int = 7):
 
 
 def _oof(X, y, folds, cols):
-    return validation_rmse(X[:, cols], y, folds)
+    return direct_validation_rmse(X[:, cols], y, folds)
 
 
 def test_group_refinement_replaces_the_member_eq9_chose_too_early():

@@ -23,7 +23,6 @@ from host.effects.scoring import (
     candidate_row,
     partial_correlation,
     preferred,
-    score,
     score_candidates,
 )
 from host.effects.search import search_effects
@@ -46,7 +45,6 @@ __all__ = [
     "partial_correlation",
     "preferred",
     "residual_structure",
-    "score",
     "score_candidates",
     "search_effects",
     "sensor_reference",

@@ -14,7 +14,7 @@ import numpy as np
 from contract.terms import Term
 from host.effects.candidates import Candidate
 from host.effects.residual import rounded
-from host.fitting import NO_REFERENCE, Reference, fit_linear, rmse, term_values
+from host.fitting import NO_REFERENCE, FoldGram, Reference, solve_normal, term_values
 from host.io import Run
 
 MIN_GAIN = 0.10  # an effect must lower the validation RMSE by at least 10 %
@@ -26,15 +26,13 @@ PARSIMONY = 0.01  # a candidate with fewer terms within 1 % of the best is prefe
 MAX_SEARCH_ROWS = 20_000  # the search scores at most about this many samples (search_stride)
 
 
-
-
 def search_stride(runs: Sequence[Run], max_rows: int = MAX_SEARCH_ROWS) -> int:
     """Every how-many-th sample the search scores, so it sees at most about ``max_rows``.
 
     Thermal signals change over minutes; a 24 h run at 1 s has far more rows than the
     comparison of candidates needs, and scoring ~1000 candidate columns at full rate costs
     gigabytes. Features are still computed at the full rate (filters run on every sample, as
-    on the box) and the final model is refitted on every sample (host.train.fit_axis).
+    on the box) and the final model is refitted on every sample (by training, host.train).
     """
     return max(1, math.ceil(sum(r.n_samples for r in runs) / max_rows))
 
@@ -169,38 +167,11 @@ class Scored:
         }
 
 
-def score(X: np.ndarray, y: np.ndarray, groups: np.ndarray, candidate: Candidate | None = None,
-          n_new: int = 0) -> tuple[Scored, np.ndarray]:
-    """Out-of-fold RMSE (overall and per fold) of a design, and its out-of-fold residual.
-
-    The last ``n_new`` columns are the candidate's: their contribution fitted without each fold
-    is compared with the all-data fit (``fold_spread``, the same effect in every fold?).
-    """
-    residual = np.empty_like(y, dtype=float)
-    fold_coefs = []
-    for g in np.unique(groups):
-        test = groups == g
-        fit = fit_linear(X[~test], y[~test])
-        residual[test] = y[test] - fit.predict(X[test])
-        fold_coefs.append(fit.coef[X.shape[1] - n_new:])
-    folds = np.array([rmse(residual[groups == g]) for g in np.unique(groups)])
-    scored = Scored(candidate, rmse(residual), folds)
-    if n_new:
-        Z = X[:, X.shape[1] - n_new:]
-        Z = Z - Z.mean(axis=0)
-        full = Z @ fit_linear(X, y).coef[X.shape[1] - n_new:]
-        size = rmse(full)
-        scored.fold_spread = (max(rmse(Z @ c - full) for c in fold_coefs) / size if size > 0
-                              else math.inf)
-        scored.fold_active = np.array([float(np.std(full[groups == g])) >= ACTIVE_SHARE * size
-                                       for g in np.unique(groups)])
-    return scored, residual
-
-
 def partial_correlation(residual: np.ndarray, Z: np.ndarray, X: np.ndarray) -> float:
     """Correlation of the residual with the new columns Z once the current design X is removed.
 
-    One column: signed Pearson r. Several: the multiple correlation R (>= 0).
+    One column: signed Pearson r. Several: the multiple correlation R (>= 0). (A direct
+    reference for ``GramScorer.partial_correlation``, which the search uses.)
     """
     base = np.column_stack([np.ones(len(residual)), X])
     proj, *_ = np.linalg.lstsq(base, Z, rcond=None)
@@ -215,101 +186,55 @@ def partial_correlation(residual: np.ndarray, Z: np.ndarray, X: np.ndarray) -> f
     return math.sqrt(max(0.0, 1.0 - float(np.sum((r - Zp @ coef) ** 2)) / ss)) if ss > 0 else 0.0
 
 
-class GramScorer:
-    """Out-of-fold least squares of any subset of columns from per-fold Gram matrices.
+class GramScorer(FoldGram):
+    """The out-of-fold engine (host.fitting.FoldGram) asked the effect search's questions.
 
-    The same numbers as ``score`` (refit without each fold, predict it) for hundreds of
-    candidates at the cost of one pass over the data: columns are standardised once (global
-    mean and SD; an intercept column keeps every fit's offset free) and each candidate only
-    solves a few small normal-equation systems.
+    Hundreds of candidates are scored at the cost of one pass over the data: each only solves
+    a few small normal-equation systems. Besides the errors, a candidate's new columns must
+    keep their shape without any one fold (``fold_spread``) and show where they act
+    (``fold_active``); ``partial_correlation`` ranks what the residual still holds.
     """
-
-    def __init__(self, A: np.ndarray, y: np.ndarray, groups: np.ndarray) -> None:
-        A = np.asarray(A, dtype=float)
-        y = np.asarray(y, dtype=float)
-        n, p = A.shape
-        sd = A.std(axis=0)
-        sd[sd == 0] = 1.0
-        self.D = np.empty((n, p + 1))
-        self.D[:, 0] = 1.0
-        np.subtract(A, A.mean(axis=0), out=self.D[:, 1:])
-        self.D[:, 1:] /= sd
-        self.y0 = y - y.mean()
-        self.groups = np.asarray(groups)
-        self.fold_ids = np.unique(self.groups)
-        self.rows = [self.groups == g for g in self.fold_ids]
-        self.n_f = np.array([int(r.sum()) for r in self.rows])
-        self.M_f = np.array([self.D[r].T @ self.D[r] for r in self.rows])
-        self.v_f = np.array([self.D[r].T @ self.y0[r] for r in self.rows])
-        self.s_f = np.array([float(self.y0[r] @ self.y0[r]) for r in self.rows])
-        self.M = self.M_f.sum(axis=0)
-        self.v = self.v_f.sum(axis=0)
-        self.n = n
-
-    @staticmethod
-    def _solve(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-        try:
-            beta = np.linalg.solve(M, v)
-            if np.all(np.isfinite(beta)) and np.allclose(M @ beta, v, rtol=1e-8,
-                                                         atol=1e-10 * max(1.0, abs(v).max())):
-                return beta
-        except np.linalg.LinAlgError:
-            pass
-        return np.linalg.lstsq(M, v, rcond=None)[0]  # rank deficient: minimum norm
-
-    def _fold_betas(self, idx: np.ndarray) -> list[np.ndarray]:
-        ix = np.ix_(idx, idx)
-        return [self._solve(self.M[ix] - Mf[ix], self.v[idx] - vf[idx])
-                for Mf, vf in zip(self.M_f, self.v_f, strict=True)]
-
-    def fold_sse(self, idx: np.ndarray, betas: list[np.ndarray]) -> np.ndarray:
-        ix = np.ix_(idx, idx)
-        return np.array([max(float(s - 2 * b @ vf[idx] + b @ Mf[ix] @ b), 0.0)
-                         for b, Mf, vf, s in zip(betas, self.M_f, self.v_f, self.s_f,
-                                                 strict=True)])
-
-    def residual(self, cols: Sequence[int]) -> np.ndarray:
-        """Out-of-fold residual of the columns ``cols`` (indices into A)."""
-        idx = np.array([0, *(c + 1 for c in cols)], dtype=int)
-        out = np.empty(self.n)
-        for b, r in zip(self._fold_betas(idx), self.rows, strict=True):
-            out[r] = self.y0[r] - self.D[r][:, idx] @ b
-        return out
 
     def score(self, cols: Sequence[int], new: Sequence[int],
               candidate: Candidate | None = None) -> Scored:
-        """Like ``score``: columns ``cols`` of A, of which ``new`` are the candidate's."""
-        idx = np.array([0, *(c + 1 for c in cols)], dtype=int)
-        betas = self._fold_betas(idx)
-        sse = self.fold_sse(idx, betas)
+        """Out-of-fold RMSE (overall and per fold) of columns ``cols`` of X, of which ``new``
+        are the candidate's: their contribution fitted without each fold is compared with
+        the all-data fit (``fold_spread``, the same effect in every fold?)."""
+        betas = self.fold_betas(cols)
+        sse = self.fold_sse(cols, betas)
         scored = Scored(candidate, math.sqrt(sse.sum() / self.n), np.sqrt(sse / self.n_f))
         if new:
-            pos = np.array([list(cols).index(c) + 1 for c in new])
-            nz = np.array([c + 1 for c in new])
-            C = self.M[np.ix_(nz, nz)] / self.n  # covariance of the (centred) new columns
-            full = self._solve(self.M[np.ix_(idx, idx)], self.v[idx])[pos]
-            size = math.sqrt(max(float(full @ C @ full), 0.0))
-            if size > 0:
-                spread = max(math.sqrt(max(float((b[pos] - full) @ C @ (b[pos] - full)), 0.0))
-                             for b in betas)
-                scored.fold_spread = spread / size
-                active = []
-                for Mf, nf in zip(self.M_f, self.n_f, strict=True):
-                    mean = float(Mf[0, nz] @ full) / nf
-                    var = float(full @ Mf[np.ix_(nz, nz)] @ full) / nf - mean * mean
-                    active.append(math.sqrt(max(var, 0.0)) >= ACTIVE_SHARE * size)
-                scored.fold_active = np.array(active)
-            else:
-                scored.fold_spread = math.inf
+            self._effect_stability(scored, cols, new, betas)
         return scored
+
+    def _effect_stability(self, scored: Scored, cols: Sequence[int], new: Sequence[int],
+                          betas: np.ndarray) -> None:
+        """Fill ``fold_spread`` and ``fold_active`` of the new columns' contribution."""
+        pos = np.array([list(cols).index(c) + 1 for c in new])
+        nz = np.array([c + 1 for c in new])
+        C = self.M[np.ix_(nz, nz)] / self.n  # covariance of the (centred) new columns
+        full = self.beta(cols)[pos]
+        size = math.sqrt(max(float(full @ C @ full), 0.0))
+        if not size > 0:
+            scored.fold_spread = math.inf
+            return
+        spread = max(math.sqrt(max(float((b[pos] - full) @ C @ (b[pos] - full)), 0.0))
+                     for b in betas)
+        scored.fold_spread = spread / size
+        active = []
+        for Mf, nf in zip(self.M_f, self.n_f, strict=True):
+            mean = float(Mf[0, nz] @ full) / nf
+            var = float(full @ Mf[np.ix_(nz, nz)] @ full) / nf - mean * mean
+            active.append(math.sqrt(max(var, 0.0)) >= ACTIVE_SHARE * size)
+        scored.fold_active = np.array(active)
 
     def partial_correlation(self, residual: np.ndarray, q: np.ndarray, base: Sequence[int],
                             new: Sequence[int]) -> float:
         """``partial_correlation`` from the Gram matrix; ``q`` = D.T @ residual (once a step)."""
-        b = np.array([0, *(c + 1 for c in base)], dtype=int)
+        b = self.index(base)
         z = np.array([c + 1 for c in new], dtype=int)
         G = self.M
-        P = self._solve(G[np.ix_(b, b)], G[np.ix_(b, z)])
+        P = solve_normal(G[np.ix_(b, b)], G[np.ix_(b, z)])
         zr = q[z] - P.T @ q[b]
         zz = G[np.ix_(z, z)] - G[np.ix_(z, b)] @ P
         rr = float(residual @ residual) - residual.size * float(residual.mean()) ** 2
@@ -318,7 +243,7 @@ class GramScorer:
         if z.size == 1:
             den = math.sqrt(max(float(zz[0, 0]), 0.0) * rr)
             return float(zr[0]) / den if den > 0 else 0.0
-        r2 = float(zr @ self._solve(zz, zr)) / rr
+        r2 = float(zr @ solve_normal(zz, zr)) / rr
         return math.sqrt(min(max(r2, 0.0), 1.0))
 
 

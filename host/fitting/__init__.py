@@ -1,19 +1,26 @@
 """The fitting engine: float features of model terms, least squares, and out-of-fold validation.
+
+``FoldGram`` is the one out-of-fold least-squares engine; selection and the effect search
+score their subsets with it, and ``validation_rmse`` judges one design with it.
 """
 
 from __future__ import annotations
 
 from host.fitting.features import axis_terms, design_matrix, first_order_lag, term_values
 from host.fitting.linear import condition_number, fit_linear, r_squared, rmse, variance_inflation
+from host.fitting.out_of_fold import (
+    FoldGram,
+    out_of_fold_predictions,
+    solve_normal,
+    validation_rmse,
+)
 from host.fitting.reference import NO_REFERENCE, Reference, causal_reference
 from host.fitting.validation import (
     DEFAULT_BLOCKS,
     common_period,
     fold_groups,
-    out_of_fold_predictions,
     run_labels,
     stack,
-    validation_rmse,
 )
 
 __all__ = [
@@ -21,6 +28,7 @@ __all__ = [
     "Reference",
     "causal_reference",
     "DEFAULT_BLOCKS",
+    "FoldGram",
     "axis_terms",
     "common_period",
     "condition_number",
@@ -31,6 +39,7 @@ __all__ = [
     "out_of_fold_predictions",
     "r_squared",
     "rmse",
+    "solve_normal",
     "run_labels",
     "stack",
     "term_values",

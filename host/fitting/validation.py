@@ -8,6 +8,7 @@ filter states the box would have. Folds are given as a group label per stacked s
   a fold trains on the other blocks and tests on its own. Contiguous blocks keep the strong
   autocorrelation of thermal data from leaking between train and test the way a random split
   would.
+The fits themselves (and their out-of-fold errors) are host.fitting.out_of_fold's.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ import numpy as np
 from contract.errors import InputError
 from contract.terms import Term
 from host.fitting.features import design_matrix
-from host.fitting.linear import fit_linear, rmse
 from host.fitting.reference import NO_REFERENCE, Reference
 from host.io import Run
 
@@ -79,24 +79,3 @@ def stack(runs: list[Run], terms: list[Term], target: str, period_s: float,
     groups, scheme = fold_groups(runs, n_blocks)
     per_run = run_labels(runs)
     return Stacked(reference.apply(X, per_run), reference.apply(y, per_run), groups, scheme)
-
-
-def out_of_fold_predictions(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """Prediction of every row by a model fitted without its group."""
-    pred = np.empty_like(y, dtype=float)
-    for g in np.unique(groups):
-        test = groups == g
-        fit = fit_linear(X[~test], y[~test])
-        pred[test] = fit.predict(X[test])
-    return pred
-
-
-def fold_rmses(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """Held-out RMSE of each fold."""
-    pred = out_of_fold_predictions(X, y, groups)
-    return np.array([rmse(y[groups == g] - pred[groups == g]) for g in np.unique(groups)])
-
-
-def validation_rmse(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> float:
-    """RMSE of all out-of-fold predictions together (every sample predicted once, unseen)."""
-    return rmse(y - out_of_fold_predictions(X, y, groups))

@@ -25,7 +25,8 @@ The methods differ in the error and in the rule that fixes the count:
 - ``validated-ec``: out-of-fold error with the paper's EC rule (kept for the comparison).
 
 Every subset fit uses the normal equations from per-fold Gram matrices of the standardised
-candidate columns (with an intercept column), computed once; no subset refits the raw data.
+candidate columns (with an intercept column), computed once by host.fitting.FoldGram; no
+subset refits the raw data.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contract.errors import InputError
+from host.fitting import FoldGram
 from host.selection.clustering import DEFAULT_RESTARTS, hard_c_means
 from host.selection.correlation import thermal_parameters
 
@@ -75,75 +77,8 @@ def fold_labels(run_ids: np.ndarray, n_blocks: int = DEFAULT_BLOCKS) -> np.ndarr
     return np.minimum((np.arange(n) * n_blocks) // n, n_blocks - 1)
 
 
-class GramCache:
-    """Least-squares fits of any column subset (plus intercept) from per-fold Gram matrices.
-
-    Columns are standardised once (global mean and sd) so the small normal-equation systems
-    stay well conditioned; an intercept column makes every fit's offset free.
-    """
-
-    def __init__(self, X: np.ndarray, y: np.ndarray, folds: np.ndarray) -> None:
-        X = np.asarray(X, dtype=float)
-        y = np.asarray(y, dtype=float)
-        self.n = X.shape[0]
-        mean = X.mean(axis=0)
-        sd = X.std(axis=0)
-        sd[sd == 0] = 1.0
-        y0 = y - y.mean()
-        self.fold_ids = np.unique(folds)
-        p = X.shape[1]
-        self.M_f = np.empty((len(self.fold_ids), p + 1, p + 1))
-        self.v_f = np.empty((len(self.fold_ids), p + 1))
-        self.s_f = np.empty(len(self.fold_ids))
-        for i, g in enumerate(self.fold_ids):
-            rows = folds == g
-            A = np.empty((int(rows.sum()), p + 1))
-            A[:, 0] = 1.0
-            np.subtract(X[rows], mean, out=A[:, 1:])
-            A[:, 1:] /= sd
-            self.M_f[i] = A.T @ A
-            self.v_f[i] = A.T @ y0[rows]
-            self.s_f[i] = float(y0[rows] @ y0[rows])
-        self.M = self.M_f.sum(axis=0)
-        self.v = self.v_f.sum(axis=0)
-        self.s = float(self.s_f.sum())
-
-    @staticmethod
-    def _solve(M: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Solve the normal equations, a batch of them if M is (F, m, m); a singular system
-        (duplicate or constant columns) falls back to minimum-norm least squares."""
-        try:
-            beta = np.linalg.solve(M, v[..., None])[..., 0]
-            resid = np.abs(np.einsum("...ij,...j->...i", M, beta) - v).max()
-            if np.isfinite(resid) and resid <= 1e-8 * max(1.0, float(np.abs(v).max())):
-                return beta
-        except np.linalg.LinAlgError:
-            pass
-        if M.ndim == 2:
-            return np.linalg.lstsq(M, v, rcond=None)[0]
-        return np.array([np.linalg.lstsq(m, b, rcond=None)[0] for m, b in zip(M, v, strict=True)])
-
-    def _idx(self, cols: Sequence[int]) -> np.ndarray:
-        return np.array([0, *(int(c) + 1 for c in cols)], dtype=int)
-
-    def train_rmse(self, cols: Sequence[int]) -> float:
-        """RMSE (= residual sd, the intercept centres it) of the fit on all rows."""
-        idx = self._idx(cols)
-        M = self.M[np.ix_(idx, idx)]
-        v = self.v[idx]
-        beta = self._solve(M, v)
-        sse = self.s - 2 * beta @ v + beta @ M @ beta
-        return math.sqrt(max(sse, 0.0) / self.n)
-
-    def validation_rmse(self, cols: Sequence[int]) -> float:
-        """RMSE of all out-of-fold predictions (each fold predicted by a fit without it)."""
-        idx = self._idx(cols)
-        Mg = self.M_f[:, idx][:, :, idx]  # (F, m, m) each fold's own Gram
-        vg = self.v_f[:, idx]
-        beta = self._solve(self.M[np.ix_(idx, idx)] - Mg, self.v[idx] - vg)  # fits without it
-        sse = (self.s_f - 2 * np.einsum("fi,fi->f", beta, vg)
-               + np.einsum("fi,fij,fj->f", beta, Mg, beta))
-        return math.sqrt(float(np.maximum(sse, 0.0).sum()) / self.n)
+class GramCache(FoldGram):
+    """The out-of-fold engine (host.fitting.FoldGram) asked in the selection's two errors."""
 
     def error(self, cols: Sequence[int], kind: str) -> float:
         """``kind`` is "validation" (out-of-fold RMSE) or "train" (training RMSE)."""

@@ -1,0 +1,171 @@
+"""The out-of-fold least-squares engine: fits of any column subset from per-fold Gram matrices.
+
+Selection tries thousands of sensor subsets and the effect search hundreds of candidate
+columns, each scored by refitting without every fold and predicting it. Refitting the raw
+data for each would cost a pass over all rows per subset and fold; here the columns are
+standardised once (global mean and SD, so the small systems stay well conditioned), an
+intercept column keeps every fit's offset free, and each fold's Gram matrix ``D_f' D_f``, its
+``D_f' y`` and ``y_f' y_f`` are summed once. A fit without fold f is then the normal equations
+of (all - f) on the chosen rows and columns, and its squared error on fold f follows from
+fold f's own Gram matrix; no subset touches the rows again.
+
+One model is judged by refitting instead: ``validation_rmse`` and ``out_of_fold_predictions``
+(training, the channel budget) fit each fold on its own training rows, centred there, as a
+direct fit does (``FoldGram.refit_residual``). A column constant on a fold's training rows (a
+speed input over runs whose spindle never changed speed) then gets no weight, where the
+minimum-norm normal equations give it a share of the intercept that moves the held-out
+prediction; and the normal equations square the condition number, which ranking subsets
+tolerates better than a reported error does.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from host.fitting.linear import fit_linear, rmse
+
+# A solution of the normal equations is trusted when M @ beta reproduces v to this fraction of
+# v's largest entry (or absolutely, below 1); otherwise the system is singular or nearly so
+# (duplicate or constant columns) and the minimum-norm least-squares solution is used.
+SOLVE_TOLERANCE = 1e-8
+
+
+def solve_normal(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Solve M @ beta = v: one system, several right-hand sides (v of shape (m, k)), or a batch
+    if M is (F, m, m) and v (F, m). A singular system (duplicate or constant columns) falls
+    back to minimum-norm least squares (the whole batch, if one of it is singular)."""
+    vector = v.ndim == M.ndim - 1
+    rhs = v[..., None] if vector else v
+    try:
+        beta = np.linalg.solve(M, rhs)
+        residual = np.abs(M @ beta - rhs).max()
+        if np.isfinite(residual) and residual <= SOLVE_TOLERANCE * max(1.0, float(np.abs(v).max())):
+            return beta[..., 0] if vector else beta
+    except np.linalg.LinAlgError:
+        pass
+    if M.ndim == 2:
+        return np.linalg.lstsq(M, v, rcond=None)[0]
+    return np.array([np.linalg.lstsq(m, b, rcond=None)[0] for m, b in zip(M, v, strict=True)])
+
+
+class FoldGram:
+    """Out-of-fold and training least squares of any subset of the columns of X, plus intercept.
+
+    Column subsets are given as indices into X; the coefficients (``beta``, ``fold_betas``)
+    are for the design ``D`` = [1, standardised X[:, cols]] and fit ``y0`` = y - mean(y).
+    A fold whose complement holds no rows cannot be predicted: its errors are NaN.
+    """
+
+    def __init__(self, X: np.ndarray, y: np.ndarray, folds: np.ndarray) -> None:
+        X = np.asarray(X, dtype=float)
+        y = np.asarray(y, dtype=float)
+        n, p = X.shape
+        sd = X.std(axis=0)
+        sd[sd == 0] = 1.0
+        self.D = np.empty((n, p + 1))
+        self.D[:, 0] = 1.0
+        np.subtract(X, X.mean(axis=0), out=self.D[:, 1:])
+        self.D[:, 1:] /= sd
+        self.y0 = y - y.mean()
+        self.n = n
+        self.folds = np.asarray(folds)
+        self.fold_ids = np.unique(self.folds)
+        self.rows = [self.folds == g for g in self.fold_ids]
+        self.n_f = np.array([int(r.sum()) for r in self.rows])
+        F = len(self.fold_ids)
+        self.M_f = np.empty((F, p + 1, p + 1))
+        self.v_f = np.empty((F, p + 1))
+        self.s_f = np.empty(F)
+        for i, r in enumerate(self.rows):
+            Df, yf = self.D[r], self.y0[r]
+            self.M_f[i] = Df.T @ Df
+            self.v_f[i] = Df.T @ yf
+            self.s_f[i] = float(yf @ yf)
+        self.M = self.M_f.sum(axis=0)
+        self.v = self.v_f.sum(axis=0)
+        self.s = float(self.s_f.sum())
+        self._unpredictable = self.n_f == n  # no rows left to fit without this fold
+
+    @staticmethod
+    def index(cols: Sequence[int]) -> np.ndarray:
+        """Positions of the intercept and of ``cols`` in the standardised design ``D``."""
+        return np.array([0, *(int(c) + 1 for c in cols)], dtype=int)
+
+    def beta(self, cols: Sequence[int]) -> np.ndarray:
+        """Coefficients of the fit on all rows (intercept first)."""
+        idx = self.index(cols)
+        return solve_normal(self.M[np.ix_(idx, idx)], self.v[idx])
+
+    def train_rmse(self, cols: Sequence[int]) -> float:
+        """RMSE (= residual SD, the intercept centres it) of the fit on all rows."""
+        idx = self.index(cols)
+        M, v = self.M[np.ix_(idx, idx)], self.v[idx]
+        beta = solve_normal(M, v)
+        sse = self.s - 2 * beta @ v + beta @ M @ beta
+        return math.sqrt(max(sse, 0.0) / self.n)
+
+    def fold_betas(self, cols: Sequence[int]) -> np.ndarray:
+        """(F, m) coefficients of the fit without each fold."""
+        idx = self.index(cols)
+        Mg = self.M_f[:, idx][:, :, idx]
+        return solve_normal(self.M[np.ix_(idx, idx)] - Mg, self.v[idx] - self.v_f[:, idx])
+
+    def fold_sse(self, cols: Sequence[int], betas: np.ndarray | None = None) -> np.ndarray:
+        """Squared error of each fold predicted by the fit without it (``betas`` if known)."""
+        idx = self.index(cols)
+        betas = self.fold_betas(cols) if betas is None else betas
+        Mg = self.M_f[:, idx][:, :, idx]
+        vg = self.v_f[:, idx]
+        sse = (self.s_f - 2 * np.einsum("fi,fi->f", betas, vg)
+               + np.einsum("fi,fij,fj->f", betas, Mg, betas))
+        return np.where(self._unpredictable, np.nan, np.maximum(sse, 0.0))
+
+    def validation_rmse(self, cols: Sequence[int], betas: np.ndarray | None = None) -> float:
+        """RMSE of all out-of-fold predictions (each fold predicted by a fit without it)."""
+        return math.sqrt(float(self.fold_sse(cols, betas).sum()) / self.n)
+
+    def fold_rmse(self, cols: Sequence[int], betas: np.ndarray | None = None) -> np.ndarray:
+        """Held-out RMSE of each fold."""
+        return np.sqrt(self.fold_sse(cols, betas) / self.n_f)
+
+    def residual(self, cols: Sequence[int], betas: np.ndarray | None = None) -> np.ndarray:
+        """Out-of-fold residual of every row (y minus the prediction of the fit without it),
+        from the Gram-matrix fits."""
+        idx = self.index(cols)
+        betas = self.fold_betas(cols) if betas is None else betas
+        out = np.empty(self.n)
+        for b, r, lost in zip(betas, self.rows, self._unpredictable, strict=True):
+            out[r] = np.nan if lost else self.y0[r] - self.D[r][:, idx] @ b
+        return out
+
+
+    def refit_residual(self, cols: Sequence[int]) -> np.ndarray:
+        """``residual`` with each fold's fit solved on its training rows (host.fitting.fit_linear:
+        centred on those rows, minimum norm where rank deficient) instead of the normal
+        equations: one accurate design rather than many fast ones. A column constant on a
+        fold's training rows gets no weight, as in a direct fit."""
+        idx = self.index(cols)[1:]
+        out = np.empty(self.n)
+        for r, lost in zip(self.rows, self._unpredictable, strict=True):
+            if lost:
+                out[r] = np.nan
+                continue
+            fit = fit_linear(self.D[~r][:, idx], self.y0[~r])
+            out[r] = self.y0[r] - fit.predict(self.D[r][:, idx])
+        return out
+
+
+def out_of_fold_predictions(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Prediction of every row by a model fitted without its group (``FoldGram.refit_residual``)."""
+    X = np.asarray(X, dtype=float)
+    y = np.asarray(y, dtype=float)
+    return y - FoldGram(X, y, groups).refit_residual(range(X.shape[1]))
+
+
+def validation_rmse(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> float:
+    """RMSE of all out-of-fold predictions together (every sample predicted once, unseen)."""
+    X = np.asarray(X, dtype=float)
+    return rmse(FoldGram(X, y, groups).refit_residual(range(X.shape[1])))
