@@ -66,7 +66,7 @@ class Scenario:
     off_samples: int = 5
     disable_at: int = 600
     disable_samples: int = 5
-    zero_at: int | None = None  # ZERO needs the firmware of issue 13 (box-safety)
+    zero_at: int | None = 700
     stale_period_s: float = 0.1  # the component's stale clock in the time-compressed replay
     stale_periods: float = 3.0
     testplans: tuple[ThermalTestPlan, ...] = ()  # run after the replay, in AUTO (linuxcnc)
@@ -356,12 +356,12 @@ def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Re
 
 
 def short_testplan() -> ThermalTestPlan:
-    """A time-compressed thermal test for LinuxCNC: the step protocol in 4 s steps (2000 to
-    8000 rpm), 16 s running and 8 s cooling, a measurement every 4 s with a 1 s stop, the
-    logger on digital output 0 (``M64 P0``): 7 measurements, 25 s."""
-    prog = build_program("step", 8000.0, hours=16 / 3600, cool_hours=8 / 3600,
-                         step_minutes=4 / 60)
-    return ThermalTestPlan(prog, 4.0, 1.0, "M64 P0", "linuxcnc")
+    """A time-compressed thermal test for LinuxCNC: the step protocol in 2 s steps (2000 to
+    8000 rpm), 8 s running and 4 s cooling, a measurement every 2 s with a 0.5 s stop, the
+    logger on digital output 0 (``M64 P0``): 7 measurements, 12.5 s."""
+    prog = build_program("step", 8000.0, hours=8 / 3600, cool_hours=4 / 3600,
+                         step_minutes=2 / 60)
+    return ThermalTestPlan(prog, 2.0, 0.5, "M64 P0", "linuxcnc")
 
 
 def short_mcode_testplan() -> ThermalTestPlan:

@@ -1,6 +1,6 @@
 """The box's corrections through a real, headless LinuxCNC (cnc/session.py, docs/linuxcnc.md).
 
-One LinuxCNC session (about 50 s): the native firmware on a pty, the thermalcomp HAL component
+One LinuxCNC session (about 40 s): the native firmware on a pty, the thermalcomp HAL component
 reading it, LinuxCNC's external offsets, then a short `host testplan --dialect linuxcnc`
 program. The expectation is the box's own sample lines as the driver's serial tap saw them,
 decoded by the project's decoder, against ``axis.L.eoffset`` and ``joint.N.motor-pos-cmd``
@@ -84,6 +84,21 @@ def test_machine_off_on_resynchronises_the_counts(cnc_run):
     assert _hold(result.summary, "machine off/on")["held"]
     r = result.summary["resync"]
     assert r["ok"] and r["offset_diff_nm"] <= 1.0 and r["joint_diff_nm"] <= 1.0
+
+
+@pytest.mark.slow
+def test_zero_gives_zero_offset_at_that_moment(cnc_run):
+    """thermalcomp.zero -> ZERO -> $OK,ZERO: the next sample is 0 on the box (REFERENCED) and
+    LinuxCNC's offset and the joints are back at 0 within a count."""
+    result, _ = cnc_run
+    z = result.summary["zero"]
+    assert z["done"] and z["reply"].startswith("$OK,ZERO,")
+    assert z["box_zero"] and z["referenced"]
+    assert z["offset_nm"] <= 1.0 and z["joint_nm"] <= 1.0
+    assert result.summary["zero_ok"]
+    # after it the offset tracks the change since ZERO, still equal to the box's value
+    records = [r for r in result.raw["records"] if "box" in r and r["sample"] > z["sample"]]
+    assert records and all(r["box"]["status"] & (1 << 11) for r in records)
 
 
 @pytest.mark.slow
