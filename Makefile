@@ -17,7 +17,7 @@ DEMO_TRAIN := $(EXAMPLES)/sim_constant.csv $(EXAMPLES)/sim_step.csv
 DEMO_TEST  := $(EXAMPLES)/sim_random.csv
 DEMO_TARGETS := --target dx_um --target dy_um --target dz_um
 
-.PHONY: setup system-deps test test-python test-firmware lint demo train firmware firmware-native \
+.PHONY: setup system-deps test test-python test-firmware test-floors lint demo train firmware firmware-native \
         firmware-stm32 hil flash bench examples report clean cnc
 
 setup: $(STAMP)
@@ -29,16 +29,34 @@ $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	bash scripts/install-system-deps.sh
 	python3 -m venv .venv
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[all,test]'
 	touch $(STAMP)
 
 lint: $(STAMP)
 	$(PY) -m ruff check contract host codegen hil tests bench cnc
 
-test: $(STAMP) lint test-firmware test-python
+test: $(STAMP) lint test-firmware test-python test-floors
 
 test-python: $(STAMP)
 	$(PY) -m pytest
+
+# The lowest dependency versions pyproject.toml states, installed exactly (scripts/floors.py),
+# and a quick subset that touches each of them: scikit-learn's estimator API, jinja2 (codegen),
+# matplotlib (report), numpy/scipy (selection, fitting), pyserial (the protocol decoder).
+FLOORS_VENV := .venv-floors
+FLOORS_TESTS := tests/test_sklearn_checks.py tests/test_selection.py tests/test_codegen.py \
+                tests/test_report.py tests/test_protocol.py tests/test_monitor.py
+$(FLOORS_VENV)/.installed: pyproject.toml scripts/floors.py
+	rm -rf $(FLOORS_VENV)
+	python3 -m venv $(FLOORS_VENV)
+	python3 scripts/floors.py > $(FLOORS_VENV)/floors.txt
+	$(FLOORS_VENV)/bin/python -m pip install -q -r $(FLOORS_VENV)/floors.txt pytest
+	touch $@
+
+test-floors: $(FLOORS_VENV)/.installed
+	@echo "floors: $$(tr '\n' ' ' < $(FLOORS_VENV)/floors.txt)"
+	PYTHONPATH=$(CURDIR) $(FLOORS_VENV)/bin/python -m pytest -q -p no:cacheprovider \
+	    -W ignore::DeprecationWarning $(FLOORS_TESTS)
 
 test-firmware: $(STAMP)
 	$(MAKE) -C firmware test
@@ -79,5 +97,5 @@ demo: $(STAMP)
 	$(PY) -m host.demo
 
 clean:
-	rm -rf $(BUILD) report bench/results
+	rm -rf $(BUILD) report bench/results $(FLOORS_VENV)
 	$(MAKE) -C firmware clean

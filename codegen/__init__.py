@@ -6,11 +6,12 @@ coefficients, ranges) exactly; ``codegen.render`` formats them through jinja2 te
 ``codegen.fixed`` is the integer twin of the C runtime used as the expectation in tests.
 """
 
-from codegen.errors import CodegenError
+from codegen.errors import BoundError, CodegenError
 from codegen.generate import (
     CODEGEN_VERSION,
     DEFAULT_MAX_ERROR_UM,
     GeneratedHeader,
+    export_to_c,
     fixed_point_path,
     generate,
     load_model,
@@ -20,5 +21,6 @@ from codegen.hashing import model_hash
 
 __version__ = CODEGEN_VERSION
 
-__all__ = ["CODEGEN_VERSION", "DEFAULT_MAX_ERROR_UM", "CodegenError", "GeneratedHeader",
-           "fixed_point_path", "generate", "load_model", "model_hash", "write_header"]
+__all__ = ["BoundError", "CODEGEN_VERSION", "DEFAULT_MAX_ERROR_UM", "CodegenError",
+           "GeneratedHeader", "export_to_c", "fixed_point_path", "generate", "load_model",
+           "model_hash", "write_header"]

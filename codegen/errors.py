@@ -10,3 +10,8 @@ class CodegenError(InputError):
 
     A ValueError so that ``host`` maps it to exit code 2 like every other bad input.
     """
+
+
+class BoundError(CodegenError):
+    """The proven worst-case error exceeds the --max-error-um limit: a failed check (``host
+    codegen`` exits 1), not malformed input."""

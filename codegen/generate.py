@@ -10,7 +10,7 @@ from pathlib import Path
 
 from codegen.bound import FINAL_ROUNDING_NM, AxisBound, model_bounds
 from codegen.crc import model_crc32
-from codegen.errors import CodegenError
+from codegen.errors import BoundError, CodegenError
 from codegen.quantise import QModel, quantise
 from codegen.render import render
 from contract import __version__ as CODEGEN_VERSION
@@ -50,7 +50,7 @@ def _check_bounds(bounds: list[AxisBound], model: QModel, max_error_um: float) -
                    f"coefficient quantisation {float(worst.coef_nm) / 1000:.3g} um")
             detail = (f"; largest part: term {t.position} {t.label}, coef {t.coef_um!r} "
                       f"{t.coef_unit}, {why}")
-        raise CodegenError(
+        raise BoundError(
             f"axis '{ax.name}': worst-case fixed-point error {b.bound_um:.6g} um exceeds "
             f"--max-error-um {max_error_um:g}{detail}")
 
@@ -119,6 +119,22 @@ def load_model(path: str | Path) -> dict:
         raise CodegenError(str(exc)) from None
 
 
+def export_to_c(model, max_error_um: float = DEFAULT_MAX_ERROR_UM) -> str:
+    """The firmware's model header (C text) for a model, the way m2cgen's ``export_to_c`` works.
+
+    ``model`` is a model.json mapping, a path to one, or any object with a ``to_model_json()``
+    method (``host.train.estimator.ThermalModel``, fitted). Raises :class:`BoundError` when the
+    proven fixed-point error exceeds ``max_error_um`` and :class:`CodegenError` for a model the
+    box cannot run. ``generate`` returns the same text with the fixed_point block and the
+    quantised model beside it.
+    """
+    if hasattr(model, "to_model_json"):
+        model = model.to_model_json()
+    elif isinstance(model, str | Path):
+        model = load_model(Path(model))
+    return generate(model, max_error_um).text
+
+
 def fixed_point_path(header_path: str | Path) -> Path:
     """Where ``write_header`` puts the fixed_point block: beside the header (model.h.json)."""
     header_path = Path(header_path)
@@ -138,7 +154,7 @@ def write_header(model_json_path: str | Path, header_path: str | Path,
     try:
         gen = generate(model, max_error_um, zero_at_powerup)
     except CodegenError as exc:
-        raise CodegenError(f"{model_json_path}: {exc}") from None
+        raise type(exc)(f"{model_json_path}: {exc}") from None
     write_text_atomic(header_path, gen.text)
     write_text_atomic(fixed_point_path(header_path), json.dumps(gen.fixed_point, indent=2) + "\n")
     return gen

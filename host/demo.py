@@ -339,8 +339,21 @@ def print_error_table(demo: Demo, reports: list[tuple[str, dict]]) -> None:
                          f"{ours:>9.2f} µm {red:>7.0f} %")
 
 
+def missing_checkout_parts() -> list[str]:
+    """What the demo needs from a git checkout that an installed wheel does not carry."""
+    need = [EXAMPLES / "fl_thermal_steps.csv", Path("firmware") / "Makefile",
+            Path("hil") / "__main__.py"]
+    return [str(p) for p in need if not (ROOT / p).is_file()]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     del argv
+    missing = missing_checkout_parts()
+    if missing:
+        print(f"demo: needs a git checkout of the project (make demo there): {ROOT} has no "
+              f"{', '.join(missing)}; the installed package carries the host tools only, not "
+              "the example runs or the firmware sources", file=sys.stderr)
+        return 2
     demo = Demo()
     demo.say("Thermal-error compensation retrofit: the whole story, every step through the CLI")
     try:

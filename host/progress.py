@@ -9,11 +9,18 @@ from typing import TypeVar
 from tqdm import tqdm
 
 T = TypeVar("T")
+_QUIET = False
+
+
+def set_quiet(quiet: bool) -> None:
+    """Silence every progress bar of this process (``host -q`` / ``--quiet``)."""
+    global _QUIET
+    _QUIET = bool(quiet)
 
 
 def progress(items: Iterable[T], desc: str, total: int | None = None,
              quiet: bool = False) -> Iterator[T]:
     """Wrap an iterable with a tqdm bar on stderr unless quiet or stderr is not a terminal."""
-    disable = quiet or not sys.stderr.isatty()
+    disable = quiet or _QUIET or not sys.stderr.isatty()
     yield from tqdm(items, desc=desc, total=total, disable=disable, leave=False,
                     file=sys.stderr, dynamic_ncols=True)

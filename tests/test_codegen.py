@@ -491,16 +491,17 @@ def test_write_header_never_rewrites_the_model_and_puts_the_block_beside_the_hea
     assert (tmp_path / "again.h").read_text() == gen.text
 
 
-def test_cli_writes_the_header_and_maps_refusals_to_exit_2(tmp_path, capsys):
+def test_cli_writes_the_header_and_a_failed_bound_check_exits_1(tmp_path, capsys):
     p = tmp_path / "model.json"
     p.write_text(json.dumps(model("one_term")))
     assert host_main(["codegen", str(p)]) == 0
     assert (tmp_path / "model.h").read_text() == codegen.generate(model("one_term")).text
     assert "error bound 0.000500 um" in capsys.readouterr().out
     assert host_main(["codegen", str(p), "-o", str(tmp_path / "x.h"),
-                      "--max-error-um", "0.0004"]) == 2
+                      "--max-error-um", "0.0004"]) == 1  # a check failed (host/cli.py)
     err = capsys.readouterr().err
-    assert "axis 'dz_um'" in err and "0.0004" in err and "final rounding" in err
+    assert "check failed" in err and "axis 'dz_um'" in err
+    assert "0.0004" in err and "final rounding" in err
     assert not (tmp_path / "x.h").exists()
 
 
@@ -711,3 +712,20 @@ def test_temp_to_code_rounds_to_nearest_lsb_like_the_chip():
     assert got.dtype == np.int64 and got.tolist() == [[2560, -5120], [25599, 25600]]
     with pytest.raises(ValueError, match="NaN"):
         temp_to_code([1.0, float("nan")])
+
+
+def test_export_to_c_gives_the_header_of_a_model_a_path_or_an_estimator(tmp_path):
+    m = model("one_term")
+    path = tmp_path / "model.json"
+    path.write_text(json.dumps(m))
+    text = codegen.export_to_c(m)
+    assert text == codegen.generate(m).text and "#define" in text
+    assert codegen.export_to_c(path) == text
+
+    class Fitted:  # anything with to_model_json(), like host.train.estimator.ThermalModel
+        def to_model_json(self):
+            return m
+
+    assert codegen.export_to_c(Fitted()) == text
+    with pytest.raises(codegen.BoundError):
+        codegen.export_to_c(m, max_error_um=0.0004)

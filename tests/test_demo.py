@@ -45,3 +45,12 @@ def test_error_table_shows_raw_compensated_and_reduction():
     print_error_table(Demo(out=out), [("simulated", summary)])
     row = [ln for ln in out.getvalue().splitlines() if "unseen_run" in ln][0]
     assert row.split()[4:9] == ["20.00", "µm", "2.50", "µm", "1.40"]
+
+
+def test_outside_a_checkout_the_demo_says_what_it_needs(monkeypatch, tmp_path, capsys):
+    import host.demo as demo
+
+    monkeypatch.setattr(demo, "ROOT", tmp_path)  # an installed wheel: no examples, no firmware
+    assert demo.main([]) == 2
+    err = capsys.readouterr().err
+    assert "needs a git checkout" in err and "firmware/Makefile" in err

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 NAME = "codegen"
@@ -30,8 +31,12 @@ def run(args: argparse.Namespace) -> int:
 
     max_error = codegen.DEFAULT_MAX_ERROR_UM if args.max_error_um is None else args.max_error_um
     out = args.output or args.model.with_name("model.h")
-    block = codegen.write_header(args.model, out, max_error_um=max_error,
-                                 zero_at_powerup=args.zero_at_powerup).fixed_point
+    try:
+        block = codegen.write_header(args.model, out, max_error_um=max_error,
+                                     zero_at_powerup=args.zero_at_powerup).fixed_point
+    except codegen.BoundError as exc:  # a failed check, not bad input: exit 1 (host/cli.py)
+        print(f"host codegen: check failed: {exc}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(block, indent=2))
         return 0

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from host.box import Monitor, MonitorError
-
 NAME = "monitor"
 HELP = "show a box's live corrections, temperatures and status flags; check its model hash"
 
@@ -35,6 +33,8 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from host.box import Monitor, MonitorError  # pyserial: the [monitor] extra
+
     expected, windows, axis_inputs = None, {}, {}
     if args.model:
         from codegen import generate, model_hash
