@@ -119,7 +119,8 @@ def load_model(path: str | Path) -> dict:
         raise CodegenError(str(exc)) from None
 
 
-def export_to_c(model, max_error_um: float = DEFAULT_MAX_ERROR_UM) -> str:
+def export_to_c(model, max_error_um: float = DEFAULT_MAX_ERROR_UM,
+                zero_at_powerup: bool = False) -> str:
     """The firmware's model header (C text) for a model, the way m2cgen's ``export_to_c`` works.
 
     ``model`` is a model.json mapping, a path to one, or any object with a ``to_model_json()``
@@ -132,7 +133,7 @@ def export_to_c(model, max_error_um: float = DEFAULT_MAX_ERROR_UM) -> str:
         model = model.to_model_json()
     elif isinstance(model, str | Path):
         model = load_model(Path(model))
-    return generate(model, max_error_um).text
+    return generate(model, max_error_um, zero_at_powerup).text
 
 
 def fixed_point_path(header_path: str | Path) -> Path:
