@@ -497,5 +497,12 @@ def model_sensors(model: dict) -> list[str]:
     return [c["sensor"] for c in sorted(model["channels"], key=lambda c: c["channel"])]
 
 
+def channel_ranges(model: Mapping) -> dict[str, tuple[float, float]]:
+    """Each wired sensor's valid range (min_c, max_c) in degC, defaults filled in."""
+    return {c["sensor"]: (float(c.get("min_c", CHANNEL_MIN_C)),
+                          float(c.get("max_c", CHANNEL_MAX_C)))
+            for c in model.get("channels", [])}
+
+
 def model_aux(model: dict) -> list[str]:
     return [a["name"] for a in sorted(model.get("aux", []), key=lambda a: a["input"])]

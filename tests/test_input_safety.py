@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -219,3 +220,285 @@ def test_negative_fill_gaps_is_refused_by_argparse(files, capsys, command):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "argument --fill-gaps" in err and "-3" in err
+
+
+# ---- run files: impossible values -------------------------------------------------------------
+
+def _rows(text: str) -> list[list[str]]:
+    return [line.split(",") for line in text.splitlines()]
+
+
+def _with_cell(text: str, line: int, column: str, value: str) -> str:
+    rows = _rows(text)
+    rows[line - 1][rows[0].index(column)] = value
+    return "\n".join(",".join(r) for r in rows) + "\n"
+
+
+def _load(path: Path, **kw):
+    from host.io import load_run
+
+    return load_run(path, ["dz_um"], "T*", ["spindle_rpm"], **kw)
+
+
+def _refusal(path: Path, **kw) -> str:
+    with pytest.raises(InputError) as err:  # RunFormatError, or EncodingError
+        _load(path, **kw)
+    return str(err.value)
+
+
+def test_a_temperature_of_1e9_is_refused_naming_file_line_and_column(tmp_path, capsys):
+    p = tmp_path / "hot.csv"
+    p.write_text(_with_cell(_run_text(), 40, "T02", "1e9"))
+    msg = _refusal(p)
+    assert f"{p}, line 40, column 'T02': 1e+09 degC" in msg and "-40..200 degC" in msg
+    code, err = _host(["train", p, "--target", "dz_um", "--no-codegen", "--out", tmp_path],
+                      capsys)
+    assert code == 2 and "line 40, column 'T02'" in err
+    assert not (tmp_path / "model.json").exists()
+
+
+def test_a_temperature_outside_the_models_channel_range_is_refused_by_evaluate(files, capsys):
+    model, run = files
+    doc = json.loads(model.read_text())
+    doc["channels"][0]["max_c"] = 25.0  # T01 = 20 + 10 k / 120 passes 25 at k = 61, line 63
+    doc.pop("model_hash")
+    model.write_text(json.dumps(doc))
+    code, err = _host(["evaluate", model, run], capsys)
+    assert code == 2 and "line 63, column 'T01'" in err and "-40..25 degC" in err
+
+
+def test_a_kelvin_column_is_named_as_such(tmp_path):
+    rows = _rows(_run_text())
+    i = rows[0].index("T01")
+    for r in rows[1:]:
+        r[i] = f"{float(r[i]) + 273.15:.2f}"
+    p = tmp_path / "kelvin.csv"
+    p.write_text("\n".join(",".join(r) for r in rows) + "\n")
+    msg = _refusal(p)
+    assert "line 2, column 'T01': 293.15 degC" in msg and "looks like kelvin" in msg
+
+
+@pytest.mark.parametrize("column, words", [
+    ("T01", "1e+308 degC is outside the thermocouple channel's valid range"),
+    ("dz_um", "1e+308 um is beyond any correction the box can output"),
+    ("spindle_rpm", "1e+308 is beyond the box's int32 auxiliary input"),
+])
+def test_a_1e308_cell_is_refused_where_it_is(tmp_path, column, words):
+    p = tmp_path / "big.csv"
+    p.write_text(_with_cell(_run_text(), 7, column, "1e308"))
+    msg = _refusal(p)
+    assert f"line 7, column '{column}'" in msg and words in msg
+
+
+# ---- run files: time ----------------------------------------------------------------------------
+
+def _with_time(text: str, fn) -> str:
+    rows = _rows(text)
+    for k, r in enumerate(rows[1:]):
+        r[0] = f"{fn(k, float(r[0])):g}"
+    return "\n".join(",".join(r) for r in rows) + "\n"
+
+
+def test_a_one_hour_gap_is_refused_naming_it_and_where_to_cut(tmp_path):
+    p = tmp_path / "gap.csv"
+    p.write_text(_with_time(_run_text(), lambda k, t: t + 3600 * (k >= 50)))
+    msg = _refusal(p)
+    # rows k = 49 (t 49 s, line 51) and k = 50 (t 3650 s, line 52)
+    assert f"{p}, line 52, column 'time_s'" in msg
+    assert "jumps from 49 to 3650 s: a gap of 3601 s" in msg and "filters" in msg
+    assert f"host split {p} --at-hours {3650 / 3600:.6g}" in msg
+
+
+def test_host_split_cuts_at_the_gap_and_both_parts_load(tmp_path, capsys):
+    p = tmp_path / "gap.csv"
+    p.write_text(_with_time(_run_text(), lambda k, t: t + 3600 * (k >= 50)))
+    code, out = _host(["split", p, "--at-hours", str(3650 / 3600), "-o", tmp_path, "--json"],
+                      capsys)
+    assert code == 0, out
+    parts = [Path(x) for x in json.loads(out)["parts"]]
+    assert [_load(x).n_samples for x in parts] == [50, N - 50]
+
+
+def test_a_few_missing_rows_are_filled_with_fill_gaps(tmp_path):
+    p = tmp_path / "missing.csv"
+    lines = _run_text().splitlines()
+    p.write_text("\n".join(lines[:31] + lines[33:]) + "\n")  # rows t = 30, 31 s dropped
+    assert "about 2 missing samples" in _refusal(p)
+    assert "--fill-gaps 2" in _refusal(p)
+    run = _load(p, fill_gaps=2)
+    full = _load(_write(tmp_path / "full.csv", _run_text()))
+    np.testing.assert_array_equal(run.time_s, full.time_s)
+    np.testing.assert_allclose(run.temperatures, full.temperatures, atol=1e-3)  # linear data
+    assert run.filled_cells == 2 * 4  # two rows of T01, T02, dz_um, spindle_rpm
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def test_jitter_of_7_s_is_named_with_the_period_it_implies(tmp_path):
+    p = tmp_path / "jitter.csv"
+    # a 60 s grid, samples 7 s late or early in turn: steps 67, 46, 67, 67, 46, ... whose
+    # median is 67 s (what the period became before)
+    p.write_text(_with_time(_run_text(), lambda k, t: 60 * k + 7 * ((k % 3 == 1) - (k % 3 == 2))))
+    msg = _refusal(p)
+    assert "line 3, column 'time_s'" in msg  # k = 1: 0 -> 67 s
+    assert re.search(r"deviate up to ±7(\.\d)? s from a regular grid of 60 s", msg), msg
+    assert "steps from 46 to 67 s" in msg and "resample the run to 60 s" in msg
+
+
+def test_time_in_milliseconds_is_named(tmp_path):
+    p = tmp_path / "ms.csv"
+    p.write_text(_with_time(_run_text(), lambda k, t: 60_000 * k))  # 1 min samples, in ms
+    msg = _refusal(p)
+    assert "time_s looks like milliseconds" in msg and "a step of 60 s" in msg
+
+
+def test_a_five_minute_run_in_seconds_is_not_mistaken_for_milliseconds(tmp_path):
+    p = tmp_path / "slow.csv"
+    p.write_text(_with_time(_run_text(), lambda k, t: 300 * k))  # 10 h at 5 min
+    assert _load(p).period_s == 300
+
+
+# ---- run files: nothing to learn -------------------------------------------------------------
+
+def test_a_constant_target_is_refused_by_train(tmp_path, capsys):
+    rows = _rows(_run_text())
+    for r in rows[1:]:
+        r[rows[0].index("dz_um")] = "0"
+    p = _write(tmp_path / "flat.csv", "\n".join(",".join(r) for r in rows) + "\n")
+    code, err = _host(["train", p, "--target", "dz_um", "--no-codegen", "--out", tmp_path],
+                      capsys)
+    assert code == 2 and "target 'dz_um' is constant in every training run" in err
+    assert "column 'dz_um'" in err
+
+
+def test_all_sensors_constant_is_refused_by_train(tmp_path, capsys):
+    rows = _rows(_run_text())
+    for r in rows[1:]:
+        r[1], r[2] = "21.5", "22.0"
+    p = _write(tmp_path / "cold.csv", "\n".join(",".join(r) for r in rows) + "\n")
+    code, err = _host(["train", p, "--target", "dz_um", "--no-codegen", "--out", tmp_path],
+                      capsys)
+    assert code == 2 and "every sensor (T01, T02) is constant" in err
+
+
+# ---- run and model files: encodings and delimiters --------------------------------------------
+
+def test_a_latin1_csv_names_file_line_and_byte(tmp_path):
+    p = tmp_path / "latin1.csv"
+    lines = _run_text().splitlines()
+    lines[4] = lines[4] + ",Temp\xe9rature"  # line 5, a stray Latin-1 e-acute
+    p.write_bytes("\n".join(lines).encode("latin-1"))
+    msg = _refusal(p)
+    col = len(lines[4]) - len("rature")  # 1-based character of the bad byte
+    assert f"{p}, line 5, character {col}: byte 0xE9 is not valid UTF-8" in msg
+    assert "'é'" in msg
+
+
+def test_a_utf16_csv_is_named_from_its_byte_order_mark(tmp_path):
+    p = tmp_path / "unicode.csv"
+    p.write_bytes(_run_text().encode("utf-16"))  # with BOM, as Excel's "Unicode text"
+    msg = _refusal(p)
+    assert f"{p}, line 1: the file is UTF-16 LE (byte-order mark FF FE)" in msg
+
+
+@pytest.mark.parametrize("encoding, words", [("utf-16", "UTF-16 LE (byte-order mark FF FE)"),
+                                             ("latin-1", "byte 0xB0 is not valid UTF-8")])
+def test_a_model_json_in_another_encoding_is_named(files, capsys, encoding, words):
+    model, run = files
+    doc = json.loads(model.read_text())
+    doc["training"]["note"] = "max 30\xb0C"  # a degree sign in a free-text field
+    model.write_bytes(json.dumps(doc, ensure_ascii=False).encode(encoding))
+    for argv in (["evaluate", model, run], ["codegen", model]):
+        code, err = _host(argv, capsys)
+        assert code == 2 and str(model) in err and words in err, err
+
+
+def _logger_text() -> str:
+    """The run of _run_text as a European data logger writes it: ';', decimal commas and ISO
+    timestamps (one sample per second from 2024-03-01 08:00:00)."""
+    rows = _rows(_run_text())
+    out = ["timestamp;T01;T02;spindle_rpm;dz_um"]
+    for r in rows[1:]:
+        k = int(float(r[0]))
+        stamp = f"2024-03-01 08:{k // 60:02d}:{k % 60:02d}"
+        out.append(";".join([stamp] + [c.replace(".", ",") for c in r[1:]]))
+    return "\n".join(out) + "\n"
+
+
+def test_a_data_logger_file_reads_as_the_plain_csv(tmp_path):
+    plain = _load(_write(tmp_path / "plain.csv", _run_text()))
+    logger = _load(_write(tmp_path / "logger.csv", _logger_text()))
+    np.testing.assert_array_equal(logger.time_s, plain.time_s)
+    np.testing.assert_array_equal(logger.temperatures, plain.temperatures)
+    np.testing.assert_array_equal(logger.displacements, plain.displacements)
+
+
+def test_a_semicolon_file_read_with_a_comma_separator_names_the_delimiter(tmp_path):
+    from host.io import CsvFormat
+
+    p = _write(tmp_path / "semi.csv", _logger_text())
+    msg = _refusal(p, fmt=CsvFormat(sep=","))
+    assert f"{p}, line 1:" in msg and "semicolon (';')-delimited" in msg and "--sep ';'" in msg
+
+
+def test_format_errors_keep_file_line_and_column(tmp_path):
+    text = _logger_text().splitlines()
+    text[9] = text[9].replace(";2", ";2x", 1)  # line 10, the T01 cell
+    text[20] = "2024-03-01 08:00:19.5;" + text[20].split(";", 1)[1]  # fine: a timestamp
+    p = _write(tmp_path / "bad.csv", "\n".join(text) + "\n")
+    msg = _refusal(p)
+    assert "line 10, column 'T01': not a number" in msg
+    text[9] = text[9].replace(";2x", ";2", 1)
+    text[30] = "01.03.2024 08:00:29;" + text[30].split(";", 1)[1]
+    p.write_text("\n".join(text) + "\n")
+    msg = _refusal(p)
+    assert "line 31, column 'timestamp'" in msg and "ISO 8601" in msg
+
+
+def test_time_col_names_the_time_column(tmp_path):
+    from host.io import CsvFormat
+
+    text = _logger_text().replace("timestamp;", "Zeitstempel;", 1)
+    p = _write(tmp_path / "named.csv", text)
+    sniffed = _load(p)  # the only column of timestamps
+    given = _load(p, fmt=CsvFormat(time_col="Zeitstempel"))
+    np.testing.assert_array_equal(sniffed.time_s, np.arange(N, dtype=float))
+    np.testing.assert_array_equal(given.time_s, sniffed.time_s)
+    assert "missing time column (given by --time-col)" in _refusal(p, fmt=CsvFormat(
+        time_col="stamp"))
+
+
+def test_every_command_that_reads_runs_reads_a_data_logger_file(files, tmp_path, capsys):
+    model, run = files
+    logger = _write(tmp_path / "logger.csv", _logger_text())
+    fmt = ["--sep", ";", "--decimal", ",", "--time-col", "timestamp"]
+    for extra in ([], fmt):
+        code, out = _host(["evaluate", model, logger, "--json", *extra], capsys)
+        assert code == 0, out
+        plain_code, plain = _host(["evaluate", model, run, "--json"], capsys)
+        assert json.loads(out)["axes"] == json.loads(plain)["axes"]
+        code, out = _host(["diagnose", model, logger, "--json", *extra], capsys)
+        assert code == 0, out
+        code, out = _host(["split", logger, "--at-hours", str(60 / 3600), "-o",
+                           tmp_path / "parts", "--json", *extra], capsys)
+        assert code == 0, out
+        first = Path(json.loads(out)["parts"][0])
+        assert first.read_text().startswith("time_s,T01,T02,spindle_rpm,dz_um\n0,20,21,0,")
+    code, out = _host(["train", logger, "--target", "dz_um", "--no-codegen", "--no-effects",
+                       "--out", tmp_path / "m", "--json", *fmt], capsys)
+    assert code == 0, out
+    code, out = _host(["compare", logger, "--test", logger, "--target", "dz_um",
+                       "--exhaustive-limit", "0", "--json", *fmt], capsys)
+    assert code == 0, out
+    code, out = _host(["report", model, "--runs", logger, "--no-peers", "-o", tmp_path / "r",
+                       "--json", *fmt], capsys)
+    assert code == 0, out
+
+
+def test_clashing_format_options_are_refused(files, capsys):
+    model, run = files
+    code, err = _host(["evaluate", model, run, "--sep", ",", "--decimal", ","], capsys)
+    assert code == 2 and "--decimal ',' needs a --sep other than ','" in err

@@ -26,7 +26,6 @@ first third of the run itself, which can only see drift that starts later.
 
 from __future__ import annotations
 
-import csv
 import fnmatch
 import math
 from collections.abc import Mapping, Sequence
@@ -35,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from contract.errors import InputError
-from contract.model_file import model_aux, model_sensors
+from contract.model_file import channel_ranges, model_aux, model_sensors
 from host.analysis.evaluate import measured, model_reference, predict
 from host.effects import (
     TAU_GRID_S,
@@ -52,7 +51,7 @@ from host.effects import (
 )
 from host.effects import candidate_row as _candidate_row
 from host.fitting import DEFAULT_BLOCKS, axis_terms, fit_linear, fold_groups, rmse
-from host.io import Run, load_run
+from host.io import CsvFormat, Run, load_run, read_header
 from host.train import describe, outside_training
 
 DRIFT_MIN_C = 0.5  # a drift smaller than this over the run is not worth a technician's visit
@@ -73,20 +72,14 @@ class DiagnoseError(InputError):
 # ------------------------------------------------------------------ loading
 
 
-def _header(path: str | Path) -> list[str]:
-    path = Path(path)
-    if not path.is_file():
-        raise DiagnoseError(f"{path}: file not found")
-    with path.open(newline="", encoding="utf-8-sig") as fh:
-        try:
-            return [h.strip() for h in next(csv.reader(fh))]
-        except StopIteration:
-            raise DiagnoseError(f"{path}, line 1: empty file (no header row)") from None
+def _header(path: str | Path, fmt: CsvFormat | None = None) -> list[str]:
+    return read_header(path, fmt)
 
 
-def load_for_diagnosis(model: Mapping, path: str | Path, fill_gaps: int = 0) -> Run:
+def load_for_diagnosis(model: Mapping, path: str | Path, fill_gaps: int = 0,
+                       fmt: CsvFormat | None = None) -> Run:
     """Load a run with every sensor of the training glob, the model's axes and aux inputs."""
-    header = _header(path)
+    header = _header(path, fmt)
     training = model.get("training", {})
     pattern = training.get("sensors", "T*")
     targets = [a for a in model["axes"] if a in header]
@@ -108,7 +101,8 @@ def load_for_diagnosis(model: Mapping, path: str | Path, fill_gaps: int = 0) -> 
     for s in model_sensors(model):
         if s not in sensors:
             sensors.append(s)
-    return load_run(path, targets, sensors, aux, fill_gaps=fill_gaps, min_samples=6)
+    return load_run(path, targets, sensors, aux, fill_gaps=fill_gaps, min_samples=6, fmt=fmt,
+                    temperature_ranges=channel_ranges(model))
 
 
 # ------------------------------------------------------------------ the model's error

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from contract.errors import InputError
-from contract.model_file import model_aux, model_sensors
+from contract.model_file import channel_ranges, model_aux, model_sensors
 from host.fitting import Reference, axis_terms, design_matrix, rmse
-from host.io import Run, load_run
+from host.io import CsvFormat, Run, load_run
 from host.train import outside_training
 
 DYNAMIC_KINDS = ("lag", "rate", "time")
@@ -30,10 +30,12 @@ class EvaluationError(InputError):
 
 
 def load_for_model(path: str | Path, model: dict, fill_gaps: int = 0,
-                   axes: list[str] | None = None) -> Run:
-    """Load a run with exactly the columns the model needs."""
+                   axes: list[str] | None = None, fmt: CsvFormat | None = None) -> Run:
+    """Load a run with exactly the columns the model needs (temperatures within the model's
+    channel ranges)."""
     axes = list(model["axes"]) if axes is None else axes
-    return load_run(path, axes, model_sensors(model), model_aux(model), fill_gaps)
+    return load_run(path, axes, model_sensors(model), model_aux(model), fill_gaps, fmt=fmt,
+                    temperature_ranges=channel_ranges(model))
 
 
 def _check_period(model: dict, run: Run) -> None:

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from contract.errors import InputError
-from contract.model_file import read_model
+from contract.model_file import channel_ranges, read_model
 from contract.terms import TEMPERATURE_KINDS, Term
 from host.analysis import plots
 from host.fitting import design_matrix, fit_linear
-from host.io import Run, load_run
+from host.io import CsvFormat, Run, load_run, read_header
 from host.progress import progress
 from host.selection import default_max_lag
 from host.train import TOLERANCE_SHARE, outside_training, training_ranges
@@ -96,17 +96,14 @@ def most_important_sensor(axis: dict, run: Run, period_s: float) -> str | None:
 
 # ---------------------------------------------------------------- inputs
 
-def _header(path: Path) -> list[str]:
+def _header(path: Path, fmt: CsvFormat | None = None) -> list[str]:
     if not path.is_file():
         raise ReportError(f"{path}: run file not found")
-    with path.open(newline="", encoding="utf-8-sig") as fh:
-        row = next(csv.reader(fh), None)
-    if not row:
-        raise ReportError(f"{path}: empty file (no header row)")
-    return [h.strip() for h in row]
+    return read_header(path, fmt)
 
 
-def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0) -> list[Run]:
+def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0,
+                     fmt: CsvFormat | None = None) -> list[Run]:
     """Load each run with the model's axes it has, every temperature and the model's aux."""
     training = model.get("training", {})
     sensors = training.get("sensors", "T*")
@@ -115,7 +112,7 @@ def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0) -
     runs = []
     for p in paths:
         path = Path(p)
-        header = _header(path)
+        header = _header(path, fmt)
         targets = [a for a in model["axes"] if a in header]
         if not targets:
             raise ReportError(f"{path}: none of the model's axes "
@@ -124,11 +121,13 @@ def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0) -
         if missing:
             raise ReportError(f"{path}: missing sensor column(s) the model uses: "
                               f"{', '.join(missing)}")
-        run = load_run(path, targets, sensors, aux_names, fill_gaps=fill_gaps)
+        ranges = channel_ranges(model)
+        run = load_run(path, targets, sensors, aux_names, fill_gaps=fill_gaps, fmt=fmt,
+                       temperature_ranges=ranges)
         absent = sorted(needed - set(run.sensor_names))
         if absent:  # the model's sensors may lie outside the training glob: add them
             run = load_run(path, targets, sorted(set(run.sensor_names) | needed), aux_names,
-                           fill_gaps=fill_gaps)
+                           fill_gaps=fill_gaps, fmt=fmt, temperature_ranges=ranges)
         runs.append(run)
     return runs
 
@@ -296,10 +295,10 @@ def summary_rows(model: dict) -> list[dict]:
 def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: str | Path,
                  protocols: str | Path | None = None, peers: bool = True,
                  fill_gaps: int = 0, quiet: bool = False,
-                 hil: list[str | Path] | None = None) -> Report:
+                 hil: list[str | Path] | None = None, fmt: CsvFormat | None = None) -> Report:
     """Render every figure and write ``out_dir/index.html``; inputs are all checked first."""
     model = read_model(model_path)
-    runs = load_report_runs(model, list(run_paths), fill_gaps)
+    runs = load_report_runs(model, list(run_paths), fill_gaps, fmt)
     matrix = load_protocols(protocols) if protocols else None
     hil_results = [load_hil(p) for p in hil or []]
     period = float(model["sample_period_s"])

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from host.io import CsvFormat
+
 
 def non_negative_int(text: str) -> int:
     """argparse type: an integer >= 0."""
@@ -23,6 +25,41 @@ def non_negative_int(text: str) -> int:
 
 
 def add_fill_gaps(parser: argparse.ArgumentParser) -> None:
+    """--fill-gaps N, and the run file format (--sep, --decimal, --time-col)."""
+    add_format_arguments(parser)
     parser.add_argument("--fill-gaps", type=non_negative_int, default=0, metavar="N",
                         help="interpolate interior gaps of at most N samples (default 0: "
                         "reject every empty cell)")
+
+
+_SEPARATORS = {"tab": "\t", "\\t": "\t", "comma": ",", "semicolon": ";", "space": " "}
+
+
+def separator(text: str) -> str:
+    """argparse type: one delimiter character, or tab / comma / semicolon / space."""
+    sep = _SEPARATORS.get(text.lower(), text)
+    if len(sep) != 1 or sep in "\"\r\n" or sep.isalnum():
+        raise argparse.ArgumentTypeError(f"expected one character such as ',' ';' or 'tab', "
+                                         f"got {text!r}")
+    return sep
+
+
+def add_format_arguments(parser: argparse.ArgumentParser) -> None:
+    """--sep, --decimal, --time-col: how the run files are written (default: sniffed)."""
+    group = parser.add_argument_group(
+        "run file format", "data loggers write ';', decimal commas and ISO timestamps; each is "
+        "sniffed from the file unless given")
+    group.add_argument("--sep", type=separator, default=None, metavar="CHAR",
+                       help="column delimiter: ',' ';' 'tab' ... (default: sniffed from the "
+                       "header line)")
+    group.add_argument("--decimal", choices=(".", ","), default=None,
+                       help="decimal mark (default '.' with ',' as delimiter, else ',' and '.' "
+                       "are both read)")
+    group.add_argument("--time-col", default=None, metavar="COL",
+                       help="time column: seconds or ISO 8601 timestamps such as "
+                       "2024-03-01T12:00:00 (default time_s, or the one column of timestamps)")
+
+
+def csv_format(args: argparse.Namespace) -> CsvFormat:
+    """The CsvFormat the parsed --sep/--decimal/--time-col ask for (InputError if they clash)."""
+    return CsvFormat(args.sep, args.decimal, args.time_col)

@@ -9,8 +9,9 @@ from contract.box import BOX_CHANNELS
 from contract.errors import InputError
 from contract.model_file import jsonable
 from host.analysis import DEFAULT_K_CORRELATED, EXHAUSTIVE_LIMIT, compare_methods
+from host.commands._options import csv_format
 from host.commands.train import add_data_arguments, add_selection_arguments
-from host.io import load_runs, window
+from host.io import check_variation, load_runs, window
 
 NAME = "compare"
 HELP = ("train our selection (validated, refined, paper-exact) and peer methods; "
@@ -62,8 +63,10 @@ def print_table(doc: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    fmt = csv_format(args)
     runs = load_runs(args.runs, args.target, args.sensors, args.aux, args.fill_gaps,
-                     min_samples=4)
+                     min_samples=4, fmt=fmt)
+    check_variation(runs, args.target)
     if args.split_at_h is not None:
         if args.test:
             raise InputError("give either --test or --split-at-h, not both")
@@ -74,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
         if not args.test:
             raise InputError("give test runs with --test (or --split-at-h H)")
         train = runs
-        test = load_runs(args.test, args.target, args.sensors, args.aux, args.fill_gaps)
+        test = load_runs(args.test, args.target, args.sensors, args.aux, args.fill_gaps,
+                         fmt=fmt)
     engineering = [s.strip() for s in args.engineering.split(",") if s.strip()] \
         if args.engineering else None
     doc = compare_methods(train, test, args.target, engineering=engineering,

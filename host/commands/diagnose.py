@@ -10,7 +10,7 @@ from contract.errors import InputError
 from contract.model_file import jsonable, read_model
 from host.analysis import diagnose, load_for_diagnosis, summary_lines
 from host.commands._arguments import add_reference_argument
-from host.commands._options import add_fill_gaps
+from host.commands._options import add_fill_gaps, csv_format
 from host.fitting import DEFAULT_BLOCKS
 from host.train import input_units
 
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     if args.blocks < 2:
         raise InputError(f"--blocks must be >= 2 (got {args.blocks})")
     model = read_model(args.model)
-    data = load_for_diagnosis(model, args.run, args.fill_gaps)
+    data = load_for_diagnosis(model, args.run, args.fill_gaps, csv_format(args))
     doc = {"model": args.model, **diagnose(model, data, ambient=args.ambient,
                                            n_blocks=args.blocks, reference=args.reference)}
     if args.json:

@@ -8,7 +8,7 @@ import json
 from contract.model_file import jsonable, read_model
 from host.analysis import evaluate_model, load_for_model
 from host.commands._arguments import add_reference_argument
-from host.commands._options import add_fill_gaps
+from host.commands._options import add_fill_gaps, csv_format
 from host.train import describe, input_units
 
 NAME = "evaluate"
@@ -25,7 +25,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     model = read_model(args.model)
-    data = load_for_model(args.run, model, args.fill_gaps)
+    data = load_for_model(args.run, model, args.fill_gaps, fmt=csv_format(args))
     doc = {"model": args.model, **evaluate_model(model, data, args.reference)}
     if args.json:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))

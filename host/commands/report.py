@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from host.commands._options import add_fill_gaps
+from host.commands._options import add_fill_gaps, csv_format
 
 NAME = "report"
 HELP = "write an HTML report (with PNG figures) of a model on runs, its peers and effects"
@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
 
     report = build_report(args.model, args.runs, args.out, protocols=args.protocols,
                           peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json,
-                          hil=args.hil)
+                          hil=args.hil, fmt=csv_format(args))
     if args.json:
         print(json.dumps({"index": str(report.index), **report.summary}, indent=2))
         return 0

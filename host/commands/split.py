@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from host.commands._options import add_format_arguments, csv_format
 from host.io import split_file
 
 NAME = "split"
@@ -17,11 +18,13 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="cut at this time_s (hours); repeat for several cuts")
     parser.add_argument("-o", "--out", default="build", metavar="DIR",
                         help="output directory (default %(default)s)")
+    add_format_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the written paths as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    paths = split_file(args.run, [h * 3600.0 for h in args.at_hours], args.out)
+    paths = split_file(args.run, [h * 3600.0 for h in args.at_hours], args.out,
+                       fmt=csv_format(args))
     if args.json:
         print(json.dumps({"parts": [str(p) for p in paths]}))
     else:

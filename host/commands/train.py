@@ -11,7 +11,8 @@ from contract.box import BOX_CHANNELS
 from contract.errors import InputError
 from contract.model_file import jsonable, write_model, write_text_atomic
 from host.commands._arguments import add_reference_argument
-from host.commands._options import add_fill_gaps
+from host.commands._options import add_fill_gaps, csv_format
+from host.io import load_runs
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
 from host.train import summary, train_model
 
@@ -134,7 +135,9 @@ def print_effects(doc: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    model = train_model(args.runs, args.target, sensors=args.sensors, aux=args.aux,
+    runs = load_runs(args.runs, args.target, args.sensors, args.aux, args.fill_gaps,
+                     min_samples=4, fmt=csv_format(args))
+    model = train_model(runs, args.target, sensors=args.sensors, aux=args.aux,
                         max_sensors=args.max_sensors, groups=args.groups,
                         effects=not args.no_effects, ambient=args.ambient,
                         channels=dict(args.channel), selection=args.selection,

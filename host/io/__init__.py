@@ -3,15 +3,28 @@
 
 from __future__ import annotations
 
-from host.io.runs import TIME_COLUMN, Run, RunFormatError, load_run, load_runs, write_run
+from host.io.runs import (
+    TIME_COLUMN,
+    CsvFormat,
+    Run,
+    RunFormatError,
+    check_variation,
+    load_run,
+    load_runs,
+    read_header,
+    write_run,
+)
 from host.io.split import split_file, window
 
 __all__ = [
+    "CsvFormat",
     "Run",
     "RunFormatError",
     "TIME_COLUMN",
+    "check_variation",
     "load_run",
     "load_runs",
+    "read_header",
     "split_file",
     "window",
     "write_run",

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from contract.errors import InputError
-from host.io.runs import TIME_COLUMN, Run, RunFormatError, read_table, write_run
+from host.io.runs import TIME_COLUMN, CsvFormat, Run, RunFormatError, read_table, write_run
 
 
 def _bounds(time_s: np.ndarray, at_s: list[float], where: str) -> list[tuple[int, int]]:
@@ -42,10 +42,15 @@ def window(run: Run, start_s: float | None = None, stop_s: float | None = None) 
     return part
 
 
-def split_file(path: str | Path, at_s: list[float], out_dir: str | Path) -> list[Path]:
-    """Write ``<stem>_<from>-<to>h.csv`` for each part of the CSV cut at ``at_s`` seconds."""
+def split_file(path: str | Path, at_s: list[float], out_dir: str | Path,
+               fmt: CsvFormat | None = None) -> list[Path]:
+    """Write ``<stem>_<from>-<to>h.csv`` for each part of the CSV cut at ``at_s`` seconds.
+
+    The parts are written in the project's format (``,``, decimal point, ``time_s`` in seconds,
+    since the first sample when the file had timestamps); a gap in time is no reason to refuse:
+    cutting there is what a gap calls for."""
     path = Path(path)
-    header, data, _ = read_table(path)
+    header, data, _ = read_table(path, fmt)
     if TIME_COLUMN not in header:
         raise RunFormatError(path, f"missing column '{TIME_COLUMN}'", line=1, column=TIME_COLUMN)
     t = data[:, header.index(TIME_COLUMN)]

@@ -36,7 +36,7 @@ from host.fitting import (
     variance_inflation,
 )
 from host.fitting.step_limits import add_step_limits
-from host.io import Run, load_runs
+from host.io import Run, check_variation, load_runs
 from host.progress import progress
 from host.selection import (
     DEFAULT_BLOCKS,
@@ -214,6 +214,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         raise TrainingError(f"thermocouple type must be K or J (got {tc_type!r})")
     aux = list(aux or [])
     runs = _as_runs(runs, targets, sensors, aux, fill_gaps)
+    check_variation(runs, list(targets))
     period_s = common_period(runs)
     names = runs[0].sensor_names
     n_min = min(r.n_samples for r in runs)
