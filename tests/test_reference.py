@@ -51,9 +51,9 @@ def test_a_warmer_day_gives_no_offset_with_start_and_one_without():
     train = [_day(1, 0.0), _day(2, 0.5)]
     test = _day(3, 3.0)  # starts 3 K warmer than training: 9 um of offset without a reference
     start = train_model(train, ["dz_um"], effects=False, groups=3, max_sensors=2,
-                        reference="start")
+                        reference="start", fit="ols", nested=False)
     none = train_model(train, ["dz_um"], effects=False, groups=3, max_sensors=2,
-                       reference="none")
+                       reference="none", fit="ols", nested=False)
     assert start["reference"] == {"kind": "start", "samples": 5, "window_s": 300.0}
     assert none["reference"] == {"kind": "none"}
     e_start = evaluate_model(start, test)["axes"]["dz_um"]["rmse_um"]

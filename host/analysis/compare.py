@@ -178,7 +178,8 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
             t0 = time.perf_counter()
             model = train_model(train_runs, [target], max_sensors=max_sensors, groups=groups,
                                 effects=False, selection=method, max_delay_s=max_delay_s,
-                                n_blocks=n_blocks, seed=seed, reference=reference)
+                                n_blocks=n_blocks, seed=seed, reference=reference,
+                                fit="ols", nested=False)  # the selection methods compared
             dt = time.perf_counter() - t0
             pred = np.concatenate([predict(model, r)[target] for r in test_runs])
             sensors = axis_sensors(model["axes"][target])

@@ -14,7 +14,7 @@ from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
 from host.io import load_runs
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
-from host.train import summary, train_model
+from host.train import DEFAULT_FIT, FITS, summary, train_model
 
 NAME = "train"
 HELP = "select sensors (paper 000), fit and validate the thermal model; write model.json"
@@ -81,6 +81,14 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ambient", metavar="COL", default=None,
                         help="ambient temperature column for the ambient effect (one of the "
                         "--sensors; default: a sensor named like *amb*, if any)")
+    parser.add_argument("--fit", choices=FITS, default=DEFAULT_FIT,
+                        help="ols: least squares on the selected terms and effects; ridge: the "
+                             "same plus lags of the selected sensors and the speed, shrunk; "
+                             "auto: the one with the lower nested error (default; "
+                             "docs/next-day.md)")
+    parser.add_argument("--no-nested", action="store_true",
+                        help="skip nested validation (the pipeline refitted per fold: the "
+                             "promised error); 3-4x faster, and auto then means ols")
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -98,6 +106,11 @@ def print_table(doc: dict, model: dict) -> None:
               f"{_fmt(a['validation_rmse_um']):>9} {_fmt(a['raw_rms_um']):>9} "
               f"{_fmt(a['r2'], 4):>7} {_fmt(a['condition_number']):>7}")
     print_effects(doc)
+    for name, a in doc["axes"].items():
+        folds = a.get("promised_fold_rmse_um") or []
+        if a.get("promised_rmse_um") is not None and folds:
+            print(f"{name}: promised for an unseen day {_fmt(a['promised_rmse_um'])} um (nested, "
+                  f"folds {_fmt(min(folds))}..{_fmt(max(folds))} um), fit {a.get('fit')}")
     if "header" in doc:
         print(f"header: {doc['header']}")
 
@@ -144,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
                         max_delay_s=None if args.max_delay_h is None else args.max_delay_h * 3600,
                         n_blocks=args.blocks, seed=args.seed, fill_gaps=args.fill_gaps,
                         tc_type=args.tc_type, max_channels=args.max_channels,
-                        reference=args.reference,
+                        reference=args.reference, fit=args.fit, nested=not args.no_nested,
                         quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"

@@ -15,6 +15,7 @@ from host.fitting.out_of_fold import (
     validation_rmse,
 )
 from host.fitting.reference import NO_REFERENCE, Reference, causal_reference
+from host.fitting.ridge import RidgeFit, fit_ridge
 from host.fitting.validation import (
     DEFAULT_BLOCKS,
     common_period,
@@ -24,6 +25,8 @@ from host.fitting.validation import (
 )
 
 __all__ = [
+    "RidgeFit",
+    "fit_ridge",
     "NO_REFERENCE",
     "Reference",
     "causal_reference",

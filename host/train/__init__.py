@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from host.train.next_day import DEFAULT_FIT, FITS
 from host.train.pipeline import DEFAULT_REFERENCE, TrainingError, axis_with_effects, train_model
 from host.train.ranges import (
     TOLERANCE_SHARE,
@@ -14,6 +15,8 @@ from host.train.ranges import (
 from host.train.summary import axis_sensors, summary
 
 __all__ = [
+    "DEFAULT_FIT",
+    "FITS",
     "DEFAULT_REFERENCE",
     "TOLERANCE_SHARE",
     "TrainingError",

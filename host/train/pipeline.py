@@ -46,6 +46,14 @@ from host.selection import (
     select_sensors,
 )
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
+from host.train.next_day import (
+    DEFAULT_FIT,
+    check_fit,
+    nested_validation,
+    ridge_axis,
+    ridge_axis_dict,
+    states_per_axis,
+)
 from host.train.ranges import add_training_ranges
 
 DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
@@ -143,6 +151,46 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
     return out
 
 
+def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
+                         options: dict, period_s: float, n_blocks: int, reference: Reference,
+                         n_axes: int) -> dict:
+    """Judge both families by nested validation and keep the one for the next day
+    (host.train.next_day); the axis gains ``fit`` and the promised error with its spread."""
+    final_terms = [Term.from_json(x) for x in axis["terms"]]
+    max_states = states_per_axis(n_axes)
+    aux = list(options["aux"])
+
+    def train_fold(sub: list[Run]) -> list[Term]:
+        model = train_model(sub, [target], **options, fit="ols", nested=False)
+        return [Term.from_json(x) for x in model["axes"][target]["terms"]]
+
+    result = None
+    if nested:
+        result = nested_validation(runs, target, train_fold, aux=aux, period_s=period_s,
+                                   n_blocks=n_blocks, reference=reference,
+                                   max_states=max_states)
+    want_ridge = fit == "ridge" or (fit == "auto" and result is not None
+                                    and result.rms("ridge") < result.rms("ols"))
+    family, alpha = "ols", None
+    if want_ridge:
+        found = ridge_axis(runs, target, final_terms, aux=aux, period_s=period_s,
+                           n_blocks=n_blocks, reference=reference, max_states=max_states)
+        if found is not None:
+            basis, ridge, st = found
+            axis = {**axis, **ridge_axis_dict(basis, ridge, st)}
+            family, alpha = "ridge", float(ridge.alpha)
+    axis["fit"] = {"family": family, "requested": fit, "alpha": alpha,
+                   "rule": ("the family (least squares on the selected terms, or a ridge over "
+                            "them plus lags and speed) with the lower nested error")}
+    if result is not None:
+        axis["fit"]["nested"] = {"scheme": result.scheme, "fold_rmse_um": result.fold_rmse_um,
+                                 "rmse_um": {f: result.rms(f) for f in result.fold_rmse_um}}
+        folds = result.fold_rmse_um[family]
+        axis["metrics"]["promised_rmse_um"] = result.rms(family)
+        axis["metrics"]["promised_fold_rmse_um"] = folds
+    return axis
+
+
 def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapping[str, int],
               tc_type: str) -> list[dict]:
     """One channel per sensor any axis uses; defaults 0..k-1 in data-column order."""
@@ -186,7 +234,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 selection: str = "validated", max_delay_s: float | None = None,
                 n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
                 tc_type: str = DEFAULT_TC_TYPE, max_channels: int = BOX_CHANNELS,
-                reference: str = DEFAULT_REFERENCE, quiet: bool = True) -> dict:
+                reference: str = DEFAULT_REFERENCE, fit: str = DEFAULT_FIT, nested: bool = True,
+                quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
@@ -201,6 +250,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         raise TrainingError("give at least one --target")
     if len(set(targets)) != len(targets):
         raise TrainingError(f"a target is given twice: {targets}")
+    check_fit(fit)
     if selection not in METHODS:
         raise TrainingError(f"unknown --selection '{selection}' (known: {', '.join(METHODS)})")
     if n_blocks < 2:
@@ -284,6 +334,16 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 for effect in axis.get("effects", []):
                     if any(t.get("source") in dropped for t in effect.get("added", [])):
                         effect["dropped_for_channels"] = True
+    if nested or fit == "ridge":
+        options = dict(sensors=list(names), aux=aux, max_sensors=max_sensors, groups=groups,
+                       effects=effects, ambient=ambient, selection=selection,
+                       max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
+                       max_channels=max_channels, reference=reference)
+        for target in progress(list(axes), "nested validation (the next day)", quiet=quiet):
+            axes[target] = fit_for_the_next_day(axes[target], runs, target, fit=fit,
+                                                nested=nested, options=options,
+                                                period_s=period_s, n_blocks=n_blocks,
+                                                reference=ref, n_axes=len(targets))
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
@@ -314,6 +374,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "seed": int(seed),
             "effects": bool(effects),
             "reference": ref.kind,
+            "fit": fit,
+            "nested": bool(nested),
             "ambient": ambient,
             "max_channels": int(max_channels),
         },

@@ -28,6 +28,10 @@ def summary(model: dict, model_path: str) -> dict:
             "max_abs_um": m.get("max_abs_um"),
             "condition_number": m.get("condition_number"),
             "validation": m.get("validation"),
+            # the error promised for an unseen day: the pipeline refitted without each fold
+            "promised_rmse_um": m.get("promised_rmse_um"),
+            "promised_fold_rmse_um": m.get("promised_fold_rmse_um"),
+            "fit": (axis.get("fit") or {}).get("family"),
             # issue 7: before/after the effects, what was added and what is still unexplained
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",

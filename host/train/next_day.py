@@ -1,0 +1,186 @@
+"""A model fitted for the next day: nested validation, and the ridge family it can choose.
+
+Validation on the same folds that chose the sensors and the effects is optimistic (selection
+bias: on FL_THERMAL held-out cycles it promised 2.8 um where the unseen cycle gave 6.9 um), and
+select-then-accept is high-variance on data this small. So, per axis:
+
+- **nested validation**: the whole pipeline (selection, channel budget, effects) is refitted
+  without each fold and predicts it: a held-out run (several runs), or a time block of one run
+  predicted from the blocks before *and* after it (features still computed from the run's
+  start, as on the box). Its RMS is the error ``host train`` promises, with the folds' spread;
+- **two families** are judged by it on the same folds: ``ols``, the selected terms (with the
+  accepted effects) by least squares (paper 000's eq. 4 and the closed loop), and ``ridge``,
+  the same terms plus first-order lags of every selected sensor and the spindle speed, fitted
+  by a ridge whose penalty is chosen out of fold (host.fitting.ridge). ``auto`` (the default)
+  keeps the family with the lower nested error; the effects stay named in both.
+
+The ridge basis spends filter states: at most ``contract.box.BOX_STATES`` over all axes, and
+its coefficients must keep codegen's fixed-point bound (host.effects.fixed_point_refusal);
+lags are given up, longest first, until both hold.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from contract.box import BOX_STATES
+from contract.errors import InputError
+from contract.terms import FILTER_KINDS, Term, make_lag, make_speed, term_sensors
+from host.effects import fixed_point_refusal, tau_grid
+from host.fitting import (
+    Reference,
+    condition_number,
+    design_matrix,
+    fit_linear,
+    fit_ridge,
+    fold_groups,
+    r_squared,
+    rmse,
+    stack,
+    variance_inflation,
+)
+from host.io import Run
+
+FITS = ("auto", "ols", "ridge")
+DEFAULT_FIT = "auto"
+LAG_TAUS_S = (900.0, 3600.0)  # a fast and a slow part of the structure behind each sensor
+MIN_FOLD_SAMPLES = 8  # a training piece shorter than this is left out of a nested fold
+
+TrainFold = Callable[[list[Run]], list[Term]]  # the pipeline's final terms of one axis
+
+
+@dataclass(frozen=True)
+class NestedResult:
+    """Held-out RMSE per fold of each family (the pipeline refitted without the fold)."""
+
+    scheme: str
+    fold_rmse_um: dict[str, list[float]]
+
+    def rms(self, family: str) -> float:
+        v = np.asarray(self.fold_rmse_um[family], dtype=float)
+        return float(np.sqrt(np.mean(v ** 2))) if v.size else math.nan
+
+
+def fold_training(runs: Sequence[Run], groups: np.ndarray, fold: int) -> list[Run]:
+    """The training data without ``fold``: the other runs, or the pieces of one run around a
+    held-out block (each piece a run of its own: its filters and reference restart)."""
+    if len(runs) >= 2:
+        return [r for i, r in enumerate(runs) if i != fold]
+    keep = np.flatnonzero(groups != fold)
+    cuts = np.flatnonzero(np.diff(keep) > 1) + 1
+    pieces = [(int(p[0]), int(p[-1]) + 1) for p in np.split(keep, cuts) if p.size]
+    return [runs[0].slice(a, b) for a, b in pieces if b - a >= MIN_FOLD_SAMPLES]
+
+
+def held_out(runs: Sequence[Run], groups: np.ndarray, fold: int, target: str,
+             terms: Sequence[Term], predict_x: Callable[[np.ndarray], np.ndarray],
+             period_s: float, reference: Reference) -> tuple[np.ndarray, np.ndarray]:
+    """Measured and predicted drift of the held-out fold, both referenced at the run's start."""
+    run, rows = (runs[fold], None) if len(runs) >= 2 else (runs[0], groups == fold)
+    pred = reference.apply(predict_x(design_matrix(list(terms), run.columns(), period_s)))
+    meas = reference.apply(run.target(target))
+    return (meas, pred) if rows is None else (meas[rows], pred[rows])
+
+
+def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
+                shortest_s: float, max_states: int) -> list[Term]:
+    """The terms plus lags of every sensor they use (as many time constants as the states
+    allow, fastest first) and the speed of every aux input."""
+    out = list(terms)
+    sensors = term_sensors(out)
+    taus = tau_grid(period_s, shortest_s, LAG_TAUS_S)
+    free = max_states - sum(t.kind in FILTER_KINDS for t in out)
+    n_lags = min(len(taus), free // len(sensors)) if sensors else 0
+    for tau in taus[:max(n_lags, 0)]:
+        for s in sensors:
+            lag = make_lag(s, tau, period_s)
+            if lag not in out:
+                out.append(lag)
+    for name in aux:
+        speed = make_speed(name)
+        if speed not in out:
+            out.append(speed)
+    return out
+
+
+def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], period_s: float,
+                    n_blocks: int, reference: Reference):
+    st = stack(list(runs), list(terms), target, period_s, n_blocks, reference)
+    return fit_ridge(st.X, st.y, st.groups), st
+
+
+def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *,
+                      aux: Sequence[str], period_s: float, n_blocks: int,
+                      reference: Reference, max_states: int) -> NestedResult:
+    """Each family's held-out error with the whole pipeline refitted without each fold."""
+    groups, scheme = fold_groups(list(runs), n_blocks)
+    errors: dict[str, list[float]] = {"ols": [], "ridge": []}
+    for fold in np.unique(groups):
+        sub = fold_training(runs, groups, int(fold))
+        if not sub:
+            continue
+        terms = train_fold(sub)
+        st = stack(sub, terms, target, period_s, n_blocks, reference)
+        ols = fit_linear(st.X, st.y)
+        meas, pred = held_out(runs, groups, int(fold), target, terms, ols.predict, period_s,
+                              reference)
+        errors["ols"].append(rmse(meas - pred))
+        shortest = min(r.time_s[-1] - r.time_s[0] for r in sub)
+        basis = ridge_basis(terms, aux, period_s, shortest, max_states)
+        ridge, _ = fit_ridge_terms(sub, target, basis, period_s, n_blocks, reference)
+        meas, pred = held_out(runs, groups, int(fold), target, basis, ridge.predict, period_s,
+                              reference)
+        errors["ridge"].append(rmse(meas - pred))
+    return NestedResult(f"nested {scheme}: the pipeline refitted without each fold",
+                        errors)
+
+
+def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: Sequence[str],
+               period_s: float, n_blocks: int, reference: Reference,
+               max_states: int) -> tuple[list[Term], object, object] | None:
+    """The ridge family fitted on all runs, within the box's states and fixed-point bound
+    (None when not even the terms alone fit: then the box keeps the least-squares model)."""
+    shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
+    for states in range(max_states, -1, -1):
+        basis = ridge_basis(terms, aux, period_s, shortest, states)
+        fit, st = fit_ridge_terms(runs, target, basis, period_s, n_blocks, reference)
+        if fixed_point_refusal(basis, fit.coef) is None:
+            return basis, fit, st
+        if not any(t.kind in FILTER_KINDS for t in basis if t not in terms):
+            return None
+    return None
+
+
+def ridge_axis_dict(basis: list[Term], fit, st) -> dict:
+    """The axis dict fields of a ridge fit (the same metrics as host.train's fit_axis)."""
+    residual = st.y - fit.predict(st.X)
+    vif = variance_inflation(st.X)
+    return {
+        "intercept": float(fit.intercept),
+        "terms": [{**t.to_json(), "coef": float(c)} for t, c in zip(basis, fit.coef,
+                                                                      strict=True)],
+        "metrics": {
+            "train_rmse_um": rmse(residual),
+            "validation_rmse_um": fit.validation_rmse_um,
+            "raw_rms_um": rmse(st.y),
+            "r2": r_squared(st.y, st.y - residual),
+            "max_abs_um": float(np.max(np.abs(residual))),
+            "condition_number": condition_number(st.X),
+            "vif": {t.name: float(v) for t, v in zip(basis, vif, strict=True)},
+            "validation": st.scheme,
+            "n_samples": int(st.y.size),
+        },
+    }
+
+
+def check_fit(fit: str) -> None:
+    if fit not in FITS:
+        raise InputError(f"--fit must be one of {', '.join(FITS)} (got {fit!r})")
+
+
+def states_per_axis(n_axes: int) -> int:
+    return BOX_STATES // max(n_axes, 1)

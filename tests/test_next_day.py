@@ -1,0 +1,104 @@
+"""Nested validation and the ridge family (host.train.next_day, host.fitting.ridge).
+
+Expectations are recomputed here with numpy and scikit-learn, never read back from the code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sklearn.linear_model import Ridge
+
+import codegen
+from contract.box import BOX_STATES
+from contract.terms import make_lag, make_temp
+from host.fitting import NO_REFERENCE, Reference, fit_ridge, fold_groups
+from host.io import Run
+from host.train import train_model
+from host.train.next_day import fold_training, nested_validation, ridge_basis
+
+PERIOD = 60.0
+
+
+def _run(name: str, seed: int, n: int = 480) -> Run:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * PERIOD
+    rpm = np.where((t // 7200) % 2 == 0, 6000.0, 0.0)
+    heat = np.cumsum(rpm / 6000.0 - 0.4) * 0.002
+    t1 = 20 + heat + 0.02 * rng.standard_normal(n)
+    t2 = 20 + 0.5 * np.convolve(heat, np.ones(30) / 30, "same") + 0.02 * rng.standard_normal(n)
+    t3 = 20 + 0.3 * rng.standard_normal(n).cumsum() * 0.01
+    dz = 3.0 * (t1 - t1[0]) - 1.5 * (t2 - t2[0]) + 0.1 * rng.standard_normal(n)
+    return Run(name, t, ["T1", "T2", "T3"], np.column_stack([t1, t2, t3]), ["dz_um"],
+               dz[:, None], ["spindle_rpm"], rpm[:, None])
+
+
+def test_ridge_matches_scikit_learn_at_a_given_penalty():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(300, 4)) * [1, 10, 0.1, 3] + 5
+    y = X @ [1, 0.2, -3, 0.5] + 2 + rng.normal(size=300)
+    fit = fit_ridge(X, y, np.repeat([0, 1, 2], 100), alphas=(0.1,))
+    mu, sd = X.mean(0), X.std(0)
+    ref = Ridge(alpha=0.1 * 300).fit((X - mu) / sd, y)  # per standardised column and sample
+    np.testing.assert_allclose(fit.coef, ref.coef_ / sd, rtol=1e-9)
+    assert fit.intercept == pytest.approx(ref.intercept_ - (mu / sd) @ ref.coef_, rel=1e-9)
+
+
+def test_fold_training_cuts_one_run_around_the_held_out_block():
+    run = _run("a", 1, n=90)
+    groups, _ = fold_groups([run], 3)
+    pieces = fold_training([run], groups, 1)  # the middle block out: what lies before and after
+    assert [(p.time_s[0], p.time_s[-1]) for p in pieces] == [(0.0, 29 * PERIOD),
+                                                              (60 * PERIOD, 89 * PERIOD)]
+    assert len(fold_training([run], groups, 0)) == 1
+    runs = [run, _run("b", 2, n=90)]
+    assert [r.path for r in fold_training(runs, fold_groups(runs, 3)[0], 0)] == ["b"]
+
+
+def test_nested_validation_is_refit_without_each_run_and_predicts_it():
+    runs = [_run("a", 1), _run("b", 2), _run("c", 3)]
+    terms = [make_temp("T1"), make_temp("T2")]
+    seen = []
+
+    def train_fold(sub):
+        seen.append([r.path for r in sub])
+        return terms
+
+    res = nested_validation(runs, "dz_um", train_fold, aux=[], period_s=PERIOD, n_blocks=3,
+                            reference=NO_REFERENCE, max_states=0)
+    assert seen == [["b", "c"], ["a", "c"], ["a", "b"]]
+    for k in range(3):  # least squares by numpy on the other two runs, predicting run k
+        tr = [r for i, r in enumerate(runs) if i != k]
+        A = np.column_stack([np.ones(sum(r.n_samples for r in tr)),
+                             np.vstack([r.temperatures[:, :2] for r in tr])])
+        beta = np.linalg.lstsq(A, np.concatenate([r.target("dz_um") for r in tr]), rcond=None)[0]
+        pred = beta[0] + runs[k].temperatures[:, :2] @ beta[1:]
+        expect = np.sqrt(np.mean((runs[k].target("dz_um") - pred) ** 2))
+        assert res.fold_rmse_um["ols"][k] == pytest.approx(expect, rel=1e-6)
+    assert res.rms("ols") == pytest.approx(np.sqrt(np.mean(np.square(res.fold_rmse_um["ols"]))))
+
+
+def test_ridge_basis_spends_only_the_states_it_is_given():
+    terms = [make_temp("T1"), make_temp("T2")]
+    full = ridge_basis(terms, ["spindle_rpm"], PERIOD, 8 * 3600.0, max_states=8)
+    assert make_lag("T1", 900.0, PERIOD) in full and make_lag("T2", 3600.0, PERIOD) in full
+    assert sum(t.kind == "lag" for t in full) == 4
+    assert sum(t.kind == "lag" for t in ridge_basis(terms, [], PERIOD, 8 * 3600.0, 3)) == 2
+    assert ridge_basis(terms, [], PERIOD, 8 * 3600.0, 1) == terms  # one state: no lag pair
+
+
+def test_train_promises_a_nested_error_and_the_box_runs_either_family():
+    runs = [_run("a", 1), _run("b", 2)]
+    for fit in ("auto", "ridge"):
+        model = train_model(runs, ["dz_um"], aux=["spindle_rpm"], effects=False, groups=3,
+                            max_sensors=2, fit=fit, reference="start")
+        axis = model["axes"]["dz_um"]
+        assert axis["fit"]["requested"] == fit
+        assert len(axis["metrics"]["promised_fold_rmse_um"]) == 2  # one per held-out run
+        assert axis["metrics"]["promised_rmse_um"] == pytest.approx(
+            axis["fit"]["nested"]["rmse_um"][axis["fit"]["family"]])
+        states = sum(t["kind"] in ("lag", "rate") for t in axis["terms"])
+        assert states <= BOX_STATES
+        codegen.generate(model)  # the fixed-point bound holds for what was chosen
+    assert axis["fit"]["family"] == "ridge" and states > 0
+    assert Reference.of_model(model).kind == "start"
