@@ -93,11 +93,14 @@ def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
 
 
 def generate(model: Mapping, max_error_um: float = DEFAULT_MAX_ERROR_UM,
-             zero_at_powerup: bool = False) -> GeneratedHeader:
+             zero_at_powerup: bool | None = None) -> GeneratedHeader:
     """Quantise, prove and render ``model`` (a model.json dict); raises CodegenError.
 
     ``zero_at_powerup``: the header's TCM_ZERO_AT_POWERUP (the box behaves as if ZERO was
-    received before its first sample, docs/protocol.md)."""
+    received before its first sample, docs/protocol.md); by default it follows the model's
+    reference: a model of the change since the start (``start``) zeroes at power-up."""
+    if zero_at_powerup is None:
+        zero_at_powerup = (model.get("reference") or {}).get("kind") == "start"
     if not max_error_um > 0:
         raise CodegenError(f"--max-error-um must be positive, got {max_error_um!r}")
     q = quantise(model)
@@ -144,7 +147,7 @@ def fixed_point_path(header_path: str | Path) -> Path:
 
 def write_header(model_json_path: str | Path, header_path: str | Path,
                  max_error_um: float = DEFAULT_MAX_ERROR_UM,
-                 zero_at_powerup: bool = False) -> GeneratedHeader:
+                 zero_at_powerup: bool | None = None) -> GeneratedHeader:
     """Generate ``header_path`` from a model.json, and its fixed_point block beside it.
 
     The model file is only read, never rewritten (it is the user's); nothing is written unless

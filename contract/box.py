@@ -22,6 +22,7 @@ RUNTIME_MAX_TERMS_PER_AXIS = 255
 # largest plausible step (IMPLAUSIBLE) and axes their output step limit, both CRC-covered
 RUNTIME_FORMAT = 3
 HEADER_FORMAT = RUNTIME_FORMAT
+ZERO_SAMPLES = 8  # a ZERO's reference is the mean of this many samples (BOX_ZERO_SAMPLES)
 CHANNEL_MIN_C = -40.0  # default valid range of a thermocouple channel
 CHANNEL_MAX_C = 200.0
 

@@ -47,14 +47,15 @@ class ModelBuild:
 
 
 def prepare_header(model_json: str | Path, build_dir: str | Path,
-                   zero_at_powerup: bool = False) -> ModelBuild:
+                   zero_at_powerup: bool | None = None) -> ModelBuild:
     """Load model.json and write its header to ``build_dir/model-<hash>[-z].h`` (atomic);
     ``-z``: generated with ``--zero-at-powerup``."""
     model = load_model(model_json)
     gen = generate(model, zero_at_powerup=zero_at_powerup)
     build_dir = Path(build_dir)
     build_dir.mkdir(parents=True, exist_ok=True)
-    header = build_dir / f"model-{gen.model.model_hash}{'-z' if zero_at_powerup else ''}.h"
+    zeroes = bool(gen.fixed_point.get("zero_at_powerup"))  # default: the model's reference
+    header = build_dir / f"model-{gen.model.model_hash}{'-z' if zeroes else ''}.h"
     if not header.is_file() or header.read_text(encoding="utf-8") != gen.text:
         tmp = header.with_suffix(f".h.{os.getpid()}.tmp")
         tmp.write_text(gen.text, encoding="utf-8")

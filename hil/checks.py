@@ -401,8 +401,11 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
                          f"bound {ax.bound_um:.6g} um")
         if name in feed.measured and got.any():
             meas = feed.measured[name][got]
-            # the box's output referenced like the measurement (the change since the start)
-            comp = meas - feed.reference.apply(fw_out[got, a] / 1000.0)
+            # the box's output is the change since its start when it zeroes at power-up (a
+            # ``start`` model's header); otherwise it is referenced here like the measurement
+            box = fw_out[got, a] / 1000.0
+            zeroed = bool(model.get("fixed_point", {}).get("zero_at_powerup")) or bool(zero_at)
+            comp = meas - (box if zeroed else feed.reference.apply(box))
             ax.raw_rms_um = float(np.sqrt(np.mean(meas ** 2)))
             ax.raw_peak_um = float(np.max(np.abs(meas)))
             ax.compensated_rms_um = float(np.sqrt(np.mean(comp ** 2)))

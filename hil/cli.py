@@ -95,9 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "status (hex and names), each axis's correction in um")
     p.add_argument("--zero-at", type=int, action="append", default=[], metavar="SAMPLE",
                    help="send ZERO before this sample (repeatable); the twin follows")
-    p.add_argument("--zero-at-powerup", action="store_true",
+    p.add_argument("--zero-at-powerup", action=argparse.BooleanOptionalAction, default=None,
                    help="build the header with TCM_ZERO_AT_POWERUP (as host codegen "
-                        "--zero-at-powerup)")
+                        "--zero-at-powerup; default: on for a model with the start reference)")
     d = Judging()
     p.add_argument("--max-held-fraction", type=float, default=d.max_held_fraction,
                    help="fail when more than this share of the samples held (HOLD/NO_DATA; "

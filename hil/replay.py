@@ -50,7 +50,7 @@ def default_build_dir(model_json: str | Path) -> Path:
 
 def prepare(model_json: str | Path, data: str | Path, build_dir: str | Path | None = None,
             cflags: str = "", binary: str | Path | None = None,
-            zero_at_powerup: bool = False) -> ReplaySetup:
+            zero_at_powerup: bool | None = None) -> ReplaySetup:
     """Generate the header, build the native firmware (unless ``binary``) and load the run."""
     build_dir = Path(build_dir) if build_dir is not None else default_build_dir(model_json)
     mb = prepare_header(model_json, build_dir, zero_at_powerup)

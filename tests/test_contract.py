@@ -84,6 +84,7 @@ def test_box_capacity_and_version_match_box_config_h():
     assert c["BOX_MAX_AXES"] == box.BOX_AXES
     assert c["BOX_MAX_AUX"] == box.BOX_AUX
     assert c["BOX_FW_VERSION_DEFAULT"] == contract.__version__
+    assert c["BOX_ZERO_SAMPLES"] == box.ZERO_SAMPLES
 
 
 def test_command_limits_match_cmd_h():

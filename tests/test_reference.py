@@ -39,10 +39,14 @@ def test_causal_reference_is_the_running_mean_of_the_first_samples():
     np.testing.assert_allclose(Reference("start", 2).apply(x, seg), [0.0, -1.0, 3.0, 0.0, -52.5])
 
 
-def test_window_is_five_minutes_of_samples():
-    assert Reference.for_period("start", 60.0).samples == 5
-    assert Reference.for_period("start", 1.0).samples == 64  # capped (the box's int64 sum)
-    assert Reference.for_period("start", 900.0).samples == 1
+def test_window_is_the_box_zero_window():
+    import re
+    from pathlib import Path
+
+    cfg = (Path(__file__).resolve().parent.parent / "firmware/include/box_config.h").read_text()
+    box = int(re.search(r"#define BOX_ZERO_SAMPLES (\d+)", cfg).group(1))
+    assert Reference.for_period("start", 60.0).samples == box
+    assert Reference.for_period("start", 1.0).samples == box
     with pytest.raises(ValueError, match="--reference"):
         Reference("tomorrow")
 
@@ -54,7 +58,7 @@ def test_a_warmer_day_gives_no_offset_with_start_and_one_without():
                         reference="start", fit="ols", nested=False)
     none = train_model(train, ["dz_um"], effects=False, groups=3, max_sensors=2,
                        reference="none", fit="ols", nested=False)
-    assert start["reference"] == {"kind": "start", "samples": 5, "window_s": 300.0}
+    assert start["reference"] == {"kind": "start", "samples": 8}
     assert none["reference"] == {"kind": "none"}
     e_start = evaluate_model(start, test)["axes"]["dz_um"]["rmse_um"]
     e_none = evaluate_model(none, test)["axes"]["dz_um"]["rmse_um"]

@@ -18,10 +18,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-error-um", type=float, default=None,
                         help="refuse if any axis's worst-case fixed-point error exceeds this "
                              "(um, default 0.01)")
-    parser.add_argument("--zero-at-powerup", action="store_true",
+    parser.add_argument("--zero-at-powerup", action=argparse.BooleanOptionalAction,
+                        default=None,
                         help="the box behaves as if ZERO was received before its first sample: "
                              "every correction is the change since power-up (TCM_ZERO_AT_POWERUP, "
-                             "docs/protocol.md)")
+                             "docs/protocol.md); default: on for a model with the start "
+                             "reference (host train --reference start), off for none")
     parser.add_argument("--json", action="store_true",
                         help="print the fixed_point block as JSON instead of a summary")
 

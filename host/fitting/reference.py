@@ -8,10 +8,11 @@ or the last ``ZERO``), so a day that starts warmer than the training day is no o
 FL_THERMAL).
 
 The reference must not rest on one noisy sample: it is the mean of the first ``samples``
-samples of the series (about ``WINDOW_S`` seconds), taken causally as the box does: at sample
-i < samples the reference is the mean of samples 0..i (so the first output is exactly 0), from
-then on it is frozen. The same rule applies to the measured displacement and to the
-prediction, so it cancels wherever the model tracks; docs/effects.md has the measurement.
+samples of the series (the box's ``BOX_ZERO_SAMPLES``, contract.box.ZERO_SAMPLES, so host and
+box reference alike), taken causally as the box does after ZERO: at sample i < samples it is
+the mean of samples 0..i (so the first output is exactly 0), then it is frozen. The same rule
+applies to the measured displacement and to the prediction, so it cancels wherever the model
+tracks; docs/next-day.md has the measurement.
 """
 
 from __future__ import annotations
@@ -20,16 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contract.box import ZERO_SAMPLES
 from contract.errors import InputError
 
 KINDS = ("start", "none")
-WINDOW_S = 300.0  # five minutes of samples average the probe and thermocouple noise
-MAX_SAMPLES = 64  # the box keeps an int64 sum; more adds nothing at these noise levels
-
-
-def window_samples(period_s: float, window_s: float = WINDOW_S) -> int:
-    """Samples in the reference window at this sample period (at least 1)."""
-    return int(max(1, min(MAX_SAMPLES, round(window_s / period_s))))
 
 
 def causal_reference(values: np.ndarray, samples: int) -> np.ndarray:
@@ -62,7 +57,7 @@ class Reference:
 
     @staticmethod
     def for_period(kind: str, period_s: float) -> Reference:
-        return Reference(kind, window_samples(period_s) if kind == "start" else 1)
+        return Reference(kind, ZERO_SAMPLES if kind == "start" else 1)
 
     @staticmethod
     def of_model(model: dict) -> Reference:
@@ -73,7 +68,7 @@ class Reference:
     def to_json(self) -> dict:
         out: dict = {"kind": self.kind}
         if self.kind == "start":
-            out.update(samples=self.samples, window_s=WINDOW_S)
+            out.update(samples=self.samples)
         return out
 
     def apply(self, values: np.ndarray, segments: np.ndarray | None = None) -> np.ndarray:
