@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import csv
+import dataclasses
 import html
 import json
 import math
@@ -25,7 +26,7 @@ from contract.errors import InputError
 from contract.model_file import channel_ranges, read_model
 from contract.terms import TEMPERATURE_KINDS, Term
 from host.analysis import plots
-from host.fitting import design_matrix, fit_linear
+from host.fitting import NO_REFERENCE, Reference, design_matrix, fit_linear
 from host.io import CsvFormat, Run, load_run, read_header
 from host.progress import progress
 from host.selection import default_max_lag
@@ -44,12 +45,14 @@ def axis_terms(axis: dict) -> tuple[list[Term], np.ndarray]:
     return terms, coefs
 
 
-def predict(intercept: float, term_dicts: list[dict], run: Run, period_s: float) -> np.ndarray:
-    """Float prediction of one axis on a whole run (filters start at the run's first sample)."""
+def predict(intercept: float, term_dicts: list[dict], run: Run, period_s: float,
+            reference: Reference = NO_REFERENCE) -> np.ndarray:
+    """Float prediction of one axis on a whole run (filters start at the run's first sample),
+    referenced as the box outputs it (``start``: the change since the run's start)."""
     terms = [Term.from_json(t) for t in term_dicts]
     coefs = np.array([float(t["coef"]) for t in term_dicts], dtype=float)
     X = design_matrix(terms, run.columns(), period_s)
-    return float(intercept) + (X @ coefs if coefs.size else 0.0)
+    return reference.apply(float(intercept) + (X @ coefs if coefs.size else np.zeros(len(X))))
 
 
 def sensor_contributions(axis: dict, run: Run, period_s: float) -> dict[str, np.ndarray]:
@@ -100,6 +103,15 @@ def _header(path: Path, fmt: CsvFormat | None = None) -> list[str]:
     if not path.is_file():
         raise ReportError(f"{path}: run file not found")
     return read_header(path, fmt)
+
+
+def referenced(run: Run, reference: Reference) -> Run:
+    """The run with its measured displacements referenced like the model's output."""
+    if reference.kind == "none" or run.displacements is None:
+        return run
+    disp = np.column_stack([reference.apply(run.displacements[:, i])
+                            for i in range(run.displacements.shape[1])])
+    return dataclasses.replace(run, displacements=disp)
 
 
 def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0,
@@ -295,10 +307,15 @@ def summary_rows(model: dict) -> list[dict]:
 def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: str | Path,
                  protocols: str | Path | None = None, peers: bool = True,
                  fill_gaps: int = 0, quiet: bool = False,
-                 hil: list[str | Path] | None = None, fmt: CsvFormat | None = None) -> Report:
+                 hil: list[str | Path] | None = None, fmt: CsvFormat | None = None,
+                 reference: str | None = None) -> Report:
     """Render every figure and write ``out_dir/index.html``; inputs are all checked first."""
     model = read_model(model_path)
-    runs = load_report_runs(model, list(run_paths), fill_gaps, fmt)
+    ref = Reference.of_model(model)  # measured and predicted drift are judged alike
+    if reference is not None and reference != ref.kind:
+        ref = Reference.for_period(reference, float(model["sample_period_s"]))
+    runs = [referenced(run, ref)
+            for run in load_report_runs(model, list(run_paths), fill_gaps, fmt)]
     matrix = load_protocols(protocols) if protocols else None
     hil_results = [load_hil(p) for p in hil or []]
     period = float(model["sample_period_s"])
@@ -367,7 +384,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             file = f"ec_{_slug(axis_name)}.png"
         elif kind == "runs":
             measured = run.target(axis_name)
-            preds = {"our model": predict(axis["intercept"], axis["terms"], run, period)}
+            preds = {"our model": predict(axis["intercept"], axis["terms"], run, period, ref)}
             for peer_name, per_run in peer_models.items():
                 if (run.path, axis_name) in per_run:
                     preds[peer_name] = per_run[(run.path, axis_name)]
@@ -400,7 +417,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                           else " This run was used for training, so it stays inside."))
             file = f"window_{_slug(run.name)}.png"
         elif kind == "effects":
-            stages = effect_stages(axis, axis_name, run, period)
+            stages = effect_stages(axis, axis_name, run, period, ref)
             if len(stages) < 2:
                 continue
             fig_obj = plots.residual_steps(run.name, axis_name, run.time_s,
@@ -435,7 +452,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             if sensor is None:
                 continue
             measured = run.target(axis_name)
-            residual = measured - predict(axis["intercept"], axis["terms"], run, period)
+            residual = measured - predict(axis["intercept"], axis["terms"], run, period, ref)
             fig_obj = plots.hysteresis(run.name, axis_name, sensor, run.column(sensor),
                                        measured, residual, period)
             title = f"{run.name}, {axis_name} against {sensor}"
@@ -617,7 +634,8 @@ def effect_evidence(effect: dict) -> str:
     return ", ".join(parts)
 
 
-def effect_stages(axis: dict, axis_name: str, run: Run, period: float) -> list[dict]:
+def effect_stages(axis: dict, axis_name: str, run: Run, period: float,
+                  reference: Reference = NO_REFERENCE) -> list[dict]:
     """Residual of the baseline model and after each effect, in the order they were added,
     then (when the channel budget changed it afterwards) the model the box runs.
 
@@ -634,7 +652,7 @@ def effect_stages(axis: dict, axis_name: str, run: Run, period: float) -> list[d
         stages.append({"label": "baseline (temperatures only)", "evidence": "",
                        "dropped": False, "box": False,
                        "residual": measured - predict(baseline["intercept"], baseline["terms"],
-                                                      run, period)})
+                                                      run, period, reference)})
     for effect in axis.get("effects", []):
         if "terms" in effect and "intercept" in effect:
             dropped = bool(effect.get("dropped_for_channels"))
@@ -644,14 +662,14 @@ def effect_stages(axis: dict, axis_name: str, run: Run, period: float) -> list[d
                            "name": name, "evidence": effect_evidence(effect),
                            "dropped": dropped, "box": False,
                            "residual": measured - predict(effect["intercept"], effect["terms"],
-                                                          run, period)})
+                                                          run, period, reference)})
     after = axis.get("channel_budget_after_effects")
     if stages and after:
         stages.append({"label": "the box's model (after the channel budget dropped "
                                 + ", ".join(after.get("dropped_terms") or []) + ")",
                        "evidence": "", "dropped": False, "box": True,
                        "residual": measured - predict(axis["intercept"], axis["terms"], run,
-                                                      period)})
+                                                      period, reference)})
     elif stages:
         stages[-1]["box"] = True
     return stages
@@ -675,6 +693,7 @@ def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, 
     Empty when the training runs are not readable here (the report then shows our model only).
     """
     training = model.get("training", {})
+    ref = Reference.of_model(model)
     paths = [Path(p) for p in training.get("runs", [])]
     axes = [a for a in model["axes"] if any(a in r.target_names for r in runs)]
     if not paths or not all(p.is_file() for p in paths) or not axes:
@@ -695,8 +714,8 @@ def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, 
         have = [r for r in train_runs if axis in r.target_names]
         if not have:
             continue
-        X = np.vstack([r.temperatures for r in have])
-        y = np.concatenate([r.target(axis) for r in have])
+        X = np.vstack([ref.apply(r.temperatures) for r in have])
+        y = np.concatenate([ref.apply(r.target(axis)) for r in have])
         top = np.argsort(-_abs_correlation(X, y), kind="stable")[:k]
         for label, idx in zip(labels, (np.arange(len(names)), top), strict=True):
             fit = fit_linear(X[:, idx], y)
@@ -704,7 +723,7 @@ def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, 
             for run in runs:
                 if axis in run.target_names:
                     Xr = np.column_stack([run.column(c) for c in cols])
-                    out[label][(run.path, axis)] = fit.predict(Xr)
+                    out[label][(run.path, axis)] = ref.apply(fit.predict(Xr))
     return out
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
 
 NAME = "report"
@@ -23,6 +24,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-peers", action="store_true",
                         help="do not fit the peer models of `host compare`")
     add_fill_gaps(parser)
+    add_reference_argument(parser, training=False)
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON instead of text")
 
@@ -32,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
 
     report = build_report(args.model, args.runs, args.out, protocols=args.protocols,
                           peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json,
-                          hil=args.hil, fmt=csv_format(args))
+                          hil=args.hil, fmt=csv_format(args), reference=args.reference)
     if args.json:
         print(json.dumps({"index": str(report.index), **report.summary}, indent=2))
         return 0

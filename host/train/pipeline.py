@@ -57,6 +57,7 @@ from host.train.next_day import (
 from host.train.ranges import add_training_ranges
 
 DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
+AUX_HEADROOM = 2.0  # valid aux range: twice the training extremes (see _aux)
 TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
 DEFAULT_TC_TYPE = "K"
 
@@ -213,7 +214,10 @@ def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapp
 
 
 def _aux(axes: Mapping[str, dict], runs: list[Run]) -> list[dict]:
-    """Aux inputs any term uses; declared range = observed range widened to include 0, +25 %."""
+    """Aux inputs any term uses; declared (valid) range = the observed range widened to include
+    0, to AUX_HEADROOM times its extremes: a spindle may run faster on an unseen day than in
+    training (the box then raises EXTRAP and keeps correcting) without the box calling the
+    input faulty and holding (AUX_FAULT)."""
     used = [n for n in runs[0].aux_names
             if any(t["kind"] in AUX_KINDS and t["source"] == n
                    for a in axes.values() for t in a["terms"])]
@@ -221,8 +225,8 @@ def _aux(axes: Mapping[str, dict], runs: list[Run]) -> list[dict]:
     for i, name in enumerate(used):
         values = np.concatenate([r.column(name) for r in runs])
         lo, hi = float(np.min(values)), float(np.max(values))
-        out.append({"input": i, "name": name, "min": math.floor(min(0.0, lo * 1.25)),
-                    "max": math.ceil(max(0.0, hi * 1.25))})
+        out.append({"input": i, "name": name, "min": math.floor(min(0.0, lo * AUX_HEADROOM)),
+                    "max": math.ceil(max(0.0, hi * AUX_HEADROOM))})
     return out
 
 
