@@ -146,7 +146,10 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
     baseline_sources = set(term_sensors(baseline)) | set(channels_in_use)
 
     def fits_budget(c: Candidate) -> bool:
-        return len(set(term_sensors(c.apply(terms))) - baseline_sources) <= allowed_new
+        """The channels the box wires grow by at most ``allowed_new`` (a re-selection that
+        gives up a sensor nobody else reads frees its channel)."""
+        wired = set(term_sensors(c.apply(terms))) | set(channels_in_use)
+        return len(wired) - len(baseline_sources) <= allowed_new
 
     terms = list(baseline)
     base_fit = fit_linear(cache.matrix(terms), y)

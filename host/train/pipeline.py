@@ -133,7 +133,8 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
                       n_blocks: int = DEFAULT_BLOCKS, ambient: str | None = None,
                       max_sensors: int = DEFAULT_MAX_SENSORS,
                       channels_in_use: Sequence[str] = (),
-                      reference: Reference = NO_REFERENCE) -> dict:
+                      reference: Reference = NO_REFERENCE,
+                      max_new_sensors: int | None = None) -> dict:
     """The baseline axis dict plus the validated effects (host.effects.search_effects).
 
     The final terms are fitted once, at the full rate, with the baseline's metrics; the axis
@@ -143,7 +144,8 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
     baseline = [Term.from_json(t) for t in axis["terms"]]
     found = search_effects(runs, target, baseline, period_s, ambient=ambient, n_blocks=n_blocks,
                            selection=axis.get("selection"), max_sensors=max_sensors,
-                           channels_in_use=channels_in_use, reference=reference)
+                           channels_in_use=channels_in_use, reference=reference,
+                           max_new_sensors=max_new_sensors)
     out = dict(axis)
     out.update(fit_axis(list(runs), target, found.terms, period_s, n_blocks, reference))
     out.update(found.report)
@@ -311,14 +313,18 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         baseline_validation = axis["metrics"]["validation_rmse_um"]
         axis["baseline_validation_rmse_um"] = baseline_validation
         axis["effects"] = []
-        # sensors other axes already wire cost no channel; new ones are settled below
+        # The channel budget is settled before the effects are judged: sensors the other axes
+        # wire (or will: their selections) cost no channel, and an effect may bring in only as
+        # many new sensors as channels are left, so no budget step removes it afterwards.
         others = channels_of({k: [Term.from_json(t) for t in a["terms"]]
-                               for k, a in axes.items()})
+                              for k, a in axes.items()})
+        others |= channels_of({k: t for k, (t, _) in selected.items() if k not in axes})
+        free = max(0, max_channels - len(others | channels_of({target: terms})))
         if effects:
             axis = axis_with_effects(axis, runs=runs, target=target, period_s=period_s,
                                      n_blocks=n_blocks, ambient=ambient,
                                      max_sensors=max_sensors, channels_in_use=sorted(others),
-                                     reference=ref)
+                                     reference=ref, max_new_sensors=free)
         # on long runs the search scores a thinned-out copy; the baseline figure is full-rate
         axis["baseline_validation_rmse_um"] = baseline_validation
         axes[target] = axis
