@@ -1,9 +1,15 @@
 """Load thermal test runs (CSV) into arrays, rejecting bad input with file, line and column.
 
-A run is a CSV file with a header row: ``time_s`` (strictly increasing seconds),
-temperature columns in degC, optional auxiliary columns (e.g. ``spindle_rpm``) and one or
-more displacement columns in micrometres. Which column plays which role is decided by the
+A run is a CSV file with a header row: ``time_s`` (strictly increasing seconds at one fixed
+period), temperature columns in degC, optional auxiliary columns (e.g. ``spindle_rpm``) and one
+or more displacement columns in micrometres. Which column plays which role is decided by the
 caller (``--target``, ``--sensors``, ``--aux``), never guessed from the values.
+
+Data loggers' dialects are read as well (``CsvFormat``: ``;`` or tab delimiters, decimal
+commas, ISO 8601 timestamps as time), sniffed unless given. What cannot be a thermal test run
+is refused, naming the cell (issue 14): a temperature outside its channel's valid range, a
+displacement or aux value beyond the box's int32, time in milliseconds, a gap in time (the
+filters would restart: cut the run there) and jitter (named with the period it implies).
 """
 
 from __future__ import annotations
@@ -220,6 +226,21 @@ def _number(src: _Source, text: str, line: int, column: str) -> float:
     return value
 
 
+def _numbers(src: _Source, cells: list[str], lines: list[int], column: str) -> np.ndarray:
+    """A column of cells as floats: numpy's parser when every cell is a plain finite number,
+    else cell by cell (empty/'nan' cells NaN; the first bad cell named)."""
+    try:
+        plain = [c.replace(",", ".") for c in cells] if src.decimal == "," else cells
+        if not any("." in c and "," in c for c in cells):
+            values = np.array(plain, dtype=float)
+            if np.isfinite(values).all():
+                return values
+    except ValueError:
+        pass
+    return np.array([_number(src, c, line, column) for c, line in zip(cells, lines, strict=True)],
+                    dtype=float)
+
+
 def _timestamps(src: _Source, cells: list[str], lines: list[int], column: str) -> np.ndarray:
     """ISO 8601 timestamps -> seconds since the first one (empty cells NaN)."""
     out = np.full(len(cells), math.nan)
@@ -342,8 +363,7 @@ def read_table(path: str | Path, fmt: CsvFormat | None = None
         if j == time_idx and cells and any(_is_timestamp(c) for c in cells[:1]):
             data[:, j] = _timestamps(src, cells, lines, name)
         else:
-            data[:, j] = [_number(src, c, line, name)
-                          for c, line in zip(cells, lines, strict=True)]
+            data[:, j] = _numbers(src, cells, lines, name)
     if time_idx is not None:
         header[time_idx] = TIME_COLUMN
     return header, data, np.array(lines, dtype=int)
