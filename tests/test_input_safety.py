@@ -348,11 +348,15 @@ def test_jitter_of_7_s_is_named_with_the_period_it_implies(tmp_path):
     assert "steps from 46 to 67 s" in msg and "resample the run to 60 s" in msg
 
 
-def test_time_in_milliseconds_is_named(tmp_path):
+@pytest.mark.parametrize("step_ms, seconds", [(60_000, 60), (1000, 1), (250, 0.25)])
+def test_time_in_milliseconds_is_named(tmp_path, step_ms, seconds):
     p = tmp_path / "ms.csv"
-    p.write_text(_with_time(_run_text(), lambda k, t: 60_000 * k))  # 1 min samples, in ms
+    n = N if step_ms >= 1000 else 6000  # 250 ms for 25 min: 17 "days" in seconds
+    rows = _run_text().splitlines()
+    rows = rows[:1] + [rows[1 + k % N] for k in range(n)]
+    p.write_text(_with_time("\n".join(rows) + "\n", lambda k, t: step_ms * k))
     msg = _refusal(p)
-    assert "time_s looks like milliseconds" in msg and "a step of 60 s" in msg
+    assert "time_s looks like milliseconds" in msg and f"a step of {seconds:g} s" in msg
 
 
 def test_a_five_minute_run_in_seconds_is_not_mistaken_for_milliseconds(tmp_path):

@@ -400,7 +400,9 @@ def _fill_gaps(path: Path, name: str, values: np.ndarray, time_s: np.ndarray,
 JITTER_TOLERANCE = 0.05
 GAP_FACTOR = 1.5
 MS_MIN_PERIOD = 100.0  # "seconds": time_s in ms has steps of 100..60000 for 0.1 s..1 min
-MS_MIN_SPAN_S = 14 * 86400.0  # ... and spans months; a thermal test lasts hours to days
+MS_MIN_SPAN_S = 14 * 86400.0  # ... and spans months; a thermal test lasts hours to days.
+# A step of a whole number of thousands (1000, 2000, 60000) is taken as whole seconds in ms
+# too: a thermal test does not sample every 16.7 minutes on the dot.
 TARGET_LIMIT_UM = INT32_MAX / 1000  # the box's correction is int32 nanometres
 AUX_LIMIT = float(INT32_MAX)  # the box's aux inputs are int32
 DEFAULT_TEMPERATURE_RANGE = (CHANNEL_MIN_C, CHANNEL_MAX_C)
@@ -415,7 +417,8 @@ def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray, fill_gaps: in
         return []
     period = float(np.median(steps))
     span = float(time_s[-1] - time_s[0])
-    if period >= MS_MIN_PERIOD and span >= MS_MIN_SPAN_S:
+    whole_seconds_in_ms = period >= 1000 and abs(period / 1000 - round(period / 1000)) < 1e-9
+    if (period >= MS_MIN_PERIOD and span >= MS_MIN_SPAN_S) or whole_seconds_in_ms:
         raise RunFormatError(
             path, f"time_s looks like milliseconds: steps of {period:g} and a span of "
             f"{span / 86400:.3g} days if these were seconds (a thermal test run lasts hours to "
@@ -436,7 +439,7 @@ def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray, fill_gaps: in
                 if k - 1 <= 10 and abs(ratio[g] - k) <= JITTER_TOLERANCE else "")
         raise RunFormatError(
             path, f"time_s jumps from {time_s[i - 1]:g} to {time_s[i]:g} s: a gap of "
-            f"{steps[g]:g} s, about {missing:.3g} missing samples of the {period:g} s period"
+            f"{steps[g]:g} s, about {missing:.4g} missing samples of the {period:g} s period"
             f"{f' ({more} more gaps after it)' if more > 0 else ''}. The model's filters and "
             "the box assume one sample every period, so a gap means they restart: cut the run "
             f"there (host split {path} --at-hours {time_s[i] / 3600:.6g}) and use the parts as "
@@ -506,8 +509,9 @@ def _check_temperatures(path: Path, name: str, values: np.ndarray, lines: np.nda
                 "give degC (subtract 273.15)")
     raise RunFormatError(
         path, f"{values[i]:g} degC is outside the thermocouple channel's valid range "
-        f"{lo:g}..{hi:g} degC ({bad.size} such cells): the box would read it as a fault; a "
-        f"sensor fault, a logger's error code or a wrong unit, not a temperature{hint}",
+        f"{lo:g}..{hi:g} degC ({bad.size} such cell{'s' if bad.size > 1 else ''}): the box "
+        "would read it as a fault; a sensor fault, a logger's error code or a wrong unit, not a "
+        f"temperature{hint}",
         line=int(lines[i]), column=name)
 
 
