@@ -407,7 +407,7 @@ class HalDriver:
         h["active"] = self.live_since is not None and not self.need_sync and enabled
         h["fault"] = comp.fault
         h["stale"] = comp.stale
-        h["holding"] = comp.fault or comp.stale or comp.info is None
+        h["holding"] = comp.fault or comp.stale or comp.rebooted or comp.info is None
         h["walking"] = comp.walking
         h["extrapolating"] = bool(status & EXTRAP)
         h["referenced"] = bool(status & REFERENCED)
@@ -416,7 +416,7 @@ class HalDriver:
         h["seq"] = _s32(comp.last_seq if comp.last_seq is not None else -1)
         h["bad-lines"], h["lost-lines"] = comp.bad_lines, comp.lost_lines
         h["holds"], h["restarts"] = comp.holds, comp.restarts
-        h["zero-acks"], h["zero-seq"] = comp.zero_acks, comp.zero_seq
+        h["zero-acks"], h["zero-seq"] = comp.zero_acks, _s32(comp.zero_seq)
         for a in self.cfg.axes:
             h[f"{a.letter}.offset"] = a.want * self.scale(a)
             h[f"{a.letter}.correction-nm"] = a.box_nm
