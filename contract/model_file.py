@@ -74,7 +74,9 @@ def model_hash(model: Mapping) -> str:
     axes: {name: {unit, intercept, terms[, max_step_um]}}}`` (docs/model-json.md); metrics,
     selection traces, the stored ``model_hash`` and the ``fixed_point`` block do not change it.
     A missing optional key hashes as ``null`` (``aux`` as ``[]``; ``max_step_um``, the box's
-    output step limit, is left out when absent so that older models keep their hash).
+    output step limit, is left out when absent so that older models keep their hash). The
+    top-level ``reference`` (what zero means; a ``start`` model's box zeroes at power-up) is
+    part of the function too, and likewise left out when absent.
     """
     core = {
         "sample_period_s": model.get("sample_period_s"),
@@ -88,6 +90,8 @@ def model_hash(model: Mapping) -> str:
             for name, ax in model.get("axes", {}).items()
         },
     }
+    if "reference" in model:
+        core["reference"] = model["reference"]
     text = json.dumps(core, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
@@ -384,6 +388,8 @@ def check_model(model: Any, where: str = "model", *, output_range: bool = True) 
         if time_max_s < 0:
             c.fail(f"time_max_s: {time_max_s!r} s must not be negative")
 
+    _check_reference(c, model.get("reference"))
+
     axes_raw = model.get("axes")
     if not isinstance(axes_raw, Mapping) or not axes_raw:
         c.fail("axes: the model has no axes (expected a non-empty object)")
@@ -398,6 +404,24 @@ def check_model(model: Any, where: str = "model", *, output_range: bool = True) 
                "states (contract.box.BOX_STATES)")
     return ModelSpec(period, tuple(channels), tuple(aux), time_max_s, tuple(axes),
                      model_hash(model))
+
+
+REFERENCE_KINDS = ("start", "none")
+
+
+def _check_reference(c: _Checker, ref: object) -> None:
+    """``reference`` (docs/model-json.md): absent/null (none), or {kind, samples}."""
+    if ref is None:
+        return
+    if not isinstance(ref, Mapping):
+        c.fail(f"reference: expected an object such as {{\"kind\": \"start\", \"samples\": 8}}, "
+               f"got {ref!r}")
+    kind = ref.get("kind")
+    if kind not in REFERENCE_KINDS:
+        c.fail(f"reference.kind: {kind!r} is not one of {', '.join(REFERENCE_KINDS)}")
+    samples = ref.get("samples", 1)
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        c.fail(f"reference.samples: expected a whole number of samples >= 1, got {samples!r}")
 
 
 def _check_axis(c: _Checker, name: object, ax: object, channels: list[ChannelSpec],

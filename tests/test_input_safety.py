@@ -96,6 +96,29 @@ def test_one_coefficient_digit_changed_is_refused_by_codegen_and_evaluate(files,
     assert code == 2
 
 
+def test_a_changed_reference_is_a_changed_model(files):
+    """start vs none decides whether the box zeroes at power-up: part of the hash."""
+    model, _ = files
+    doc = json.loads(model.read_text())
+    doc.pop("model_hash")
+    doc["reference"] = {"kind": "start", "samples": 8}
+    write_model(doc, model)
+    model.write_text(model.read_text().replace('"kind": "start"', '"kind": "none"'))
+    with pytest.raises(ModelHashError, match="model_hash"):
+        read_model(model)
+
+
+def test_codegen_says_when_a_model_has_no_hash_to_check(files, capsys):
+    model, _ = files
+    doc = json.loads(model.read_text())
+    code, err = _host(["codegen", model, "-o", model.with_name("a.h")], capsys)
+    assert code == 0 and "no model_hash" not in err
+    doc.pop("model_hash")
+    model.write_text(json.dumps(doc))
+    code, err = _host(["codegen", model, "-o", model.with_name("b.h")], capsys)
+    assert code == 0 and f"note: {model} carries no model_hash" in err
+
+
 def test_a_fixed_point_block_of_another_model_is_refused(files):
     model, _ = files
     doc = json.loads(model.read_text())
@@ -159,6 +182,10 @@ BAD_MODELS = [
      ["channels[0].channel", "integer index", "False"]),
     ("name", _edit(lambda m: m["axes"].update({"dz um": m["axes"].pop("dz_um")})),
      ["axes.dz um", "'dz um'", "1-32 characters"]),
+    ("reference kind", _edit(lambda m: m.update(reference={"kind": "Start", "samples": 8})),
+     ["reference.kind", "'Start'", "start, none"]),
+    ("reference samples", _edit(lambda m: m.update(reference={"kind": "start", "samples": "8"})),
+     ["reference.samples", "'8'"]),
 ]
 
 

@@ -39,6 +39,11 @@ def run(args: argparse.Namespace) -> int:
     except codegen.BoundError as exc:  # a failed check, not bad input: exit 1 (host/cli.py)
         print(f"host codegen: check failed: {exc}", file=sys.stderr)
         return 1
+    from contract.model_file import read_model, stored_hashes
+
+    if not stored_hashes(read_model(args.model)):
+        print(f"host codegen: note: {args.model} carries no model_hash (hand-written, or older "
+              "than the key): there was nothing to check its content against", file=sys.stderr)
     if args.json:
         print(json.dumps(block, indent=2))
         return 0
