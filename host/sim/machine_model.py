@@ -6,8 +6,8 @@ in um. ``s`` is the spindle speed as a fraction of max speed.
 
 Hidden nodes (``measured=False``) carry no thermocouple: the rotating spindle shaft, the bulk
 of the frame castings and the table body. They only move the tool when their effect is on
-(``host.sim.simulator``), so without effects the displacement is an exact linear function of the
-measured nodes, which is what a static linear model can learn.
+(``host.sim.injected_effects``), so without effects the displacement is an exact linear
+function of the measured nodes, which is what a static linear model can learn.
 """
 
 from __future__ import annotations

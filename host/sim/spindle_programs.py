@@ -145,6 +145,26 @@ def build_program(protocol: str, max_rpm: float = 8000.0, hours: float = 8.0,
     ``rpm`` sets the constant level (default 75 % of ``max_rpm``); ``levels`` (fractions of
     max speed) replace the step / random levels. Speeds are whole rpm, as S words are.
     """
+    _check_program(protocol, max_rpm, hours, cool_hours, levels)
+    run_s = hours * 3600.0
+    params: dict = {"hours": hours, "cool_hours": cool_hours}
+    if protocol == "constant":
+        pieces = _constant_pieces(run_s, max_rpm, rpm, params)
+    elif protocol == "step":
+        pieces = _step_pieces(run_s, max_rpm, levels or STEP_LEVELS, step_minutes, params)
+    elif protocol == "random":
+        pieces = _random_pieces(run_s, max_rpm, levels, seed, params)
+    else:
+        pieces = _sine_pieces(run_s, max_rpm, sine_period_h, sine_min_fraction, sine_stair_s,
+                              params)
+    segments = _merge(pieces, RUN, 0.0)
+    if cool_hours > 0:
+        segments += _merge([(cool_hours * 3600.0, 0.0)], COOL, run_s)
+    return SpindleProgram(protocol, float(max_rpm), tuple(segments), params)
+
+
+def _check_program(protocol: str, max_rpm: float, hours: float, cool_hours: float,
+                   levels: tuple[float, ...] | None) -> None:
     if protocol not in PROTOCOLS:
         raise ProgramError(f"unknown protocol '{protocol}' (known: {', '.join(PROTOCOLS)})")
     if not (math.isfinite(max_rpm) and max_rpm > 0):
@@ -156,55 +176,63 @@ def build_program(protocol: str, max_rpm: float = 8000.0, hours: float = 8.0,
     if levels is not None:
         for f in levels:
             _check_level(f * max_rpm, max_rpm, f"level {100 * f:g} %")
-    run_s = hours * 3600.0
-    params: dict = {"hours": hours, "cool_hours": cool_hours}
 
-    if protocol == "constant":
-        level = round(0.75 * max_rpm) if rpm is None else float(rpm)
-        _check_level(level, max_rpm, "constant speed (--rpm)")
-        pieces = [(run_s, float(level))]
-        params["rpm"] = float(level)
-    elif protocol == "step":
-        fracs = levels or STEP_LEVELS
-        if step_minutes <= 0:
-            raise ProgramError(f"step length must be positive (got {step_minutes:g} min)")
-        pieces = _fill([(step_minutes * 60.0, float(round(f * max_rpm))) for f in fracs], run_s)
-        params.update(levels=list(fracs), step_minutes=step_minutes)
-    elif protocol == "random":
-        fracs = levels or RANDOM_LEVELS
-        weights = np.array(RANDOM_WEIGHTS if levels is None else [1.0] * len(fracs), float)
-        rng = np.random.default_rng(seed)
-        pieces = []
-        t, last = 0.0, -1
-        while t < run_s - 1e-9:
-            choice = int(rng.choice(len(fracs), p=weights / weights.sum()))
-            if choice == last and len(fracs) > 1:
-                continue  # a new level each time, as the random test changes speed
-            minutes = float(rng.choice(RANDOM_MINUTES))
-            duration = min(minutes * 60.0, run_s - t)
-            pieces.append((duration, float(round(fracs[choice] * max_rpm))))
-            t += duration
-            last = choice
-        params.update(levels=list(fracs), seed=seed, minutes=list(RANDOM_MINUTES))
-    else:  # sine
-        if not 0 <= sine_min_fraction < 1:
-            raise ProgramError(f"sine minimum must be in [0, 1) of max speed "
-                               f"(got {sine_min_fraction:g})")
-        if sine_stair_s <= 0 or sine_period_h <= 0:
-            raise ProgramError("sine period and stair length must be positive")
-        period_s = sine_period_h * 3600.0
-        n = math.ceil(run_s / sine_stair_s - 1e-9)
-        pieces = []
-        for k in range(n):
-            duration = min(sine_stair_s, run_s - k * sine_stair_s)
-            mid = k * sine_stair_s + 0.5 * duration
-            frac = sine_min_fraction + (1 - sine_min_fraction) * 0.5 * (
-                1 - math.cos(2 * math.pi * mid / period_s))
-            pieces.append((duration, float(round(frac * max_rpm))))
-        params.update(period_h=sine_period_h, min_fraction=sine_min_fraction,
-                      stair_s=sine_stair_s)
 
-    segments = _merge(pieces, RUN, 0.0)
-    if cool_hours > 0:
-        segments += _merge([(cool_hours * 3600.0, 0.0)], COOL, run_s)
-    return SpindleProgram(protocol, float(max_rpm), tuple(segments), params)
+# The running part of each protocol as (duration, rpm) pieces; each records its parameters.
+
+def _constant_pieces(run_s: float, max_rpm: float, rpm: float | None, params: dict
+                     ) -> list[tuple[float, float]]:
+    level = round(0.75 * max_rpm) if rpm is None else float(rpm)
+    _check_level(level, max_rpm, "constant speed (--rpm)")
+    params["rpm"] = float(level)
+    return [(run_s, float(level))]
+
+
+def _step_pieces(run_s: float, max_rpm: float, fracs: tuple[float, ...], step_minutes: float,
+                 params: dict) -> list[tuple[float, float]]:
+    if step_minutes <= 0:
+        raise ProgramError(f"step length must be positive (got {step_minutes:g} min)")
+    params.update(levels=list(fracs), step_minutes=step_minutes)
+    return _fill([(step_minutes * 60.0, float(round(f * max_rpm))) for f in fracs], run_s)
+
+
+def _random_pieces(run_s: float, max_rpm: float, levels: tuple[float, ...] | None, seed: int,
+                   params: dict) -> list[tuple[float, float]]:
+    """Seeded levels and durations; a new level each time, as the random test changes speed."""
+    fracs = levels or RANDOM_LEVELS
+    weights = np.array(RANDOM_WEIGHTS if levels is None else [1.0] * len(fracs), float)
+    rng = np.random.default_rng(seed)
+    pieces = []
+    t, last = 0.0, -1
+    while t < run_s - 1e-9:
+        choice = int(rng.choice(len(fracs), p=weights / weights.sum()))
+        if choice == last and len(fracs) > 1:
+            continue
+        minutes = float(rng.choice(RANDOM_MINUTES))
+        duration = min(minutes * 60.0, run_s - t)
+        pieces.append((duration, float(round(fracs[choice] * max_rpm))))
+        t += duration
+        last = choice
+    params.update(levels=list(fracs), seed=seed, minutes=list(RANDOM_MINUTES))
+    return pieces
+
+
+def _sine_pieces(run_s: float, max_rpm: float, period_h: float, min_fraction: float,
+                 stair_s: float, params: dict) -> list[tuple[float, float]]:
+    """A raised cosine from ``min_fraction`` to full speed, in stairs of ``stair_s``."""
+    if not 0 <= min_fraction < 1:
+        raise ProgramError(f"sine minimum must be in [0, 1) of max speed "
+                           f"(got {min_fraction:g})")
+    if stair_s <= 0 or period_h <= 0:
+        raise ProgramError("sine period and stair length must be positive")
+    period_s = period_h * 3600.0
+    n = math.ceil(run_s / stair_s - 1e-9)
+    pieces = []
+    for k in range(n):
+        duration = min(stair_s, run_s - k * stair_s)
+        mid = k * stair_s + 0.5 * duration
+        frac = min_fraction + (1 - min_fraction) * 0.5 * (
+            1 - math.cos(2 * math.pi * mid / period_s))
+        pieces.append((duration, float(round(frac * max_rpm))))
+    params.update(period_h=period_h, min_fraction=min_fraction, stair_s=stair_s)
+    return pieces
