@@ -1,5 +1,8 @@
 """Stage 1 of codegen: model.json dict -> validated, already-quantised ``QModel``.
 
+Over 400 lines as one stage on purpose: validating model.json and quantising it are one pass
+(each check guards a number that is quantised next to it), in the order of docs/fixed-point.md.
+
 Everything numeric the header, the CRC, the error bound and the Python twin need is decided
 here, in exact rational arithmetic (``fractions.Fraction``), so that rendering is pure
 formatting and the twin evaluates exactly the tables the firmware gets. The rules are
@@ -380,6 +383,18 @@ def _parse_term(axis: str, j: int, t: Mapping, channels: Sequence[QChannel],
     coef = _number(t.get("coef"), f"{where}: coef")
     params = {k: float(v) for k, v in t.items()
               if k not in ("kind", "source", "coef") and isinstance(v, (int, float))}
+    index, lo, hi, param = _term_input(kind, source, where, channels, aux, time_max_samples)
+    param = _term_param(kind, t, where, lo, hi, param)
+    unit = Fraction(period_s) if kind == "time" else _X_UNIT[kind]
+    c = Fraction(coef) * 1000 * unit
+    return _RawTerm(j, kind, source, index, param, coef, c, _xmax(kind, lo, hi, param),
+                    label, params)
+
+
+def _term_input(kind: str, source: object, where: str, channels: Sequence[QChannel],
+                aux: Sequence[QAux], time_max_samples: int | None
+                ) -> tuple[int, int, int, int]:
+    """(input index, lowest and highest input value, time's parameter) of a term's source."""
     param = 0
     if kind in TEMPERATURE_KINDS:
         by_name = {c.sensor: c for c in channels}
@@ -402,7 +417,11 @@ def _parse_term(axis: str, j: int, t: Mapping, channels: Sequence[QChannel],
             raise CodegenError(f"{where}: the model needs time_max_s for a time term")
         index, lo, hi = 0, 0, 0
         param = time_max_samples
+    return index, lo, hi, param
 
+
+def _term_param(kind: str, t: Mapping, where: str, lo: int, hi: int, param: int) -> int:
+    """The term's integer parameter: a filter's alpha in 2^-30, a square's reference code."""
     if kind in FILTER_KINDS:
         alpha = _number(t.get("alpha"), f"{where}: alpha")
         a = Fraction(alpha) * (1 << ALPHA_FRAC_BITS)
@@ -424,11 +443,7 @@ def _parse_term(axis: str, j: int, t: Mapping, channels: Sequence[QChannel],
                                f"within {CODE_MIN / 128:g}..{CODE_MAX / 128:g} degC "
                                "(make it with contract.terms.make_square)")
         param = int(ref)
-
-    unit = Fraction(period_s) if kind == "time" else _X_UNIT[kind]
-    c = Fraction(coef) * 1000 * unit
-    return _RawTerm(j, kind, source, index, param, coef, c, _xmax(kind, lo, hi, param),
-                    label, params)
+    return param
 
 
 def _choose_shift(axis: str, c0: Fraction, raw: Sequence[_RawTerm]) -> tuple[int, int,

@@ -13,7 +13,7 @@ from fractions import Fraction
 import jinja2
 
 from codegen.bound import AxisBound
-from codegen.quantise import X_UNIT_TEXT, QModel, QTerm
+from codegen.quantise import X_UNIT_TEXT, QAux, QAxis, QChannel, QModel, QTerm
 from contract.box import HEADER_FORMAT
 from contract.fixed_point import INT32_MIN
 from contract.terms import FILTER_KINDS
@@ -104,25 +104,7 @@ def _term_view(t: QTerm, ax_prefix: str, model: QModel) -> dict:
 def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: str,
          zero_at_powerup: bool = False) -> dict:
     """Everything the template prints, as strings and flags."""
-    axes = []
-    for ax, b in zip(model.axes, bounds, strict=True):
-        prefix = f"TCM_AXIS{ax.index}"
-        axes.append({
-            "index": ax.index,
-            "name": ax.name,
-            "prefix": prefix,
-            "shift": ax.shift,
-            "n_terms": len(ax.terms),
-            "intercept_um": _num(ax.intercept_um),
-            "intercept_q_lit": c_int64(ax.intercept_q),
-            "terms": [_term_view(t, prefix, model) for t in ax.terms],
-            "bound": {k: _num(v) for k, v in b.to_json().items()},
-            "bound_pm": _ceil_pm(b.bound_exact_um),
-            "input_pm": _ceil_pm(sum((e.input_um for e in b.terms), Fraction(0))),
-            "max_step_lit": c_int32(ax.max_step_nm),
-            "max_step_um": _num(ax.max_step_nm / 1000),
-            "max_step_default": ax.max_step_source == "default",
-        })
+    axes = [_axis_view(ax, b, model) for ax, b in zip(model.axes, bounds, strict=True)]
     return {
         "codegen_version": codegen_version,
         "header_format": HEADER_FORMAT,
@@ -137,27 +119,8 @@ def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: st
         "n_axes": len(model.axes),
         "n_terms": model.n_terms,
         "n_states": model.n_states,
-        "channels": [{
-            "index": ch.index, "sensor": ch.sensor, "tc_type": ch.tc_type,
-            "min_c": _num(ch.min_c), "max_c": _num(ch.max_c),
-            "min_macro": f"TCM_CH{ch.index}_MIN_CODE", "max_macro": f"TCM_CH{ch.index}_MAX_CODE",
-            "min_lit": c_int32(ch.min_code), "max_lit": c_int32(ch.max_code),
-            "win_lo_macro": f"TCM_CH{ch.index}_WINDOW_LO",
-            "win_hi_macro": f"TCM_CH{ch.index}_WINDOW_HI",
-            "win_lo_lit": c_int32(ch.window_lo_code), "win_hi_lit": c_int32(ch.window_hi_code),
-            "win_lo_c": _num(ch.window_lo_code / 128), "win_hi_c": _num(ch.window_hi_code / 128),
-            "has_window": (ch.window_lo_code, ch.window_hi_code) != (ch.min_code, ch.max_code),
-            "step_macro": f"TCM_CH{ch.index}_MAX_STEP",
-            "step_lit": c_int32(ch.max_step_code),
-            "step_c": _num(ch.max_step_code / 128),
-            "step_default": ch.max_step_source == "default",
-        } for ch in model.channels],
-        "aux": [{
-            "index": a.index, "name": a.name,
-            "min_value": _num(a.min_value), "max_value": _num(a.max_value),
-            "min_macro": f"TCM_AUX{a.index}_MIN", "max_macro": f"TCM_AUX{a.index}_MAX",
-            "min_lit": c_int32(a.min), "max_lit": c_int32(a.max),
-        } for a in model.aux],
+        "channels": [_channel_view(ch) for ch in model.channels],
+        "aux": [_aux_view(a) for a in model.aux],
         "time_max": {"seconds": _num(model.time_max_s), "lit": c_int32(model.time_max_samples)}
         if any(t.kind == "time" for t in model.all_terms()) else None,
         "axes": axes,
@@ -167,6 +130,53 @@ def view(model: QModel, bounds: list[AxisBound], crc32: int, codegen_version: st
             "aux": "tcm_aux" if model.aux else "NULL",
             "terms": "tcm_terms" if model.n_terms else "NULL",
         },
+    }
+
+
+def _axis_view(ax: QAxis, b: AxisBound, model: QModel) -> dict:
+    prefix = f"TCM_AXIS{ax.index}"
+    return {
+        "index": ax.index,
+        "name": ax.name,
+        "prefix": prefix,
+        "shift": ax.shift,
+        "n_terms": len(ax.terms),
+        "intercept_um": _num(ax.intercept_um),
+        "intercept_q_lit": c_int64(ax.intercept_q),
+        "terms": [_term_view(t, prefix, model) for t in ax.terms],
+        "bound": {k: _num(v) for k, v in b.to_json().items()},
+        "bound_pm": _ceil_pm(b.bound_exact_um),
+        "input_pm": _ceil_pm(sum((e.input_um for e in b.terms), Fraction(0))),
+        "max_step_lit": c_int32(ax.max_step_nm),
+        "max_step_um": _num(ax.max_step_nm / 1000),
+        "max_step_default": ax.max_step_source == "default",
+    }
+
+
+def _channel_view(ch: QChannel) -> dict:
+    return {
+        "index": ch.index, "sensor": ch.sensor, "tc_type": ch.tc_type,
+        "min_c": _num(ch.min_c), "max_c": _num(ch.max_c),
+        "min_macro": f"TCM_CH{ch.index}_MIN_CODE", "max_macro": f"TCM_CH{ch.index}_MAX_CODE",
+        "min_lit": c_int32(ch.min_code), "max_lit": c_int32(ch.max_code),
+        "win_lo_macro": f"TCM_CH{ch.index}_WINDOW_LO",
+        "win_hi_macro": f"TCM_CH{ch.index}_WINDOW_HI",
+        "win_lo_lit": c_int32(ch.window_lo_code), "win_hi_lit": c_int32(ch.window_hi_code),
+        "win_lo_c": _num(ch.window_lo_code / 128), "win_hi_c": _num(ch.window_hi_code / 128),
+        "has_window": (ch.window_lo_code, ch.window_hi_code) != (ch.min_code, ch.max_code),
+        "step_macro": f"TCM_CH{ch.index}_MAX_STEP",
+        "step_lit": c_int32(ch.max_step_code),
+        "step_c": _num(ch.max_step_code / 128),
+        "step_default": ch.max_step_source == "default",
+    }
+
+
+def _aux_view(a: QAux) -> dict:
+    return {
+        "index": a.index, "name": a.name,
+        "min_value": _num(a.min_value), "max_value": _num(a.max_value),
+        "min_macro": f"TCM_AUX{a.index}_MIN", "max_macro": f"TCM_AUX{a.index}_MAX",
+        "min_lit": c_int32(a.min), "max_lit": c_int32(a.max),
     }
 
 

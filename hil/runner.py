@@ -12,7 +12,7 @@ answering is noticed within one window.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -163,75 +163,97 @@ def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), wind
     for e in events:
         if not isinstance(e, INPUT_EVENTS):
             before.setdefault(e.at, []).append(e)
-    lines = feed.feed_lines(codes)
-    sr_now: dict[int, int] = {}  # chip faults in force (physical: they survive a restart)
-    sessions: list[Session] = []
-    box = start_box(False)
-    session = Session(0, False)
-    sessions.append(session)
+    run = _Replay(feed.feed_lines(codes), start_box, window, chunk, timeout)
+    try:
+        run.session.info = run.box.link.command("INFO", b"$I,", timeout)
+        bar = iter(progress(range(n), desc=desc, total=n, quiet=quiet))
+        for point in sorted({*before, n}):
+            run.feed_until(point, bar)
+            for e in before.get(point, []):
+                run.apply(e, point)
+        for _ in bar:  # exhaust: closes the progress bar
+            pass
+        run.sync()
+        run.finish(kill=False)
+    except (LinkTimeout, BoxStartError) as exc:
+        # The box stopped answering, died while being fed, or did not boot again: the replay
+        # ends here and the checks report it (with everything received so far).
+        run.finish(kill=True)
+        said = run.box.last_words()
+        run.session.error = f"{exc} (the box said: {said})" if said else str(exc)
+    except BaseException:
+        run.box.kill()
+        raise
+    return Capture(run.sessions, codes.tolist(), n)
 
-    def sync() -> None:
+
+class _Replay:
+    """The box being fed, its session, and the chip faults in force, during one ``replay``."""
+
+    def __init__(self, lines: list[bytes], start_box: BoxFactory, window: int, chunk: int,
+                 timeout: float) -> None:
+        self.lines = lines
+        self.start_box = start_box
+        self.window = window
+        self.chunk = chunk
+        self.timeout = timeout
+        self.sr_now: dict[int, int] = {}  # chip faults in force (physical: survive a restart)
+        self.box = start_box(False)
+        self.session = Session(0, False)
+        self.sessions = [self.session]
+        self.pos = 0  # the next sample to feed
+
+    def sync(self) -> None:
         """Wait until every sample fed to this session has been answered."""
-        box.link.wait_prefixed(session.n_fed, timeout, f"sample line of sample "
-                               f"{session.first_sample + session.n_fed - 1}")
+        self.box.link.wait_prefixed(self.session.n_fed, self.timeout, f"sample line of sample "
+                                    f"{self.session.first_sample + self.session.n_fed - 1}")
 
-    def finish(s: Session, b: Box, kill: bool) -> None:
+    def finish(self, kill: bool) -> None:
+        s, b = self.session, self.box
         if kill:
             s.exit_code, s.power_cut = b.kill(), True
         else:
             s.exit_code = b.stop()
         s.lines = list(b.link.lines)
 
-    try:
-        session.info = box.link.command("INFO", b"$I,", timeout)
-        pos = 0
-        bar = iter(progress(range(n), desc=desc, total=n, quiet=quiet))
-        for point in sorted({*before, n}):
-            while pos < point:
-                take = min(chunk, point - pos)
-                # keep at most `window` samples in flight
-                box.link.wait_prefixed(session.n_fed + take - window, timeout,
-                                       f"the line of sample {pos + take - window}")
-                box.feed(b"".join(lines[pos:pos + take]))
-                session.n_fed += take
-                pos += take
-                for _ in range(take):
-                    next(bar, None)
-            for e in before.get(point, []):
-                if isinstance(e, ChipFault):
-                    sr_now[e.channel] = e.sr
-                    box.feed(f"F {e.channel} {e.sr:02x}\n".encode("ascii"))
-                elif isinstance(e, SerialNoise):
-                    sync()
-                    start = box.link.count()
-                    box.link.write(e.data)
-                    box.link.wait_count(start + e.replies, timeout,
-                                        f"{e.replies} replies to serial noise before sample "
-                                        f"{point}")
-                elif isinstance(e, Zero):
-                    sync()
-                    session.zero_acks.append(box.link.command("ZERO", b"$OK,ZERO,", timeout))
-                elif isinstance(e, Restart):
-                    sync()  # the power cut falls between two samples, not inside one
-                    finish(session, box, kill=True)
-                    box = start_box(e.wdt_reset)
-                    session = Session(point, e.wdt_reset)
-                    sessions.append(session)
-                    session.info = box.link.command("INFO", b"$I,", timeout)
-                    for ch, value in sorted(sr_now.items()):
-                        if value:
-                            box.feed(f"F {ch} {value:02x}\n".encode("ascii"))
-        for _ in bar:  # exhaust: closes the progress bar
-            pass
-        sync()
-        finish(session, box, kill=False)
-    except (LinkTimeout, BoxStartError) as exc:
-        # The box stopped answering, died while being fed, or did not boot again: the replay
-        # ends here and the checks report it (with everything received so far).
-        finish(session, box, kill=True)
-        said = box.last_words()
-        session.error = f"{exc} (the box said: {said})" if said else str(exc)
-    except BaseException:
-        box.kill()
-        raise
-    return Capture(sessions, codes.tolist(), n)
+    def feed_until(self, point: int, bar: Iterator[int]) -> None:
+        """Feed samples up to ``point`` in chunks, at most ``window`` of them in flight."""
+        while self.pos < point:
+            take = min(self.chunk, point - self.pos)
+            self.box.link.wait_prefixed(self.session.n_fed + take - self.window, self.timeout,
+                                        f"the line of sample {self.pos + take - self.window}")
+            self.box.feed(b"".join(self.lines[self.pos:self.pos + take]))
+            self.session.n_fed += take
+            self.pos += take
+            for _ in range(take):
+                next(bar, None)
+
+    def apply(self, e: Event, point: int) -> None:
+        """An event that happens between samples (before sample ``point``)."""
+        box, timeout = self.box, self.timeout
+        if isinstance(e, ChipFault):
+            self.sr_now[e.channel] = e.sr
+            box.feed(f"F {e.channel} {e.sr:02x}\n".encode("ascii"))
+        elif isinstance(e, SerialNoise):
+            self.sync()
+            start = box.link.count()
+            box.link.write(e.data)
+            box.link.wait_count(start + e.replies, timeout,
+                                f"{e.replies} replies to serial noise before sample {point}")
+        elif isinstance(e, Zero):
+            self.sync()
+            self.session.zero_acks.append(box.link.command("ZERO", b"$OK,ZERO,", timeout))
+        elif isinstance(e, Restart):
+            self.sync()  # the power cut falls between two samples, not inside one
+            self.restart(point, e.wdt_reset)
+
+    def restart(self, point: int, wdt_reset: bool) -> None:
+        """Power cut and boot: a new session; the chips' faults are still there."""
+        self.finish(kill=True)
+        self.box = self.start_box(wdt_reset)
+        self.session = Session(point, wdt_reset)
+        self.sessions.append(self.session)
+        self.session.info = self.box.link.command("INFO", b"$I,", self.timeout)
+        for ch, value in sorted(self.sr_now.items()):
+            if value:
+                self.box.feed(f"F {ch} {value:02x}\n".encode("ascii"))
