@@ -1,4 +1,4 @@
-"""Close-the-loop numbers (issue 7): held-out error before/after effects, per scenario.
+"""Close-the-loop numbers (the effect search): held-out error before/after effects, per scenario.
 
 Simulated: `host simulate` injects one effect (or none); `host train` learns on a ``step``
 run (6 h + 4 h cooling, 60 s) and is judged on a ``random`` run of another seed. Scenarios

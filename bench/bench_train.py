@@ -1,6 +1,6 @@
 """`host train` speed and memory: 64 sensors x 86,400 rows (24 h at 1 s) and 600 rows.
 
-Targets (issue 2): the large run in under 10 s and 1 GB on a 2-core machine, the small one in
+Targets: the large run in under 10 s and 1 GB on a 2-core machine, the small one in
 under 1 s. `host train` is timed in a fresh process (interpreter start and CSV parsing
 included), once with codegen and the effects search off (selection + fit + validation) and
 once as a user runs it by default (effects + codegen); its peak resident memory comes from

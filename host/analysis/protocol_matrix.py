@@ -7,8 +7,8 @@ from ``host.sim.simulator``; measured runs can be given instead (``--runs consta
 in which case a protocol with a single run is tested on that same run (marked in-sample).
 
 Training is ``host.train.train_model`` (the project's selection: paper 000 with out-of-fold
-validation), static by default like paper 002's regression; ``fit_effects`` lets issue 7's
-effect search add dynamic terms. Testing is ``host.analysis.evaluate.evaluate_model``.
+validation), static by default like paper 002's regression; ``fit_effects`` lets the effect
+search (``host.effects``) add dynamic terms. Testing is ``host.analysis.evaluate.evaluate_model``.
 """
 
 from __future__ import annotations

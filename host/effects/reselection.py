@@ -20,8 +20,6 @@ from host.selection import DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, select_sensors
 INPUT_KINDS = ("ambient", "speed")
 
 
-
-
 @dataclass(frozen=True)
 class Reselection:
     """How the baseline's sensors were selected, so an input's family can redo it.
@@ -86,33 +84,45 @@ def reselected_candidates(cands: Sequence[Candidate], cache: FeatureCache, y: np
     for src, variants in by_source.items():
         if any(t.source == src and t.kind != "temp" for t in current):
             continue  # this input already has its family in the model
-        fam_terms = list(dict.fromkeys(t for c in variants for t in c.add))
-        allcols = temps + [t for t in fixed if t not in temps] + fam_terms
-        index = {t: i for i, t in enumerate(allcols)}
-        gram = GramScorer(cache.matrix(allcols), y, groups)
-        every = [index[t] for t in temps + fixed if t in index]
-        best = min(variants, key=lambda c: gram.score(
-            list(dict.fromkeys(every + [index[t] for t in c.add])), []).validation_rmse_um)
-        Z = np.column_stack([np.ones(y.size), *(cache.column(t) for t in fixed),
-                             *(cache.column(t) for t in best.add)])
-        YX = np.column_stack([y, cache.matrix(temps)])
-        coef, *_ = np.linalg.lstsq(Z, YX, rcond=None)
-        R = YX - Z @ coef
-        result = select_sensors(R[:, 1:], R[:, 0], run_ids, groups, period_s,
-                                n_groups=how.n_groups, max_sensors=how.max_sensors,
-                                method=how.method, seed=how.seed, scheme=scheme)
-        chosen = [temps[i] for i in result.sensors]
-        chosen = _within_budget(chosen, best.add, fixed, gram, index, allowed_new,
-                                baseline_sources)
-        if chosen is None:
-            continue
-        add = tuple(best.add) + tuple(t for t in chosen if t not in current)
-        remove = tuple(t for t in current if t.kind == "temp" and t.source != ambient
-                       and t not in chosen)
-        if not remove and add == tuple(best.add):
-            continue  # the selection keeps its sensors: the plain family is already a candidate
-        out.append(Candidate(best.kind, add, remove, family=tuple(best.add)))
+        cand = _reselected_family(variants, cache, y, groups, run_ids, current, temps, fixed,
+                                  ambient, period_s, scheme, how, allowed_new, baseline_sources)
+        if cand is not None:
+            out.append(cand)
     return out
+
+
+def _reselected_family(variants: Sequence[Candidate], cache: FeatureCache, y: np.ndarray,
+                       groups: np.ndarray, run_ids: np.ndarray, current: Sequence[Term],
+                       temps: Sequence[Term], fixed: Sequence[Term], ambient: str | None,
+                       period_s: float, scheme: str, how: Reselection, allowed_new: int,
+                       baseline_sources: set[str]) -> Candidate | None:
+    """One input's candidate: its best family variant and the sensors re-selected without
+    it; None when the budget refuses it or the selection keeps the model's sensors."""
+    fam_terms = list(dict.fromkeys(t for c in variants for t in c.add))
+    allcols = list(temps) + [t for t in fixed if t not in temps] + fam_terms
+    index = {t: i for i, t in enumerate(allcols)}
+    gram = GramScorer(cache.matrix(allcols), y, groups)
+    every = [index[t] for t in [*temps, *fixed] if t in index]
+    best = min(variants, key=lambda c: gram.score(
+        list(dict.fromkeys(every + [index[t] for t in c.add])), []).validation_rmse_um)
+    Z = np.column_stack([np.ones(y.size), *(cache.column(t) for t in fixed),
+                         *(cache.column(t) for t in best.add)])
+    YX = np.column_stack([y, cache.matrix(temps)])
+    coef, *_ = np.linalg.lstsq(Z, YX, rcond=None)
+    R = YX - Z @ coef  # target and temperatures with the family and other effects removed
+    result = select_sensors(R[:, 1:], R[:, 0], run_ids, groups, period_s,
+                            n_groups=how.n_groups, max_sensors=how.max_sensors,
+                            method=how.method, seed=how.seed, scheme=scheme)
+    chosen = _within_budget([temps[i] for i in result.sensors], best.add, fixed, gram, index,
+                            allowed_new, baseline_sources)
+    if chosen is None:
+        return None
+    add = tuple(best.add) + tuple(t for t in chosen if t not in current)
+    remove = tuple(t for t in current if t.kind == "temp" and t.source != ambient
+                   and t not in chosen)
+    if not remove and add == tuple(best.add):
+        return None  # the selection keeps its sensors: the plain family is already a candidate
+    return Candidate(best.kind, add, remove, family=tuple(best.add))
 
 
 def _within_budget(chosen: list[Term], family: Sequence[Term], fixed: Sequence[Term],

@@ -1,4 +1,4 @@
-"""Close the loop (issue 7): find what the validation residual lacks and add it, validated.
+"""Close the loop: find what the validation residual lacks and add it, validated.
 
 A static model delta = C0 + sum Ci*Ti (paper 000) cannot represent thermal lag (pseudo-
 hysteresis), ambient drift, speed-dependent growth, a slow trend or a nonlinear rise. Each of
@@ -64,8 +64,6 @@ MAX_EFFECTS = 3
 TOP_RECORDED = 5  # candidates kept per step in the report
 
 
-
-
 @dataclass
 class EffectsResult:
     """Final terms and fit, and the report that goes into model.json's axis."""
@@ -118,16 +116,9 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
     rule = rule or Rule()
     if not runs:
         raise EffectsError("no runs")
-    kinds = set(kinds)
-    unknown = kinds - set(EFFECT_KINDS)
-    if unknown:
-        raise EffectsError(f"unknown effect kind(s) {sorted(unknown)} (known: "
-                           f"{', '.join(EFFECT_KINDS)})")
+    kinds = _checked_kinds(kinds)
     sensors = list(runs[0].sensor_names)
-    aux_names = list(runs[0].aux_names if aux is None else aux)
-    for name in aux_names:
-        if name not in runs[0].aux_names:
-            raise EffectsError(f"aux column '{name}' is not in {runs[0].path}")
+    aux_names = _checked_aux(runs[0], aux)
     ambient = find_ambient(sensors, ambient)
     shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
     taus = tau_grid(period_s, shortest, taus)
@@ -176,15 +167,7 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
         if not residual_structure(residual, y, groups, floor)["above_noise"]:
             break  # the residual is at the gauge's noise: no effect to look for
         n_tested += len(scored)
-        chosen: Scored | None = None
-        for s in preferred([s for s in scored if s.passes(ref, rule)]):
-            assert s.candidate is not None
-            trial = s.candidate.apply(terms)
-            fit = fit_linear(cache.matrix(trial), y)
-            s.codegen = fixed_point_refusal(trial, fit.coef, max_error_um)
-            if s.codegen is None:
-                chosen = s
-                break
+        chosen = _first_the_box_runs(scored, ref, rule, terms, cache, y, max_error_um)
         top = [candidate_row(s, ref) for s in scored[:TOP_RECORDED]]
         refused = [candidate_row(s, ref) for s in scored[TOP_RECORDED:] if s.codegen]
         steps.append({"validation_rmse_um": rounded(ref.validation_rmse_um, 4),
@@ -196,20 +179,7 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
         assert chosen.candidate is not None
         terms = chosen.candidate.apply(terms)
         fit = fit_linear(cache.matrix(terms), y)
-        added.append({
-            "kind": chosen.candidate.kind,
-            "feature": chosen.candidate.feature,
-            "name": chosen.candidate.feature,
-            "added": [t.to_json() for t in chosen.candidate.add],
-            **({"reselected": True} if chosen.candidate.family else {}),
-            **({"removed": [t.to_json() for t in chosen.candidate.remove]}
-               if chosen.candidate.remove else {}),
-            "evidence": chosen.evidence(ref),
-            "rmse_before_um": rounded(ref.validation_rmse_um, 4),
-            "rmse_after_um": rounded(chosen.validation_rmse_um, 4),
-            "intercept": float(fit.intercept),
-            "terms": _terms_json(terms, fit.coef),
-        })
+        added.append(_added_entry(chosen, ref, terms, fit.coef, fit.intercept))
 
     assert baseline_score is not None
     final = fit_linear(cache.matrix(terms), y)
@@ -228,9 +198,7 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
         "baseline": {"intercept": float(base_fit.intercept),
                      "terms": _terms_json(baseline, base_fit.coef)},
         "effects_search": {
-            "rule": (f"{rule.describe()}; searched only while the residual RMSE exceeds "
-                     f"{NOISE_MULTIPLE:g}x the gauge noise; at most {max_effects} effects; the "
-                     f"box's error bound must hold (<= {max_error_um:g} um)"),
+            "rule": _rule_text(rule, max_effects, max_error_um),
             "validation": scheme,
             "kinds": [k for k in EFFECT_KINDS if k in kinds],
             "ambient": ambient,
@@ -242,3 +210,62 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
         },
     }
     return EffectsResult(terms, final.coef, float(final.intercept), report)
+
+
+def _checked_kinds(kinds: Iterable[str]) -> set[str]:
+    kinds = set(kinds)
+    unknown = kinds - set(EFFECT_KINDS)
+    if unknown:
+        raise EffectsError(f"unknown effect kind(s) {sorted(unknown)} (known: "
+                           f"{', '.join(EFFECT_KINDS)})")
+    return kinds
+
+
+def _checked_aux(run: Run, aux: Sequence[str] | None) -> list[str]:
+    """The aux columns speed terms may use: ``aux``, or every aux column of the runs."""
+    names = list(run.aux_names if aux is None else aux)
+    for name in names:
+        if name not in run.aux_names:
+            raise EffectsError(f"aux column '{name}' is not in {run.path}")
+    return names
+
+
+def _first_the_box_runs(scored: Sequence[Scored], ref: Scored, rule: Rule, terms: list[Term],
+                        cache: FeatureCache, y: np.ndarray, max_error_um: float
+                        ) -> Scored | None:
+    """The preferred passing candidate the box can run within its error bound (step 4); the
+    refused ones keep their reason in ``codegen``."""
+    for s in preferred([s for s in scored if s.passes(ref, rule)]):
+        assert s.candidate is not None
+        trial = s.candidate.apply(terms)
+        fit = fit_linear(cache.matrix(trial), y)
+        s.codegen = fixed_point_refusal(trial, fit.coef, max_error_um)
+        if s.codegen is None:
+            return s
+    return None
+
+
+def _added_entry(chosen: Scored, ref: Scored, terms: list[Term], coefs: np.ndarray,
+                 intercept: float) -> dict:
+    """The report's record of an added effect, with the model's terms after it."""
+    cand = chosen.candidate
+    assert cand is not None
+    return {
+        "kind": cand.kind,
+        "feature": cand.feature,
+        "name": cand.feature,
+        "added": [t.to_json() for t in cand.add],
+        **({"reselected": True} if cand.family else {}),
+        **({"removed": [t.to_json() for t in cand.remove]} if cand.remove else {}),
+        "evidence": chosen.evidence(ref),
+        "rmse_before_um": rounded(ref.validation_rmse_um, 4),
+        "rmse_after_um": rounded(chosen.validation_rmse_um, 4),
+        "intercept": float(intercept),
+        "terms": _terms_json(terms, coefs),
+    }
+
+
+def _rule_text(rule: Rule, max_effects: int, max_error_um: float) -> str:
+    return (f"{rule.describe()}; searched only while the residual RMSE exceeds "
+            f"{NOISE_MULTIPLE:g}x the gauge noise; at most {max_effects} effects; the "
+            f"box's error bound must hold (<= {max_error_um:g} um)")
