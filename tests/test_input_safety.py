@@ -92,8 +92,6 @@ def test_one_coefficient_digit_changed_is_refused_by_codegen_and_evaluate(files,
     assert f"{model}: model_hash" in err and stored in err and actual in err
     code, err = _host(["evaluate", model, run], capsys)
     assert code == 2 and "does not match the model's content" in err
-    code, _ = _host(["evaluate", files[0].with_name("x.json"), run], capsys)
-    assert code == 2
 
 
 def test_a_changed_reference_is_a_changed_model(files):

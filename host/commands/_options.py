@@ -28,8 +28,8 @@ def add_fill_gaps(parser: argparse.ArgumentParser) -> None:
     """--fill-gaps N, and the run file format (--sep, --decimal, --time-col)."""
     add_format_arguments(parser)
     parser.add_argument("--fill-gaps", type=non_negative_int, default=0, metavar="N",
-                        help="interpolate interior gaps of at most N samples (default 0: "
-                        "reject every empty cell)")
+                        help="interpolate interior gaps of at most N samples: empty cells, "
+                        "and rows missing from the time grid (default 0: reject them)")
 
 
 _SEPARATORS = {"tab": "\t", "\\t": "\t", "comma": ",", "semicolon": ";", "space": " "}
