@@ -1,4 +1,4 @@
-"""Simulator speed: 24 h of 64 thermocouples at 1 s (issue target: under 10 s)."""
+"""Simulator speed: 24 h of 64 thermocouples at 1 s (target: under 10 s)."""
 
 from __future__ import annotations
 

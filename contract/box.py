@@ -26,7 +26,7 @@ ZERO_SAMPLES = 8  # a ZERO's reference is the mean of this many samples (BOX_ZER
 CHANNEL_MIN_C = -40.0  # default valid range of a thermocouple channel
 CHANNEL_MAX_C = 200.0
 
-# ---- Step limits (issue 14): how fast a channel and an axis output may physically change ----
+# ---- Step limits: how fast a channel and an axis output may physically change ----
 # host train derives them from the training runs (host/train/ranges.py) and stores them in
 # model.json (channels[i].max_step_c, axes[a].max_step_um); codegen writes them into the header
 # (max_step_code per channel, max_step_nm per axis) where the box applies them.

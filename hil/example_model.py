@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from contract import model_file as model_io
+from contract import model_file
 from contract.terms import Term, make_lag, make_rate, make_speed, make_temp
 from host.fitting import design_matrix
 from host.fitting.step_limits import add_step_limits
@@ -88,5 +88,5 @@ def fl_thermal_model(path: str | Path) -> dict:
 
 def write_model(model: dict, path: str | Path) -> Path:
     """contract.model_file.write_model (schema-checked, atomic), returning the path for chaining."""
-    model_io.write_model(model, path)
+    model_file.write_model(model, path)
     return Path(path)
