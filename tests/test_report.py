@@ -175,6 +175,12 @@ def test_html_embeds_every_figure_and_links_the_files(rendered):
     assert "Group refinement then swapped T16 → " in page and "(2.5 → 2.2 µm)" in page
     assert "<td>0.410</td><td>4.200</td>" in page  # box vs float and its bound, in nm
     assert "http://" not in page and "https://" not in page  # nothing to fetch
+    # the metrologist's tables: the equation, ISO 230-3 drift, the wiring sheet
+    assert "δ(ch3_um) = " in page and "·lag[τ=1800 s](T05)" in page
+    assert "Thermal drift (ISO 230-3)" in page
+    assert '<td>0</td><td class="l">T01</td><td class="l">type K</td>' in page
+    assert (rendered.out_dir / "wiring.csv").read_text().splitlines()[0].startswith(
+        "box_channel,sensor,tc_type,location")
 
 
 def test_runs_table_says_which_inputs_leave_the_training_range(example, rendered):
@@ -229,6 +235,15 @@ def test_summary_numbers_match_an_independent_computation(example, rendered):
             assert [s["rms_um"] for s in row["stages_rms_um"]] == pytest.approx(
                 [np.sqrt(np.mean(before ** 2)), np.sqrt(np.mean((col[axis] - pred) ** 2))],
                 rel=1e-6)
+    # ISO 230-3 drift of the measured ch3 on each run: its range, first hour, end - start
+    for path in example["runs"]:
+        table = np.loadtxt(path, delimiter=",", skiprows=1)
+        header = path.read_text().splitlines()[0].split(",")
+        t, y = table[:, 0], table[:, header.index("ch3_um")]
+        d = summary["runs"][path.stem]["ch3_um"]["drift"]["measured"]
+        assert d["max_um"] == pytest.approx(y.max() - y.min())
+        assert d["first_hour_um"] == pytest.approx(np.ptp(y[t <= t[0] + 3600]))
+        assert d["start_to_end_um"] == pytest.approx(y[-1] - y[0])
     ch3 = next(r for r in summary["axes"] if r["axis"] == "ch3_um")
     assert ch3["sensors"] == ["T01", "T05"]
     assert ch3["coefficients"] == 3

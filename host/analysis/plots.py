@@ -318,8 +318,10 @@ def hysteresis(run: str, axis: str, sensor: str, temperature: np.ndarray, measur
 
 
 def protocol_matrix(train_labels: Sequence[str], test_labels: Sequence[str],
-                    values: np.ndarray, metric: str) -> Figure:
-    """Heat map of a train-protocol × test-protocol error matrix, each cell written out."""
+                    values: np.ndarray, metric: str,
+                    spread: np.ndarray | None = None) -> Figure:
+    """Heat map of a train-protocol × test-protocol error matrix, each cell written out (with
+    ``± spread``, the standard deviation over repeats, when given)."""
     values = np.asarray(values, dtype=float)
     fig = Figure(figsize=(1.6 * len(test_labels) + 3.5, 1.0 * len(train_labels) + 2.5),
                  layout="constrained")
@@ -339,6 +341,8 @@ def protocol_matrix(train_labels: Sequence[str], test_labels: Sequence[str],
         for j in range(values.shape[1]):
             v = values[i, j]
             text = "—" if not np.isfinite(v) else f"{v:.2f}"
+            if spread is not None and np.isfinite(v) and np.isfinite(spread[i, j]):
+                text += f"\n± {spread[i, j]:.2f}"
             ax.text(j, i, text, ha="center", va="center", fontsize=10,
                     color="white" if np.isfinite(v) and v > middle else "black")
     ax.set_title("Which test protocol builds a model that holds on the others")

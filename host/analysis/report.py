@@ -13,6 +13,7 @@ import base64
 import csv
 import dataclasses
 import html
+import io
 import json
 import math
 import os
@@ -26,11 +27,12 @@ from contract.errors import InputError
 from contract.model_file import channel_ranges, read_model
 from contract.terms import TEMPERATURE_KINDS, Term
 from host.analysis import plots
+from host.analysis.metrology import coefficient_table, iso230_drift, wiring_rows
 from host.fitting import NO_REFERENCE, Reference, design_matrix, fit_linear
 from host.io import CsvFormat, Run, load_run, read_header
 from host.progress import progress
 from host.selection import default_max_lag
-from host.train import TOLERANCE_SHARE, outside_training, training_ranges
+from host.train import TOLERANCE_SHARE, input_units, outside_training, training_ranges
 
 
 class ReportError(InputError):
@@ -150,6 +152,8 @@ class ProtocolMatrix:
     test: list[str]
     values: np.ndarray
     metric: str
+    spread: np.ndarray | None = None  # standard deviation over repeats, same shape
+    verdict: dict | None = None  # `host compare-protocols`' winner (or none) and why
 
 
 def load_protocols(path: str | Path) -> ProtocolMatrix:
@@ -177,7 +181,15 @@ def load_protocols(path: str | Path) -> ProtocolMatrix:
         if values.shape != (len(train), len(test)):
             raise ReportError(f"{path}: matrix is {values.shape[0]}×{values.shape[1]} but there "
                               f"are {len(train)} train and {len(test)} test labels")
-        return ProtocolMatrix(train, test, values, str(data.get("metric", "RMSE (µm)")))
+        sd = (data.get("settings") or {}).get("mean_rmse_sd_over_repeats_um")
+        spread = None
+        if sd is not None:
+            spread = np.array([[math.nan if v is None else float(v) for v in row] for row in sd],
+                              dtype=float)
+            if spread.shape != values.shape:
+                spread = None
+        return ProtocolMatrix(train, test, values, str(data.get("metric", "RMSE (µm)")), spread,
+                              data.get("verdict"))
     rows = data.get("results", data.get("rows")) if isinstance(data, dict) else data
     if not isinstance(rows, list):
         raise ReportError(f"{path}: expected a 'matrix' or a list of result rows")
@@ -236,6 +248,7 @@ class Figure:
     title: str
     caption: str
     file: str
+    groups: list[dict] | None = None  # selection figures: paper 000's Table 1 beside it
 
 
 @dataclass
@@ -292,6 +305,7 @@ def summary_rows(model: dict) -> list[dict]:
             "axis": name, "sensors": sensors, "channels": channels,
             "coefficients": len(axis["terms"]) + 1,
             "error_bound_um": (fixed.get(name) or {}).get("bound_um"),
+            "input_quantisation_um": (fixed.get(name) or {}).get("input_quantisation_um"),
             "validation_rmse_um": val, "raw_rms_um": raw, "reduction_pct": reduction,
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             "effects": [e.get("name", "?") for e in axis.get("effects", [])
@@ -308,9 +322,14 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                  protocols: str | Path | None = None, peers: bool = True,
                  fill_gaps: int = 0, quiet: bool = False,
                  hil: list[str | Path] | None = None, fmt: CsvFormat | None = None,
-                 reference: str | None = None) -> Report:
-    """Render every figure and write ``out_dir/index.html``; inputs are all checked first."""
+                 reference: str | None = None,
+                 locations: str | Path | None = None) -> Report:
+    """Render every figure and write ``out_dir/index.html``; inputs are all checked first.
+
+    ``locations``: a CSV with columns ``sensor`` and ``location`` (where each thermocouple
+    sits on the machine) for the wiring sheet."""
     model = read_model(model_path)
+    where = load_locations(locations) if locations else {}
     ref = Reference.of_model(model)  # measured and predicted drift are judged alike
     if reference is not None and reference != ref.kind:
         ref = Reference.for_period(reference, float(model["sample_period_s"]))
@@ -385,6 +404,8 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
         elif kind == "runs":
             measured = run.target(axis_name)
             preds = {"our model": predict(axis["intercept"], axis["terms"], run, period, ref)}
+            drift = {"measured": iso230_drift(run.time_s, measured),
+                     "compensated": iso230_drift(run.time_s, measured - preds["our model"])}
             for peer_name, per_run in peer_models.items():
                 if (run.path, axis_name) in per_run:
                     preds[peer_name] = per_run[(run.path, axis_name)]
@@ -394,6 +415,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                 "raw_rms_um": plots.rms(measured),
                 "residual_rms_um": {k: plots.rms(measured - v) for k, v in preds.items()},
                 "in_training": _in_training(model, run),
+                "drift": drift,
             }
             title = f"{run.name}, {axis_name}"
             caption = ("Top: the measured displacement and what each model predicts from what "
@@ -462,13 +484,22 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             file = f"hysteresis_{_slug(run.name)}_{_slug(axis_name)}.png"
         else:  # protocols
             fig_obj = plots.protocol_matrix(matrix.train, matrix.test, matrix.values,
-                                            matrix.metric)
+                                            matrix.metric, matrix.spread)
             title = "Protocol comparison"
             caption = ("Each cell: a model trained on the row's protocol, judged on the "
                        "column's. A row that stays low everywhere is the protocol to run.")
+            if matrix.spread is not None:
+                caption += (" ± is the standard deviation over the repeats (other simulated "
+                            "days): a lead smaller than it is noise.")
+            if matrix.verdict and matrix.verdict.get("reason"):
+                caption += (" Verdict: " + ("winner " + html.escape(matrix.verdict["winner"])
+                                            + ": " if matrix.verdict.get("winner") else
+                                            "no winner: ")
+                            + html.escape(str(matrix.verdict["reason"])) + ".")
             file = "protocols.png"
         _save(fig_obj, out / file)
-        report.figures.append(Figure(kind, kind, title, caption, file))
+        report.figures.append(Figure(kind, kind, title, caption, file,
+                                     selection_groups(axis) if kind == "selection" else None))
 
     report.summary = {
         "model": str(model_path),
@@ -480,12 +511,67 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
     }
     if hil_results:
         report.summary["hil"] = hil_results
+    train_runs = training_runs(model)
+    units = input_units(model)
+    report.summary["coefficients"] = [
+        coefficient_table(name, axis, train_runs, period, units, ref)
+        for name, axis in model["axes"].items()] if train_runs else []
+    report.summary["wiring"] = wiring_rows(model, where)
+    report.summary["locations_given"] = bool(where)
+    _write_wiring_csv(out / "wiring.csv", report.summary["wiring"])
     if matrix is not None:
         report.summary["protocols"] = {"train": matrix.train, "test": matrix.test,
                                        "values": matrix.values.tolist(), "metric": matrix.metric}
     _write_atomic(out / "summary.json", json.dumps(report.summary, indent=2, default=_json_num))
     _write_atomic(report.index, render_html(model, report))
     return report
+
+
+def load_locations(path: str | Path) -> dict[str, str]:
+    """sensor -> where it sits on the machine, from a CSV with columns sensor, location."""
+    path = Path(path)
+    if not path.is_file():
+        raise ReportError(f"{path}: locations file not found")
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        fields = [f.strip().lower() for f in reader.fieldnames or []]
+        if "sensor" not in fields or "location" not in fields:
+            raise ReportError(f"{path}: needs the columns 'sensor' and 'location' (has: "
+                              f"{', '.join(reader.fieldnames or [])})")
+        out = {}
+        for n, row in enumerate(reader, start=2):
+            row = {k.strip().lower(): (v or "").strip() for k, v in row.items() if k}
+            if not row["sensor"]:
+                raise ReportError(f"{path}: line {n}: empty sensor name")
+            out[row["sensor"]] = row["location"]
+    return out
+
+
+def _write_wiring_csv(path: Path, rows: list[dict]) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(["box_channel", "sensor", "tc_type", "location", "axes", "trained_min_c",
+                "trained_max_c"])
+    for r in rows:
+        w.writerow([r["channel"], r["sensor"], r["tc_type"], r["location"] or "",
+                    " ".join(r["axes"]), r["trained_min_c"] if r["trained_min_c"] is not None
+                    else "", r["trained_max_c"] if r["trained_max_c"] is not None else ""])
+    _write_atomic(path, buf.getvalue())
+
+
+def training_runs(model: dict) -> list[Run]:
+    """The model's training runs with its axes and sensors, when readable here (else [])."""
+    training = model.get("training", {})
+    paths = [Path(p) for p in training.get("runs", [])]
+    if not paths or not all(p.is_file() for p in paths):
+        return []
+    needed = sorted({c["sensor"] for c in model["channels"]})
+    aux = [a["name"] for a in model.get("aux", [])]
+    try:
+        return [load_run(p, [a for a in model["axes"] if a in _header(p)], needed, aux)
+                for p in paths]
+    except (ValueError, InputError):
+        return []
 
 
 def _json_num(value):
@@ -729,23 +815,14 @@ def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, 
 
 # ---------------------------------------------------------------- HTML
 
-CSS = """
-body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:2em auto;
-max-width:1100px;padding:0 1em;color:#222;line-height:1.45}
-h1{font-size:1.7em;margin-bottom:.2em}h2{margin-top:2em;border-bottom:1px solid #ccc}
-table{border-collapse:collapse;margin:1em 0;font-size:.92em}
-th,td{border:1px solid #bbb;padding:.3em .6em;text-align:right}
-th{background:#f0f0f0}td.l,th.l{text-align:left}
-figure{margin:1.5em 0}figure img{max-width:100%;border:1px solid #ddd}
-figcaption{font-size:.92em;color:#444;max-width:900px}.meta{color:#666;font-size:.9em}
-"""
+TEMPLATES = Path(__file__).with_name("templates")
 
 
 def _status_counts_text(counts: dict | None) -> str:
     if not counts:
         return ""
-    text = " Status bits the box raised: " + html.escape(", ".join(
-        f"{name} on {n} sample{'s' if n != 1 else ''}" for name, n in counts.items())) + "."
+    text = " Status bits the box raised: " + ", ".join(
+        f"{name} on {n} sample{'s' if n != 1 else ''}" for name, n in counts.items()) + "."
     if "EXTRAP" in counts:
         text += (" EXTRAP: a reading beyond its training window, so the correction is an "
                  "extrapolation (still applied).")
@@ -764,109 +841,44 @@ def _beyond_text(rows: list[dict] | None) -> str:
         + f" ({r['samples_outside_pct']:.0f} % of the run)" for r in rows)
 
 
-def _cell(value, left: bool = False) -> str:
-    cls = ' class="l"' if left else ""
-    return f"<td{cls}>{value}</td>"
+def _environment():
+    import jinja2
 
-
-def _th(text: str, left: bool = False) -> str:
-    cls = ' class="l"' if left else ""
-    return f"<th{cls}>{text}</th>"
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(TEMPLATES)),
+                             autoescape=jinja2.select_autoescape(["html", "j2"]),
+                             trim_blocks=False)
+    env.filters["num"] = lambda v, digits=2: _fmt(v, digits)
+    env.filters["nm"] = lambda v: _fmt(None if v is None else v * 1000, 3)
+    env.filters["dropped_effect"] = lambda name: f"{name} (dropped: no box channel)"
+    env.globals["status_counts"] = _status_counts_text
+    env.globals["hil_checks"] = lambda hil: ", ".join(
+        f"{k} {'passed' if v else 'FAILED'}" for k, v in (hil.get("checks") or {}).items()) \
+        or "—"
+    return env
 
 
 def render_html(model: dict, report: Report) -> str:
-    e = html.escape
+    """The page, from ``templates/report.html.j2`` (jinja2, autoescaped; captions are built
+    escaped and marked safe)."""
     summary = report.summary
-    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-             '<meta name="viewport" content="width=device-width, initial-scale=1">',
-             "<title>Thermal compensation report</title>", f"<style>{CSS}</style></head><body>",
-             "<h1>Thermal-error compensation report</h1>",
-             f'<p class="meta">Model <code>{e(str(summary["model"]))}</code>'
-             + (f', hash <code>{e(summary["model_hash"])}</code>' if summary["model_hash"] else "")
-             + f', sample period {model["sample_period_s"]:g} s, '
-             f'{len(model["channels"])} channel(s), axes {e(", ".join(model["axes"]))}. '
-             f'Trained on: {e(", ".join(model.get("training", {}).get("runs", [])) or "?")}.</p>']
-
-    parts.append("<h2>Summary</h2><table><tr>"
-                 + "".join(_th(h, left=i < 2 or i == 9) for i, h in enumerate(
-                     ["axis", "sensors", "channels", "coefficients", "fixed-point bound (µm)",
-                      "validation RMSE before effects (µm)", "validation RMSE (µm)",
-                      "raw RMS (µm)", "reduction (%)", "effects"]))
-                 + "</tr>")
-    for row in summary["axes"]:
-        parts.append("<tr>" + _cell(e(row["axis"]), True) + _cell(e(", ".join(row["sensors"])),
-                                                                    True)
-                     + _cell(e(", ".join(str(c) for c in row["channels"])))
-                     + _cell(row["coefficients"]) + _cell(_fmt(row["error_bound_um"], 4))
-                     + _cell(_fmt(row["baseline_validation_rmse_um"]))
-                     + _cell(_fmt(row["validation_rmse_um"])) + _cell(_fmt(row["raw_rms_um"]))
-                     + _cell(_fmt(row["reduction_pct"], 1))
-                     + _cell(e(", ".join(row["effects"] + [
-                         f"{n} (dropped: no box channel)" for n in row["effects_dropped"]]))
-                         or "—", True) + "</tr>")
-    parts.append("</table>")
-    validations = {r["validation"] for r in summary["axes"] if r.get("validation")}
-    if validations:
-        parts.append(f'<p class="meta">Validation: {e(", ".join(sorted(validations)))}. '
-                     "Coefficients include the intercept. The bound is the largest difference "
-                     "between the box's integer arithmetic and the float model.</p>")
-
-    if summary["runs"]:
-        models = list(dict.fromkeys(m for per in summary["runs"].values() for a in per.values()
-                                    for m in a["residual_rms_um"]))
-        parts.append("<h2>Error on each run, before and after compensation</h2><table><tr>"
-                     '<th class="l">run</th><th class="l">axis</th><th>seen in training</th>'
-                     "<th>raw RMS (µm)</th>"
-                     + "".join(f"<th>{e(m)} RMS (µm)</th>" for m in models)
-                     + '<th class="l">inputs beyond their training range</th></tr>')
-        beyond = summary.get("outside_training", {})
-        for run_name, per in summary["runs"].items():
-            for axis_name, row in per.items():
-                parts.append("<tr>" + _cell(e(run_name), True) + _cell(e(axis_name), True)
-                             + _cell("yes" if row["in_training"] else "no")
-                             + _cell(_fmt(row["raw_rms_um"]))
-                             + "".join(_cell(_fmt(row["residual_rms_um"].get(m)))
-                                       for m in models)
-                             + _cell(e(_beyond_text(beyond.get(run_name))), True) + "</tr>")
-        parts.append("</table>")
-        parts.append('<p class="meta">Beyond its training range (by more than 5 % of the span) '
-                     "the model extrapolates: expect larger errors there. Figures: how far "
-                     "beyond, as a share of the input's training span, and the share of the "
-                     "run's samples out there.</p>")
-
-    for hil in summary.get("hil", []):
-        label = hil.get("data") or hil["file"]
-        checks = hil.get("checks", {})
-        parts.append(f"<h2>The box itself: HIL replay ({e(str(label))})</h2>"
-                     f'<p class="meta">The firmware built from this model ran on the native '
-                     f"board and was fed {hil.get('samples', '?')} samples; "
-                     f"{hil.get('mismatches', '?')} of its outputs differ from the integer twin, "
-                     f"{hil.get('lost', '?')} lines were lost, {hil.get('bad_lines', '?')} bad. "
-                     "Checks: " + e(", ".join(f"{k} {'passed' if v else 'FAILED'}"
-                                              for k, v in checks.items()) or "—") + "."
-                     + _status_counts_text(hil.get("status_counts")) + "</p>")
-        parts.append("<table><tr>" + "".join(_th(h, left=i == 0) for i, h in enumerate(
-            ["axis", "raw RMS (µm)", "box-compensated RMS (µm)", "max |box − float| (nm)",
-             "bound (nm)", "mismatches"])) + "</tr>")
-        for axis_name, a in hil["axes"].items():
-            diff, bound = a.get("float_max_diff_um"), a.get("bound_um")
-            parts.append("<tr>" + _cell(e(axis_name), True) + _cell(_fmt(a.get("raw_rms_um")))
-                         + _cell(_fmt(a.get("compensated_rms_um")))
-                         + _cell(_fmt(None if diff is None else diff * 1000, 3))
-                         + _cell(_fmt(None if bound is None else bound * 1000, 3))
-                         + _cell(a.get("mismatches", "—")) + "</tr>")
-        parts.append("</table>")
-
+    models = list(dict.fromkeys(m for per in summary["runs"].values() for a in per.values()
+                                for m in a["residual_rms_um"]))
+    sections = []
     for key, heading in SECTIONS:
         figs = [f for f in report.figures if f.section == key]
-        if not figs:
-            continue
-        parts.append(f"<h2>{e(heading)}</h2>")
-        for fig in figs:
-            data = base64.b64encode((report.out_dir / fig.file).read_bytes()).decode("ascii")
-            parts.append(f'<figure id="{e(Path(fig.file).stem)}">'
-                         f'<img src="data:image/png;base64,{data}" alt="{e(fig.title)}">'
-                         f"<figcaption><b>{e(fig.title)}.</b> {fig.caption} "
-                         f'(<a href="{e(fig.file)}">{e(fig.file)}</a>)</figcaption></figure>')
-    parts.append("</body></html>")
-    return "\n".join(parts) + "\n"
+        if figs:
+            sections.append({"heading": heading, "figures": [{
+                "stem": Path(f.file).stem, "file": f.file, "title": f.title,
+                "caption": f.caption, "groups": f.groups,
+                "data": base64.b64encode((report.out_dir / f.file).read_bytes()).decode("ascii"),
+            } for f in figs]})
+    context = {
+        "model": model, "summary": summary, "models": models, "sections": sections,
+        "validations": sorted({r["validation"] for r in summary["axes"] if r.get("validation")}),
+        "beyond": {name: _beyond_text(rows)
+                   for name, rows in summary.get("outside_training", {}).items()},
+        "coefficients": summary.get("coefficients") or [],
+        "wiring": summary.get("wiring") or [],
+        "locations_given": summary.get("locations_given", False),
+    }
+    return _environment().get_template("report.html.j2").render(**context)

@@ -25,6 +25,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="do not fit the peer models of `host compare`")
     add_fill_gaps(parser)
     add_reference_argument(parser, training=False)
+    parser.add_argument("--locations", metavar="CSV",
+                        help="where each thermocouple sits on the machine, for the wiring sheet "
+                        "(columns sensor, location)")
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON instead of text")
 
@@ -34,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
 
     report = build_report(args.model, args.runs, args.out, protocols=args.protocols,
                           peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json,
-                          hil=args.hil, fmt=csv_format(args), reference=args.reference)
+                          hil=args.hil, fmt=csv_format(args), reference=args.reference,
+                          locations=args.locations)
     if args.json:
         print(json.dumps({"index": str(report.index), **report.summary}, indent=2))
         return 0
