@@ -55,6 +55,8 @@ from pathlib import Path
 
 import numpy as np
 
+from contract.box import BOX_CHANNELS
+
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("THERMAL_SHARED_DATA", ROOT.parent / "shared" / "data"))
 SIM_DEV = SHARED / "sim_dev"
@@ -153,7 +155,12 @@ class Job:
     test: tuple[RunSpec, ...]
     targets: tuple[str, ...]
     reference: str  # "start" or "none"
-    per_target_models: bool = False  # one model per target (FL: one probe per model)
+    # (case group, one model per target?) per way of training ours on this data; the peers
+    # are fitted once and shared (FL: one probe per model, and all five probes on one box)
+    variants: tuple[tuple[str, bool], ...] = ()
+
+    def ours_variants(self) -> tuple[tuple[str, bool], ...]:
+        return self.variants or ((self.group, False),)
 
 
 @dataclass
@@ -167,6 +174,7 @@ class CaseResult:
     promised_um: dict[str, float] = field(default_factory=dict)  # ours -> validation RMSE
     n_terms: dict[str, int] = field(default_factory=dict)  # ours -> terms on this axis
     raw_um: float = math.nan  # scored error of predicting zero change
+    peer_sensors: dict[str, int] = field(default_factory=dict)  # peer -> sensors it reads
     notes: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -175,8 +183,19 @@ class CaseResult:
                   if p in self.rmse_um and not math.isnan(self.rmse_um[p])]
         return min(scored, key=lambda kv: kv[1]) if scored else ("", math.nan)
 
+    @property
+    def best_box_peer(self) -> tuple[str, float]:
+        """The best peer the box could run: at most BOX_CHANNELS thermocouples."""
+        scored = [(p, self.rmse_um[p]) for p in PEERS
+                  if p in self.rmse_um and not math.isnan(self.rmse_um[p])
+                  and self.peer_sensors.get(p, BOX_CHANNELS + 1) <= BOX_CHANNELS]
+        return min(scored, key=lambda kv: kv[1]) if scored else ("", math.nan)
+
     def ratio(self, column: str = "default") -> float:
         return self.rmse_um.get(column, math.nan) / self.best_peer[1]
+
+    def box_ratio(self, column: str = "default") -> float:
+        return self.rmse_um.get(column, math.nan) / self.best_box_peer[1]
 
 
 def sim_jobs(tmp: Path) -> list[Job]:
@@ -228,10 +247,9 @@ def fl_jobs() -> list[Job]:
     jobs = []
     for i, held in enumerate(cycles):
         train = tuple(c for j, c in enumerate(cycles) if j != i)
-        jobs.append(Job("fl", f"FL one probe, cycle {i + 1} out", train, (held,),
-                        tuple(FL_PROBES), "none", per_target_models=True))
-        jobs.append(Job("fl", f"FL 5 probes, cycle {i + 1} out", train, (held,),
-                        tuple(FL_PROBES), "none"))
+        jobs.append(Job("fl", f"FL cycle {i + 1} out", train, (held,), tuple(FL_PROBES), "none",
+                        ((f"FL one probe, cycle {i + 1} out", True),
+                         (f"FL 5 probes, cycle {i + 1} out", False))))
     return jobs
 
 
@@ -291,10 +309,20 @@ def peer_target(run, target: str, reference: str) -> np.ndarray:
 Predictor = Callable[[np.ndarray], np.ndarray]
 
 
+@dataclass
+class PeerFit:
+    """A fitted peer: its prediction from the features (None when skipped), whether it reads
+    the lag features, the thermocouples it reads and a note."""
+
+    predict: Predictor | None
+    lags: bool = False
+    n_sensors: int = 0
+    note: str = ""
+
+
 def fit_peers(X: np.ndarray, XL: np.ndarray, y: np.ndarray, folds: np.ndarray,
-              exhaustive_limit: int = EXHAUSTIVE_LIMIT
-              ) -> dict[str, tuple[Predictor | None, bool, str]]:
-    """peer -> (predict(features) or None when skipped, uses lag features, note)."""
+              exhaustive_limit: int = EXHAUSTIVE_LIMIT) -> dict[str, PeerFit]:
+    """Every peer fitted on the training features (``XL``: the sensors, then their lags)."""
     from sklearn.ensemble import HistGradientBoostingRegressor
     from sklearn.feature_selection import SequentialFeatureSelector
     from sklearn.linear_model import LassoCV, LinearRegression, RidgeCV
@@ -307,20 +335,22 @@ def fit_peers(X: np.ndarray, XL: np.ndarray, y: np.ndarray, folds: np.ndarray,
 
     cv = PredefinedSplit(folds)
     n = X.shape[1]
-    out: dict[str, tuple[Predictor | None, bool, str]] = {}
+    out: dict[str, PeerFit] = {}
 
-    def ols(cols: Sequence[int], note: str = "") -> tuple[Predictor, bool, str]:
-        idx = list(cols)
+    def ols(cols: Sequence[int], note: str = "") -> PeerFit:
+        idx = [int(i) for i in cols]
         fit = LinearRegression().fit(X[:, idx], y)
-        return (lambda F: fit.predict(F[:, idx])), False, note
+        return PeerFit(lambda F: fit.predict(F[:, idx]), False, len(idx), note)
 
-    out["OLS all"] = ols(range(n), f"{n} sensors")
+    def sensors_of(coef: np.ndarray) -> int:  # lag feature j belongs to sensor j % n
+        return int(np.unique(np.flatnonzero(np.abs(coef) > 0) % n).size)
+
+    out["OLS all"] = ols(range(n))
     order = np.argsort(-np.abs(pearson_r(X, y)), kind="stable")
     out["top-4 |r|"] = ols(order[:4])
     for k in (4, 5):
         if k >= n:
-            out[f"SFS-{k}"] = (None, False, "skipped: k >= sensors")
-            out[f"best-{k}"] = (None, False, "skipped: k >= sensors")
+            out[f"SFS-{k}"] = out[f"best-{k}"] = PeerFit(None, note="skipped: k >= sensors")
             continue
         sfs = SequentialFeatureSelector(LinearRegression(), n_features_to_select=k,
                                         direction="forward", cv=cv,
@@ -330,31 +360,38 @@ def fit_peers(X: np.ndarray, XL: np.ndarray, y: np.ndarray, folds: np.ndarray,
         if subsets <= exhaustive_limit:
             out[f"best-{k}"] = ols(best_subset(X, y, k), f"{subsets} subsets")
         else:
-            out[f"best-{k}"] = (None, False, f"skipped: C({n},{k}) = {subsets} subsets")
+            out[f"best-{k}"] = PeerFit(None, note=f"skipped: C({n},{k}) = {subsets} subsets")
     lasso = make_pipeline(StandardScaler(), LassoCV(cv=cv, max_iter=20000)).fit(X, y)
-    out["LassoCV"] = (lasso.predict, False,
-                      f"{int(np.count_nonzero(lasso[-1].coef_))} sensors")
+    out["LassoCV"] = PeerFit(lasso.predict, False, sensors_of(lasso[-1].coef_))
     ridge = make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 4, 15), cv=cv)
                           ).fit(XL, y)
-    out["ridge+lags"] = (ridge.predict, True, f"alpha {ridge[-1].alpha_:.3g}")
+    out["ridge+lags"] = PeerFit(ridge.predict, True, n, f"alpha {ridge[-1].alpha_:.3g}")
     lasso_l = make_pipeline(StandardScaler(), LassoCV(cv=cv, max_iter=20000)).fit(XL, y)
-    out["lasso+lags"] = (lasso_l.predict, True,
-                         f"{int(np.count_nonzero(lasso_l[-1].coef_))} of {XL.shape[1]} features")
+    out["lasso+lags"] = PeerFit(lasso_l.predict, True, sensors_of(lasso_l[-1].coef_),
+                                f"{int(np.count_nonzero(lasso_l[-1].coef_))} of {XL.shape[1]} "
+                                "features")
     step = max(1, X.shape[0] // HGB_MAX_ROWS)  # smooth thermal data: thinning costs little
     hgb = HistGradientBoostingRegressor(random_state=0).fit(X[::step], y[::step])
-    out["HGB"] = (hgb.predict, False, f"every {step}. training row" if step > 1 else "")
+    out["HGB"] = PeerFit(hgb.predict, False, n,
+                         f"every {step}. training row" if step > 1 else "")
     return out
 
 
 def _worker_init() -> None:
-    """One BLAS / OpenMP thread per worker process (the pool runs one worker per core)."""
+    """One BLAS / OpenMP thread per worker process (the pool runs one worker per core).
+
+    threadpoolctl limits only the libraries already loaded, so scikit-learn's OpenMP runtime
+    is loaded first: with two OpenMP threads per worker on a busy machine, gradient boosting
+    spins and takes 20x longer (80 s instead of 3 s for 600 x 25 rows, measured).
+    """
+    import sklearn.ensemble  # noqa: F401  (loads the OpenMP runtime)
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(1)
 
 
 def run_job(job: Job) -> tuple[list[dict], dict]:
-    """Train every column of one job and score each (test run, target); JSON-able rows."""
+    """Train every column of one job and score each (variant, test run, target)."""
     from host.fitting import fold_groups
     from host.train import train_model
 
@@ -363,29 +400,31 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
     train = [_load(s, targets) for s in job.train]
     test = [(s, _load(s, targets)) for s in job.test]
     period = train[0].period_s
-    cases = {(s.name, t): CaseResult(job.source, job.group, s.name, t, job.reference)
-             for s, _ in test for t in targets}
-    for (name, t), case in cases.items():
-        run = dict((s.name, r) for s, r in test)[name]
-        case.raw_um = score(run.target(t), np.zeros(run.n_samples), job.reference, period)
+    cases = {(g, s.name, t): CaseResult(job.source, g, s.name, t, job.reference)
+             for g, _ in job.ours_variants() for s, _ in test for t in targets}
+    runs = {s.name: r for s, r in test}
+    for (_, name, t), case in cases.items():
+        case.raw_um = score(runs[name].target(t), np.zeros(runs[name].n_samples),
+                            job.reference, period)
     timings: dict[str, float] = {}
     ref_kw = train_kwargs(job.reference)
 
-    groups = [[t] for t in targets] if job.per_target_models else [targets]
-    for column, kwargs in OURS.items():
-        for group in groups:
-            t0 = time.perf_counter()
-            model = train_model(train, group, aux=AUX, **ref_kw, **kwargs)
-            timings[f"train {column}"] = timings.get(f"train {column}", 0.0) + \
-                time.perf_counter() - t0
-            for s, run in test:
-                pred = raw_prediction(model, run)
-                for t in group:
-                    case = cases[(s.name, t)]
-                    axis = model["axes"][t]
-                    case.rmse_um[column] = score(run.target(t), pred[t], job.reference, period)
-                    case.promised_um[column] = float(axis["metrics"]["validation_rmse_um"])
-                    case.n_terms[column] = len(axis["terms"])
+    for variant, per_target in job.ours_variants():
+        for column, kwargs in OURS.items():
+            for group in ([[t] for t in targets] if per_target else [targets]):
+                t0 = time.perf_counter()
+                model = train_model(train, group, aux=AUX, **ref_kw, **kwargs)
+                key = f"train {column}" + (", per target" if per_target else "")
+                timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
+                for s, run in test:
+                    pred = raw_prediction(model, run)
+                    for t in group:
+                        case = cases[(variant, s.name, t)]
+                        axis = model["axes"][t]
+                        case.rmse_um[column] = score(run.target(t), pred[t], job.reference,
+                                                     period)
+                        case.promised_um[column] = float(axis["metrics"]["validation_rmse_um"])
+                        case.n_terms[column] = len(axis["terms"])
 
     folds, _ = fold_groups(train)
     X = np.vstack([peer_features(r, job.reference, False) for r in train])
@@ -395,13 +434,17 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
     t0 = time.perf_counter()
     for t in targets:
         y = np.concatenate([peer_target(r, t, job.reference) for r in train])
-        for peer, (fn, lags, note) in fit_peers(X, XL, y, folds).items():
+        for peer, fit in fit_peers(X, XL, y, folds).items():
             for s, F, FL, run in tests:
-                case = cases[(s.name, t)]
-                case.rmse_um[peer] = math.nan if fn is None else \
-                    score(run.target(t), fn(FL if lags else F), job.reference, period)
-                if note:
-                    case.notes[peer] = note
+                err = math.nan if fit.predict is None else \
+                    score(run.target(t), fit.predict(FL if fit.lags else F), job.reference,
+                          period)
+                for variant, _ in job.ours_variants():
+                    case = cases[(variant, s.name, t)]
+                    case.rmse_um[peer] = err
+                    case.peer_sensors[peer] = fit.n_sensors
+                    if fit.note:
+                        case.notes[peer] = fit.note
     timings["peers"] = time.perf_counter() - t0
     timings["job"] = time.perf_counter() - t_job
     return [asdict(c) for c in cases.values()], {"group": job.group, **timings}
@@ -424,6 +467,10 @@ def summarise(cases: list[CaseResult]) -> dict:
                for col in OURS},
             "default within 1.1x of best peer": sum(c.ratio() <= 1.1 for c in cs),
             "default beats best peer": sum(c.ratio() < 1.0 for c in cs),
+            "geomean default / best peer within the box": geomean([c.box_ratio() for c in cs]),
+            "best peer counts": dict(sorted(
+                {p: sum(c.best_peer[0] == p for c in cs) for p in PEERS}.items(),
+                key=lambda kv: -kv[1])),
         }
         ratios = [c.rmse_um["default"] / c.promised_um["default"] for c in cs
                   if c.promised_um.get("default", 0) > 0]
@@ -454,9 +501,11 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
              "lasso+lags": "lassoL", "HGB": "HGB"}
     head = (f"{'case':<42} {'axis':<6} {'ref':<5} {'raw':>6} "
             + " ".join(f"{short[c]:>6}" for c in cols)
-            + f" {'best peer':<11} {'d/peer':>6} {'promis':>6} {'t/prom':>6}")
-    lines = ["Held-out test RMSE (um); ours = deflt/noeff/paper; promised = default's "
-             "metrics.validation_rmse_um", head, "-" * len(head)]
+            + f" {'best peer':<11} {'d/peer':>6} {'d/box':>6} {'promis':>6} {'t/prom':>6}")
+    lines = ["Held-out test RMSE (um); ours = deflt/noeff/paper; raw = no compensation; "
+             "d/peer = default / best peer, d/box = default / best peer with <= "
+             f"{BOX_CHANNELS} sensors; promis = default's metrics.validation_rmse_um, "
+             "t/prom = test / promised", head, "-" * len(head)]
     source = None
     for c in cases:
         if c.source != source:
@@ -467,7 +516,7 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
         lines.append(f"{name[:42]:<42} {c.target.removesuffix('_um'):<6} {c.reference:<5} "
                      f"{_f(c.raw_um)} "
                      + " ".join(_f(c.rmse_um.get(col, math.nan)) for col in cols)
-                     + f" {best[0]:<11} {_f(c.ratio())} {_f(prom)} "
+                     + f" {best[0]:<11} {_f(c.ratio())} {_f(c.box_ratio())} {_f(prom)} "
                      f"{_f(c.rmse_um['default'] / prom if prom > 0 else math.nan)}")
     lines.append("")
     lines.append("Summary (geometric mean of ours / best peer per case; target <= 0.8 on "
@@ -477,7 +526,11 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
                      + ", ".join(f"{col} {s[f'geomean {col} / best peer']:.3f}" for col in OURS)
                      + f"; default within 1.1x of best peer in "
                      f"{s['default within 1.1x of best peer']}, beats it in "
-                     f"{s['default beats best peer']}")
+                     f"{s['default beats best peer']}; default / best peer the box can run "
+                     f"(<= {BOX_CHANNELS} sensors) "
+                     f"{s['geomean default / best peer within the box']:.3f}")
+        lines.append("           best peer: " + ", ".join(
+            f"{p} {n}" for p, n in s["best peer counts"].items() if n))
     worse = summary["loop_worse"]
     lines.append(f"The loop (default vs effects=False): worse by more than "
                  f"{100 * (LOOP_TOLERANCE - 1):.0f} % in {len(worse)} of {len(cases)} cases")

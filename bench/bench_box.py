@@ -43,7 +43,7 @@ def representative_cases():
     from bench import bench_accuracy as acc
 
     dev = next(j for j in acc.dev_jobs(big=False) if j.group.endswith("machine11 S1"))
-    fl = next(j for j in acc.fl_jobs() if j.group == "FL 5 probes, cycle 4 out")
+    fl = next(j for j in acc.fl_jobs() if j.group == "FL cycle 4 out")
     return dev, fl
 
 

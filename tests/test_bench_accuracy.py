@@ -84,12 +84,16 @@ def test_summary_geomean_loop_and_calibration():
         c.rmse_um = {"default": d, "no effects": noeff, "paper": d, "OLS all": peer,
                      "HGB": 2 * peer, "best-5": float("nan")}
         c.promised_um = {"default": promised}
+        c.peer_sensors = {"OLS all": 16, "HGB": 3, "best-5": 5}  # OLS on 16 cannot be wired
         return c
 
     cases = [case(1.0, 1.0, 2.0, 1.5), case(4.0, 3.0, 2.0, 1.0)]
     s = acc.summarise(cases)
     assert s["per_source"]["fl"]["geomean default / best peer"] == pytest.approx(1.0)
     assert cases[1].best_peer == ("OLS all", 2.0)
+    assert cases[1].best_box_peer == ("HGB", 4.0) and cases[1].box_ratio() == 1.0
+    assert s["per_source"]["fl"]["geomean default / best peer within the box"] == \
+        pytest.approx(np.sqrt(0.25 * 1.0))
     assert [w["default_um"] for w in s["loop_worse"]] == [4.0]
     assert s["calibration"]["fl"]["within factor 2"] == 1  # 1/1.5 yes, 4/1 no
     assert "loop" in acc.table(cases, s)
