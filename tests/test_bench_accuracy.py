@@ -20,8 +20,12 @@ def test_reference_is_the_running_mean_of_the_first_k_samples():
     np.testing.assert_allclose(acc.referenced(x[:2], 5), [0.0, 1.0])
     cols = np.column_stack([x, 2 * x])
     np.testing.assert_allclose(acc.referenced(cols, 2)[:, 1], 2 * acc.referenced(x, 2))
-    assert acc.reference_window(60.0) == 5 and acc.reference_window(15.0) == 20
-    assert acc.reference_window(3600.0) == 1
+    # the window is the project's (the box's ZERO window), the same at every period
+    from host.fitting.reference import Reference
+
+    for period in (15.0, 60.0):
+        assert acc.reference_window(period) == Reference.for_period("start", period).samples
+        np.testing.assert_allclose(acc.referenced(cols, 3), Reference("start", 3).apply(cols))
 
 
 def test_score_start_ignores_a_constant_offset_none_does_not():
@@ -62,20 +66,28 @@ def test_peer_test_rmse_equals_a_direct_numpy_fit(tmp_path):
     assert set(row["rmse_um"]) == set(acc.OURS) | set(acc.PEERS)
     assert timings["job"] > 0
 
+    k = acc.reference_window(60.0)
+
     def load(name):
         data = np.genfromtxt(tmp_path / name, delimiter=",", names=True)
         T = np.column_stack([data[f"T{i:02d}"] for i in range(1, 6)])
-        return acc.referenced(T, 5), acc.referenced(data["dz_um"], 5), data["dz_um"]
+        return acc.referenced(T, k), acc.referenced(data["dz_um"], k), data["dz_um"]
 
     (X0, y0, _), (X1, y1, _), (Xt, _, yt) = load("r0.csv"), load("r1.csv"), load("r2.csv")
     A = np.column_stack([np.vstack([X0, X1]), np.ones(2 * len(y0))])
     coef, *_ = np.linalg.lstsq(A, np.concatenate([y0, y1]), rcond=None)
     pred = np.column_stack([Xt, np.ones(len(yt))]) @ coef
-    direct = np.sqrt(np.mean((acc.referenced(pred, 5) - acc.referenced(yt, 5)) ** 2))
+    direct = np.sqrt(np.mean((acc.referenced(pred, k) - acc.referenced(yt, k)) ** 2))
     assert row["rmse_um"]["OLS all"] == pytest.approx(direct, rel=1e-6)
-    # the truth is a linear law of T01 and T04: the referenced peers recover it closely
-    assert row["rmse_um"]["best-4"] < 0.2
+    # the truth is a linear law of T01 and T04: the referenced peers remove most of the drift
+    assert row["rmse_um"]["best-4"] < 0.1 * row["raw_um"]
     assert row["raw_um"] > 10 * row["rmse_um"]["OLS all"]
+    assert row["promised_um"]["default"] > 0
+
+
+def test_promised_is_the_nested_error_when_training_reports_one():
+    assert acc.promised({"metrics": {"validation_rmse_um": 1.0}}) == 1.0
+    assert acc.promised({"metrics": {"validation_rmse_um": 1.0, "promised_rmse_um": 2.5}}) == 2.5
 
 
 def test_summary_geomean_loop_and_calibration():
