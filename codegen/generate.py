@@ -122,21 +122,20 @@ def load_model(path: str | Path) -> dict:
         raise CodegenError(str(exc)) from None
 
 
-def export_to_c(model, max_error_um: float = DEFAULT_MAX_ERROR_UM,
-                zero_at_powerup: bool = False) -> str:
+def export_to_c(model, max_error_um: float = DEFAULT_MAX_ERROR_UM, **options) -> str:
     """The firmware's model header (C text) for a model, the way m2cgen's ``export_to_c`` works.
 
     ``model`` is a model.json mapping, a path to one, or any object with a ``to_model_json()``
     method (``host.train.estimator.ThermalModel``, fitted). Raises :class:`BoundError` when the
     proven fixed-point error exceeds ``max_error_um`` and :class:`CodegenError` for a model the
     box cannot run. ``generate`` returns the same text with the fixed_point block and the
-    quantised model beside it.
+    quantised model beside it; ``options`` are generate's (e.g. ``zero_at_powerup``).
     """
     if hasattr(model, "to_model_json"):
         model = model.to_model_json()
     elif isinstance(model, str | Path):
         model = load_model(Path(model))
-    return generate(model, max_error_um, zero_at_powerup).text
+    return generate(model, max_error_um, **options).text
 
 
 def fixed_point_path(header_path: str | Path) -> Path:

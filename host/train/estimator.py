@@ -1,0 +1,155 @@
+"""The whole thermal model as a scikit-learn estimator (``ThermalModel``): selection, channel
+budget, effects and fit of ``host.train.train_model``, behind ``fit``/``predict``.
+
+Why: a user's own pipeline (unit conversion, resampling, a grid search over ``max_sensors``)
+can end in the model the box runs, and reach the box from Python:
+``codegen.export_to_c(ThermalModel(...).fit(X, y))`` is the firmware header, the way
+m2cgen's ``export_to_c`` turns a fitted estimator into C. Imported by name (it imports
+scikit-learn; ``host.train`` itself does not).
+
+Rows are samples in time order, ``period_s`` apart; the columns of ``X`` are the temperatures
+(°C) named by ``sensor_names``, then the auxiliary inputs named by ``aux_names`` (e.g. spindle
+speed). ``y`` is one displacement (µm) or several (one column per axis, named by
+``target_names``). ``groups`` (optional, one label per sample) marks separate runs: the
+dynamic terms restart at each run's first sample and validation leaves one run out, exactly
+as ``host train`` does with several CSV files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+from contract.box import BOX_CHANNELS
+from contract.errors import InputError
+from contract.terms import Term
+from host.fitting import Reference, design_matrix
+from host.io import Run
+from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS
+from host.train.pipeline import train_model
+
+
+class ThermalModel(RegressorMixin, BaseEstimator):
+    """``host train`` as a regressor: ``fit(X, y, groups=None)``, ``predict(X, groups=None)``,
+    ``to_model_json()``.
+
+    Fitted attributes: ``model_`` (the model.json dict), ``axes_`` (target names),
+    ``sensors_`` (the thermocouples the box reads), ``n_features_in_``.
+    """
+
+    def __init__(self, sensor_names: Sequence[str] | None = None,
+                 aux_names: Sequence[str] = (), target_names: Sequence[str] | None = None,
+                 period_s: float = 1.0, max_sensors: int = DEFAULT_MAX_SENSORS,
+                 n_groups: int = DEFAULT_GROUPS, selection: str = "validated",
+                 effects: bool = True, max_channels: int = BOX_CHANNELS,
+                 n_blocks: int = DEFAULT_BLOCKS, reference: str | None = None,
+                 random_state: int = 0) -> None:
+        self.sensor_names = sensor_names
+        self.aux_names = aux_names
+        self.target_names = target_names
+        self.period_s = period_s
+        self.max_sensors = max_sensors
+        self.n_groups = n_groups
+        self.selection = selection
+        self.effects = effects
+        self.max_channels = max_channels
+        self.n_blocks = n_blocks
+        self.reference = reference
+        self.random_state = random_state
+
+    # ---- helpers ---------------------------------------------------------------------------
+    def _names(self, n_features: int) -> tuple[list[str], list[str]]:
+        aux = list(self.aux_names)
+        n_temp = n_features - len(aux)
+        if n_temp < 1:
+            raise InputError(f"X has {n_features} columns, {len(aux)} of them aux: no "
+                             "temperature column left")
+        sensors = (list(self.sensor_names) if self.sensor_names is not None
+                   else [f"T{i + 1:02d}" for i in range(n_temp)])
+        if len(sensors) != n_temp:
+            raise InputError(f"sensor_names has {len(sensors)} names, X has {n_temp} "
+                             "temperature columns")
+        return sensors, aux
+
+    def _runs(self, X: np.ndarray, Y: np.ndarray | None, groups, targets: list[str]
+              ) -> list[Run]:
+        n = X.shape[0]
+        labels = np.zeros(n, dtype=int) if groups is None else np.asarray(groups)
+        if labels.shape != (n,):
+            raise InputError(f"groups must have one label per sample ({n}), got shape "
+                             f"{labels.shape}")
+        sensors, aux = self._names(X.shape[1])
+        runs = []
+        for k, g in enumerate(dict.fromkeys(labels.tolist())):
+            rows = np.flatnonzero(labels == g)
+            if np.any(np.diff(rows) != 1):
+                raise InputError(f"the samples of run {g!r} are not contiguous: give each "
+                                 "run's rows together, in time order")
+            t = np.arange(rows.size, dtype=float) * float(self.period_s)
+            disp = (Y[rows] if Y is not None else np.zeros((rows.size, len(targets))))
+            runs.append(Run(path=f"run{k + 1}", time_s=t, sensor_names=list(sensors),
+                            temperatures=X[rows, :len(sensors)], target_names=list(targets),
+                            displacements=disp, aux_names=list(aux),
+                            aux=X[rows, len(sensors):] if aux else None))
+        return runs
+
+    # ---- scikit-learn API ------------------------------------------------------------------
+    def fit(self, X, y, groups=None):
+        X, y = validate_data(self, X, y, y_numeric=True, multi_output=True, dtype=np.float64)
+        Y = y.reshape(-1, 1) if y.ndim == 1 else y
+        targets = (list(self.target_names) if self.target_names is not None
+                   else (["y"] if y.ndim == 1 else [f"y{i}" for i in range(Y.shape[1])]))
+        if len(targets) != Y.shape[1]:
+            raise InputError(f"target_names has {len(targets)} names, y has {Y.shape[1]} "
+                             "columns")
+        sensors, aux = self._names(X.shape[1])
+        runs = self._runs(X, Y, groups, targets)
+        kwargs = {} if self.reference is None else {"reference": self.reference}
+        self.model_ = train_model(runs, targets, sensors=sensors, aux=aux,
+                                  max_sensors=self.max_sensors, groups=self.n_groups,
+                                  effects=self.effects, selection=self.selection,
+                                  n_blocks=self.n_blocks, seed=self.random_state,
+                                  max_channels=self.max_channels, quiet=True, **kwargs)
+        self.axes_ = targets
+        self.sensors_ = [c["sensor"] for c in self.model_["channels"]]
+        self._single = y.ndim == 1
+        return self
+
+    def predict(self, X, groups=None):
+        """The float model's output per sample (µm): what the box computes, to within the
+        fixed-point bound, referenced as the model is (``start``: change since each run's
+        start); (n,) for one axis, (n, n_axes) for several."""
+        check_is_fitted(self, "model_")
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        runs = self._runs(X, None, groups, self.axes_)
+        ref = Reference.of_model(self.model_)
+        period = float(self.model_["sample_period_s"])
+        out = np.empty((X.shape[0], len(self.axes_)))
+        start = 0
+        for run in runs:
+            cols = run.columns()
+            for a, name in enumerate(self.axes_):
+                axis = self.model_["axes"][name]
+                terms = [Term.from_json(t) for t in axis["terms"]]
+                coefs = np.array([float(t["coef"]) for t in axis["terms"]])
+                M = design_matrix(terms, cols, period)
+                pred = float(axis["intercept"]) + (M @ coefs if coefs.size else 0.0)
+                out[start:start + run.n_samples, a] = ref.apply(pred)
+            start += run.n_samples
+        return out[:, 0] if self._single else out
+
+    def to_model_json(self) -> dict:
+        """The model.json dict (``contract.model_file.write_model`` writes it; codegen reads
+        it): what the box runs."""
+        check_is_fitted(self, "model_")
+        import copy
+
+        return copy.deepcopy(self.model_)
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.target_tags.multi_output = True
+        return tags

@@ -1,0 +1,110 @@
+"""The whole model as a scikit-learn estimator: the same model as `host train` on the same
+data, predictions written out by hand, runs restarting the filters, a Pipeline, and the header
+reached from Python (codegen.export_to_c)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sklearn.pipeline import Pipeline
+from sklearn.preprocessing import FunctionTransformer
+
+import codegen
+from host.io import load_run
+from host.train import train_model
+from host.train.estimator import ThermalModel
+
+ROOT = Path(__file__).resolve().parents[1]
+RUN = ROOT / "examples" / "sim_constant.csv"
+
+
+@pytest.fixture(scope="module")
+def data():
+    run = load_run(RUN, ["dz_um"])
+    return run, run.temperatures, run.target("dz_um")
+
+
+def lag(x: np.ndarray, alpha: float) -> np.ndarray:
+    """First-order lag written out: y0 = x0, y[n] = y[n-1] + alpha (x[n] - y[n-1])."""
+    y = np.empty_like(x)
+    y[0] = x[0]
+    for n in range(1, len(x)):
+        y[n] = y[n - 1] + alpha * (x[n] - y[n - 1])
+    return y
+
+
+def by_hand(model: dict, axis_name: str, run) -> np.ndarray:
+    """The model's output on a run, from its terms, with the start reference of docs/next-day:
+    minus the running mean of the first k outputs, frozen after them."""
+    axis = model["axes"][axis_name]
+    out = np.full(run.n_samples, float(axis["intercept"]))
+    for t in axis["terms"]:
+        x = run.column(t["source"])
+        if t["kind"] == "temp":
+            feature = x
+        elif t["kind"] == "lag":
+            feature = lag(x, t["alpha"])
+        elif t["kind"] == "rate":
+            feature = x - lag(x, t["alpha"])
+        else:
+            assert t["kind"] == "square", t
+            feature = (x - t["ref_c"]) ** 2
+        out += t["coef"] * feature
+    ref = model.get("reference") or {"kind": "none"}
+    if ref["kind"] == "start":
+        k = int(ref["samples"])
+        head = np.cumsum(out[:k]) / np.arange(1, k + 1)
+        out = out - np.r_[head, np.full(len(out) - k, head[-1])]
+    return out
+
+
+def test_same_model_as_host_train_and_predictions_by_hand(data):
+    run, X, y = data
+    est = ThermalModel(sensor_names=run.sensor_names, target_names=["dz_um"],
+                       period_s=run.period_s, effects=False).fit(X, y)
+    direct = train_model([RUN], ["dz_um"], effects=False)
+    assert est.model_["axes"]["dz_um"]["terms"] == direct["axes"]["dz_um"]["terms"]
+    model = est.to_model_json()
+    np.testing.assert_allclose(est.predict(X), by_hand(model, "dz_um", run), rtol=1e-10,
+                               atol=1e-9)
+    assert est.score(X, y - y[0]) > 0.9 or est.score(X, y) > 0.9
+
+
+def test_effect_terms_restart_with_each_run(data):
+    run, X, y = data
+    est = ThermalModel(sensor_names=run.sensor_names, period_s=run.period_s,
+                       max_sensors=3).fit(X, y)
+    assert est.model_["axes"]["y"]["terms"], "no term at all"
+    half = len(y) // 2
+    groups = np.r_[np.zeros(half, int), np.ones(len(y) - half, int)]
+    both = est.predict(X, groups=groups)
+    np.testing.assert_allclose(both[:half], est.predict(X[:half]))
+    np.testing.assert_allclose(both[half:], est.predict(X[half:]))  # filters start afresh
+
+
+def test_in_a_pipeline_and_on_to_the_box(data):
+    run, X, y = data
+    kelvin = X + 273.15
+    pipe = Pipeline([("to_celsius", FunctionTransformer(lambda k: k - 273.15)),
+                     ("model", ThermalModel(sensor_names=run.sensor_names, effects=False,
+                                            period_s=run.period_s, max_sensors=3))])
+    pipe.fit(kelvin, y)
+    alone = ThermalModel(sensor_names=run.sensor_names, effects=False, period_s=run.period_s,
+                         max_sensors=3).fit(X, y)
+    np.testing.assert_allclose(pipe.predict(kelvin), alone.predict(X), atol=1e-6)
+    # the same sensors and terms (the Kelvin round trip moves the data by float rounding only)
+    assert [t["source"] for t in pipe.named_steps["model"].model_["axes"]["y"]["terms"]] == \
+        [t["source"] for t in alone.model_["axes"]["y"]["terms"]]
+    header = codegen.export_to_c(pipe.named_steps["model"])
+    assert header == codegen.generate(pipe.named_steps["model"].to_model_json()).text
+    assert "#define" in header
+
+
+def test_bad_shapes_are_refused(data):
+    run, X, y = data
+    with pytest.raises(ValueError, match="sensor_names has 2 names"):
+        ThermalModel(sensor_names=["a", "b"]).fit(X, y)
+    with pytest.raises(ValueError, match="not contiguous"):
+        ThermalModel(effects=False).fit(X, y, groups=np.arange(len(y)) % 2)
