@@ -28,6 +28,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from host.train import dropped_reason
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = Path("examples")
 BUILD = Path("build")
@@ -128,9 +130,9 @@ def print_training(demo: Demo, doc: dict, model: dict) -> None:
         spec = model["axes"][axis]
         base = spec.get("baseline_validation_rmse_um")
         effects = [e.get("name", "?") for e in spec.get("effects", [])
-                   if not e.get("dropped_for_channels")]
+                   if not dropped_reason(e)]
         dropped = [e.get("name", "?") for e in spec.get("effects", [])
-                   if e.get("dropped_for_channels")]
+                   if dropped_reason(e)]
         line = (f"    {axis}: sensors {', '.join(row['sensors'])}; validation RMSE "
                 f"{fmt_um(row['validation_rmse_um'])} of {fmt_um(row['raw_rms_um'])} raw")
         if effects:

@@ -27,11 +27,11 @@ def _run(seed: int, n: int = 400) -> Run:
 def test_union_of_axes_is_capped_at_the_box_channel_count():
     runs = [_run(1), _run(2)]
     wide = train_model(runs, ["dx_um", "dy_um", "dz_um"], max_sensors=4, effects=False,
-                       nested=False)
+                       fit="ols", nested=False)
     wanted = {t["source"] for a in wide["axes"].values() for t in a["terms"]}
     assert len(wanted) > 5  # the axes alone want more than the budget below
     free = train_model(runs, ["dx_um", "dy_um", "dz_um"], max_sensors=4, effects=False,
-                       max_channels=5, nested=False)
+                       max_channels=5, fit="ols", nested=False)
     assert len(free["channels"]) == 5
     used = {t["source"] for a in free["axes"].values() for t in a["terms"]}
     assert used == {c["sensor"] for c in free["channels"]}
@@ -48,15 +48,16 @@ def test_union_of_axes_is_capped_at_the_box_channel_count():
 
 
 def test_budget_leaves_axes_alone_when_it_fits():
-    model = train_model([_run(1), _run(2)], ["dx_um"], max_sensors=4, effects=False, nested=False)
+    model = train_model([_run(1), _run(2)], ["dx_um"], max_sensors=4, effects=False,
+                        fit="ols", nested=False)
     assert "channel_budget" not in model["axes"]["dx_um"]["selection"]
 
 
 def test_impossible_budgets_are_refused():
     with pytest.raises(TrainingError, match="--max-sensors 5 exceeds --max-channels 4"):
-        train_model([_run(1)], ["dx_um"], max_sensors=5, max_channels=4, nested=False)
+        train_model([_run(1)], ["dx_um"], max_sensors=5, max_channels=4, fit="ols", nested=False)
     with pytest.raises(TrainingError, match="--max-channels must be 1..8"):
-        train_model([_run(1)], ["dx_um"], max_channels=9, nested=False)
+        train_model([_run(1)], ["dx_um"], max_channels=9, fit="ols", nested=False)
 
 
 def test_the_budget_is_settled_before_the_effects_and_never_removes_one(tmp_path):
@@ -71,7 +72,7 @@ def test_the_budget_is_settled_before_the_effects_and_never_removes_one(tmp_path
     run = tmp_path / "train.csv"
     assert main(["simulate", "--protocol", "step", "--hours", "6", "--cool-hours", "4", "--dt",
                  "60", "--seed", "0", "--effects", "ambient", "-o", str(run)]) == 0
-    assert main(["train", "--no-nested",
+    assert main(["train", "--fit", "ols", "--no-nested",
                  str(run), "--target", "dy_um", "--target", "dz_um", "--aux",
                  "spindle_rpm", "--out", str(tmp_path / "m"), "--no-codegen", "--json"]) == 0
     model = json.loads((tmp_path / "m" / "model.json").read_text())

@@ -62,7 +62,7 @@ def machine_run(seed: int, hours: float = 10.0, speed_um_per_krpm: float = 0.0) 
 @pytest.fixture(scope="module")
 def model():
     return train_model([machine_run(1)], ["dz_um"], aux=["spindle_rpm"], max_sensors=3,
-                       nested=False)
+                       fit="ols", nested=False)
 
 
 def with_sensor(run: Run, sensor: str, values: np.ndarray) -> Run:

@@ -455,7 +455,7 @@ def test_cli_no_effects_and_ambient_option(tmp_path):
     for flag in ("--no-effects", "--ambient=T_amb"):
         out = io.StringIO()
         with contextlib.redirect_stdout(out):
-            assert main(["train", "--no-nested",
+            assert main(["train", "--fit", "ols", "--no-nested",
                          *common, flag, "--out", str(tmp_path / flag[2:6])]) == 0
         docs[flag] = json.loads(out.getvalue())["axes"]["dz_um"]
     bare, full = docs["--no-effects"], docs["--ambient=T_amb"]
@@ -467,6 +467,6 @@ def test_cli_no_effects_and_ambient_option(tmp_path):
     assert model["axes"]["dz_um"]["effects_search"]["ambient"] == "T_amb"
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
-        assert main(["train", "--no-nested",
+        assert main(["train", "--fit", "ols", "--no-nested",
                      *common, "--ambient", "air_c", "--out", str(tmp_path / "x")]) == 2
     assert "--ambient air_c" in err.getvalue()

@@ -63,11 +63,13 @@ class Scenario:
         self.truth = load_truth(self.test_csv)
         targets = DZ_ONLY if effect in SINGLE_AXIS else TARGETS
         # absolute values (reference none): these cases test the search on the effects' shapes
-        host("train", "--no-nested", str(self.train_csv), *targets, "--no-effects", "--no-codegen",
+        host("train",
+             "--fit", "ols", "--no-nested",
+             str(self.train_csv), *targets, "--no-effects", "--no-codegen",
              "--reference", "none",
              "--out", str(d / "baseline"))
         # with effects, codegen runs too: train fails if the box could not run the model
-        self.summary = json.loads(host("train", "--no-nested",
+        self.summary = json.loads(host("train", "--fit", "ols", "--no-nested",
                                        str(self.train_csv), *targets, "--json",
                                        "--reference", "none",
                                        "--out", str(d / "effects")))

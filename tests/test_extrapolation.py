@@ -40,7 +40,9 @@ def trained(tmp_path_factory):
     _write(paths["train"], 400, 1.0, 1)
     _write(paths["hot"], 300, 1.5, 2)  # 50 % more heat than training
     _write(paths["mild"], 300, 0.6, 3)  # stays inside
-    assert main(["train", "--no-nested", str(paths["train"]), "--target", "dz_um", "--groups", "3",
+    assert main(["train",
+                 "--fit", "ols", "--no-nested",
+                 str(paths["train"]), "--target", "dz_um", "--groups", "3",
                  "--out", str(d / "m"), "--no-codegen", "--no-effects", "--json"]) == 0
     return paths, d / "m" / "model.json"
 
@@ -120,7 +122,7 @@ def test_the_hotter_fl_cycle_leaves_the_training_range(tmp_path, capsys):
     """Real data: the 5000 rpm cycle (24-32 h) heats the machine beyond the first three."""
     assert main(["split", str(FL), "--at-hours", "24", "-o", str(tmp_path), "--json"]) == 0
     first, second = (Path(p) for p in json.loads(capsys.readouterr().out)["parts"])
-    assert main(["train", "--no-nested",
+    assert main(["train", "--fit", "ols", "--no-nested",
                  str(first), "--target", "ch3_um", "--out", str(tmp_path / "m"),
                  "--no-codegen", "--no-effects", "--json"]) == 0
     capsys.readouterr()

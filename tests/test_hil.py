@@ -263,7 +263,7 @@ def test_box_flags_extrapolation_on_the_hotter_fl_cycle(tmp_path):
     reading of a wired channel leaves the training window carries EXTRAP, and only those; the
     window is recomputed here from docs/protocol.md's rule, exactly, from the CSV files."""
     first, second = split_file(FL, [24 * 3600.0], tmp_path)
-    model = train_model([first], ["ch3_um"], effects=False, nested=False)
+    model = train_model([first], ["ch3_um"], effects=False, fit="ols", nested=False)
     model_path = write_model(model, tmp_path / "model.json")
     report, _ = hil_replay.run(hil_replay.prepare(model_path, second, tmp_path / "hil"))
     assert report.ok and report.status_mismatches == 0, report.problems

@@ -62,7 +62,7 @@ def test_nested_validation_is_refit_without_each_run_and_predicts_it():
 
     def train_fold(sub):
         seen.append([r.path for r in sub])
-        return terms
+        return terms + [make_lag("T1", 1800.0, PERIOD)], terms  # with an "effect", baseline
 
     res = nested_validation(runs, "dz_um", train_fold, aux=[], period_s=PERIOD, n_blocks=3,
                             reference=NO_REFERENCE, max_states=0)
@@ -74,8 +74,11 @@ def test_nested_validation_is_refit_without_each_run_and_predicts_it():
         beta = np.linalg.lstsq(A, np.concatenate([r.target("dz_um") for r in tr]), rcond=None)[0]
         pred = beta[0] + runs[k].temperatures[:, :2] @ beta[1:]
         expect = np.sqrt(np.mean((runs[k].target("dz_um") - pred) ** 2))
-        assert res.fold_rmse_um["ols"][k] == pytest.approx(expect, rel=1e-6)
-    assert res.rms("ols") == pytest.approx(np.sqrt(np.mean(np.square(res.fold_rmse_um["ols"]))))
+        assert res.fold_rmse_um["baseline"][k] == pytest.approx(expect, rel=1e-6)
+    assert set(res.fold_rmse_um) == {"ols", "baseline", "ridge", "ridge-baseline"}
+    assert all(len(v) == 3 for v in res.fold_rmse_um.values())
+    assert res.rms("baseline") == pytest.approx(
+        np.sqrt(np.mean(np.square(res.fold_rmse_um["baseline"]))))
 
 
 def test_ridge_basis_spends_only_the_states_it_is_given():
@@ -102,3 +105,13 @@ def test_train_promises_a_nested_error_and_the_box_runs_either_family():
         codegen.generate(model)  # the fixed-point bound holds for what was chosen
     assert axis["fit"]["family"] == "ridge" and states > 0
     assert Reference.of_model(model).kind == "start"
+
+
+def test_a_dead_sensor_is_never_selected():
+    """A thermocouple stuck at one value carries no signal (and a condition number of inf)."""
+    runs = [_run("a", 1), _run("b", 2)]
+    for r in runs:
+        r.temperatures[:, 0] = 21.0  # T1, the strongest driver, is dead in training
+    model = train_model(runs, ["dz_um"], effects=False, groups=3, max_sensors=2, fit="ols",
+                        nested=False)
+    assert "T1" not in {t.get("source") for t in model["axes"]["dz_um"]["terms"]}

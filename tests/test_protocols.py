@@ -53,7 +53,7 @@ def test_each_cell_is_the_rmse_of_that_model_on_that_run(comparison, sim_runs):
     from host.train import train_model
 
     model = train_model([sim_runs["constant"][0]], AXES, max_sensors=3, groups=4,
-                        effects=False, nested=False)
+                        effects=False, fit="ols", nested=False)
     for col, path in ((1, sim_runs["step"][1]), (0, sim_runs["constant"][1])):
         run = load_run(path, AXES)
         for k, axis in enumerate(AXES):

@@ -57,7 +57,8 @@ def runs() -> list[Run]:
 
 def test_model_fits_and_metrics_match_numpy(runs):
     model = train_model(runs, ["dz_um", "dy_um"], effects=False, groups=4,
-                        reference="none", nested=False)  # the least-squares arithmetic itself
+                        reference="none",
+        fit="ols", nested=False)  # the least-squares arithmetic itself
     assert model["schema"] == "thermal-model/1" and model["sample_period_s"] == 60.0
     for axis in ("dz_um", "dy_um"):
         spec = model["axes"][axis]
@@ -88,34 +89,35 @@ def test_model_fits_and_metrics_match_numpy(runs):
 
 
 def test_channels_are_the_union_in_column_order_and_can_be_overridden(runs):
-    model = train_model(runs, ["dz_um", "dy_um"], effects=False, groups=4, nested=False)
+    model = train_model(runs, ["dz_um", "dy_um"], effects=False, groups=4, fit="ols", nested=False)
     used = sorted({t["source"] for a in model["axes"].values() for t in a["terms"]})
     assert [c["sensor"] for c in model["channels"]] == used  # column order = name order here
     assert [c["channel"] for c in model["channels"]] == list(range(len(used)))
     last = used[-1]
     model2 = train_model(runs, ["dz_um", "dy_um"], effects=False, groups=4,
-                         channels={last: 0}, nested=False)
+                         channels={last: 0}, fit="ols", nested=False)
     wiring = {c["sensor"]: c["channel"] for c in model2["channels"]}
     assert wiring[last] == 0
     assert sorted(wiring.values()) == list(range(len(used)))
     with pytest.raises(TrainingError, match="no axis uses sensor 'T99'"):
-        train_model(runs, ["dz_um"], effects=False, groups=4, channels={"T99": 0}, nested=False)
+        train_model(runs, ["dz_um"], effects=False, groups=4, channels={"T99": 0},
+                    fit="ols", nested=False)
 
 
 def test_paper_and_validated_methods_are_both_available(runs):
     for method in ("paper", "validated"):
         model = train_model(runs, ["dz_um"], effects=False, groups=4, selection=method,
-                            nested=False)
+                            fit="ols", nested=False)
         sel = model["axes"]["dz_um"]["selection"]
         assert sel["method"] == method
         assert len(sel["ec_curve"]) == len(sel["representatives"])
         assert 1 <= sel["chosen_count"] <= 5
     with pytest.raises(TrainingError, match="unknown --selection"):
-        train_model(runs, ["dz_um"], selection="magic", nested=False)
+        train_model(runs, ["dz_um"], selection="magic", fit="ols", nested=False)
 
 
 def test_model_roundtrip_and_atomic_write(runs, tmp_path):
-    model = train_model(runs, ["dz_um"], effects=False, groups=4, nested=False)
+    model = train_model(runs, ["dz_um"], effects=False, groups=4, fit="ols", nested=False)
     path = tmp_path / "out" / "model.json"
     write_model(model, path)
     assert read_model(path)["axes"]["dz_um"]["terms"] == model["axes"]["dz_um"]["terms"]
@@ -129,7 +131,8 @@ def test_model_roundtrip_and_atomic_write(runs, tmp_path):
 
 def test_evaluate_metrics_recomputed_independently(runs):
     model = train_model(runs[:1], ["dz_um"], effects=False, groups=4,
-                        reference="none", nested=False)  # the least-squares arithmetic itself
+                        reference="none",
+        fit="ols", nested=False)  # the least-squares arithmetic itself
     test = _run("c.csv", _power("sine", 500) * 0.8, 3)
     result = evaluate_model(model, test)
     spec = model["axes"]["dz_um"]
@@ -157,7 +160,9 @@ def test_cli_train_json_shape_and_evaluate(runs, tmp_path, capsys):
     for run, p in zip(runs, paths, strict=True):
         _write(run, p)
     out = tmp_path / "build"
-    code = main(["train", "--no-nested", *map(str, paths), "--target", "dz_um", "--target", "dy_um",
+    code = main(["train",
+                 "--fit", "ols", "--no-nested",
+                 *map(str, paths), "--target", "dz_um", "--target", "dy_um",
                  "--groups", "4", "--out", str(out), "--no-codegen", "--json"])
     assert code == 0
     doc = json.loads(capsys.readouterr().out)
@@ -175,10 +180,12 @@ def test_cli_train_json_shape_and_evaluate(runs, tmp_path, capsys):
 def test_cli_errors_are_clear(runs, tmp_path, capsys):
     p = tmp_path / "a.csv"
     _write(runs[0], p)
-    assert main(["train", "--no-nested", str(p), "--target", "nope_um", "--no-codegen"]) == 2
+    assert main(["train",
+                 "--fit", "ols", "--no-nested", str(p), "--target", "nope_um", "--no-codegen"]) == 2
     assert "column 'nope_um'" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
-        main(["train", "--no-nested", str(p), "--target", "dz_um", "--channel", "T01=x"])
+        main(["train",
+              "--fit", "ols", "--no-nested", str(p), "--target", "dz_um", "--channel", "T01=x"])
     assert exc.value.code == 2 and "SENSOR=INDEX" in capsys.readouterr().err
     assert main(["evaluate", str(tmp_path / "missing.json"), str(p)]) == 2
     assert "model file not found" in capsys.readouterr().err
@@ -211,7 +218,9 @@ def test_end_to_end_fl_thermal_split_train_evaluate(tmp_path, capsys):
     assert first.time_s[-1] < 24 * 3600 <= second.time_s[0]
     np.testing.assert_allclose(second.temperatures, whole.temperatures[first.n_samples:])
     out = tmp_path / "model"
-    assert main(["train", "--no-nested", str(parts[0]), "--target", "ch3_um", "--out", str(out),
+    assert main(["train",
+                 "--fit", "ols", "--no-nested",
+                 str(parts[0]), "--target", "ch3_um", "--out", str(out),
                  "--reference", "none", "--no-codegen", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["axes"]["ch3_um"]["sensors"]
@@ -236,7 +245,7 @@ def test_end_to_end_simulated_machine_other_speed_profile(tmp_path, capsys):
         paths[name] = tmp_path / f"sim_{name}.csv"
         write_run(paths[name], run.time_s, run.columns)
     out = tmp_path / "model"
-    assert main(["train", "--no-nested",
+    assert main(["train", "--fit", "ols", "--no-nested",
                  str(paths["constant"]), "--target", "dz_um", "--target", "dy_um",
                  "--out", str(out), "--no-codegen", "--json"]) == 0
     capsys.readouterr()
@@ -256,7 +265,8 @@ def test_example_simulations_train_on_two_protocols_judge_on_random(selection):
     if not all(p.is_file() for p in paths):
         pytest.skip("example simulations not generated (make examples)")
     axes = ["dx_um", "dy_um", "dz_um"]
-    model = train_model(paths[:2], axes, effects=False, selection=selection, nested=False)
+    model = train_model(paths[:2], axes, effects=False, selection=selection,
+                        fit="ols", nested=False)
     test = load_run(paths[2], axes, model["training"]["sensors"])
     result = evaluate_model(model, test)["axes"]
     k = model["reference"]["samples"]

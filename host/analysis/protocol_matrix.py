@@ -228,7 +228,7 @@ def compare_protocols(runs: Mapping[str, Sequence[str | Path]], targets: Sequenc
             train_run = loaded[rows[i]][0]
             model_cache[i] = train_model([train_run], targets, sensors=sensors, aux=aux,
                                          max_sensors=max_sensors, groups=groups,
-                                         effects=fit_effects, quiet=True, nested=False,
+                                         effects=fit_effects, quiet=True, fit="ols", nested=False,
                                          **train_kwargs)  # many trainings: no nested folds
             models[rows[i]] = {
                 "run": train_run.path,

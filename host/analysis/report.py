@@ -32,7 +32,14 @@ from host.fitting import NO_REFERENCE, Reference, design_matrix, fit_linear
 from host.io import CsvFormat, Run, load_run, read_header
 from host.progress import progress
 from host.selection import default_max_lag
-from host.train import TOLERANCE_SHARE, input_units, outside_training, training_ranges
+from host.train import (
+    TOLERANCE_SHARE,
+    box_model_note,
+    dropped_reason,
+    input_units,
+    outside_training,
+    training_ranges,
+)
 
 
 class ReportError(InputError):
@@ -88,7 +95,8 @@ def dropped_sensors(axis: dict) -> list[str]:
 def effect_label(effect: dict) -> str:
     """An effect's name, marked when the channel budget took it out of the box's model."""
     name = str(effect.get("name", effect.get("kind", "?")))
-    return f"{name} (dropped: no box channel)" if effect.get("dropped_for_channels") else name
+    why = dropped_reason(effect)
+    return f"{name} (dropped: {why})" if why else name
 
 
 def most_important_sensor(axis: dict, run: Run, period_s: float) -> str | None:
@@ -309,9 +317,9 @@ def summary_rows(model: dict) -> list[dict]:
             "validation_rmse_um": val, "raw_rms_um": raw, "reduction_pct": reduction,
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             "effects": [e.get("name", "?") for e in axis.get("effects", [])
-                        if not e.get("dropped_for_channels")],
+                        if not dropped_reason(e)],
             "effects_dropped": [e.get("name", "?") for e in axis.get("effects", [])
-                                if e.get("dropped_for_channels")],
+                                if dropped_reason(e)],
             "sensors_dropped": dropped_sensors(axis),
             "validation": metrics.get("validation"),
         })
@@ -741,18 +749,17 @@ def effect_stages(axis: dict, axis_name: str, run: Run, period: float,
                                                       run, period, reference)})
     for effect in axis.get("effects", []):
         if "terms" in effect and "intercept" in effect:
-            dropped = bool(effect.get("dropped_for_channels"))
+            why = dropped_reason(effect)
+            dropped = why is not None
             name = effect.get("name", effect.get("kind", "?"))
-            stages.append({"label": f"+ {name}" + (" (dropped: no box channel)" if dropped
-                                                   else ""),
+            stages.append({"label": f"+ {name}" + (f" (dropped: {why})" if dropped else ""),
                            "name": name, "evidence": effect_evidence(effect),
                            "dropped": dropped, "box": False,
                            "residual": measured - predict(effect["intercept"], effect["terms"],
                                                           run, period, reference)})
-    after = axis.get("channel_budget_after_effects")
-    if stages and after:
-        stages.append({"label": "the box's model (after the channel budget dropped "
-                                + ", ".join(after.get("dropped_terms") or []) + ")",
+    note = box_model_note(axis)
+    if stages and note:
+        stages.append({"label": f"the box's model ({note})",
                        "evidence": "", "dropped": False, "box": True,
                        "residual": measured - predict(axis["intercept"], axis["terms"], run,
                                                       period, reference)})

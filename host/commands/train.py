@@ -14,7 +14,7 @@ from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
 from host.io import load_runs
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
-from host.train import DEFAULT_FIT, FITS, summary, train_model
+from host.train import DEFAULT_FIT, FITS, dropped_reason, summary, train_model
 
 NAME = "train"
 HELP = "select sensors (paper 000), fit and validate the thermal model; write model.json"
@@ -82,13 +82,13 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="ambient temperature column for the ambient effect (one of the "
                         "--sensors; default: a sensor named like *amb*, if any)")
     parser.add_argument("--fit", choices=FITS, default=DEFAULT_FIT,
-                        help="ols: least squares on the selected terms and effects; ridge: the "
-                             "same plus lags of the selected sensors and the speed, shrunk; "
-                             "auto: the one with the lower nested error (default; "
-                             "docs/next-day.md)")
+                        help="ridge (default): the selected terms and effects plus lags of the "
+                             "selected sensors and the speed, shrunk; ols: least squares on "
+                             "the selected terms and effects (paper 000's eq. 4); auto: the "
+                             "family with the lowest nested error (docs/next-day.md)")
     parser.add_argument("--no-nested", action="store_true",
                         help="skip nested validation (the pipeline refitted per fold: the "
-                             "promised error); 3-4x faster, and auto then means ols")
+                             "promised error); 3-4x faster; auto then means ols")
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -121,7 +121,7 @@ def print_effects(doc: dict) -> None:
     for name, a in doc["axes"].items():
         before, after = a.get("baseline_validation_rmse_um"), a.get("validation_rmse_um")
         effects = a.get("effects") or []
-        kept = [e for e in effects if not e.get("dropped_for_channels")]
+        kept = [e for e in effects if not dropped_reason(e)]
         if kept:
             print(f"{name}: effects lower the validation RMSE {_fmt(before)} -> {_fmt(after)} um"
                   " (the box's model)")
@@ -130,12 +130,12 @@ def print_effects(doc: dict) -> None:
                   f"{_fmt(after)} um)")
         for e in effects:
             ev = e.get("evidence") or {}
-            mark = "x" if e.get("dropped_for_channels") else "+"
+            why = dropped_reason(e)
+            mark = "x" if why else "+"
             print(f"  {mark} {e['kind']:<9} {e['feature']}: {_fmt(e.get('rmse_before_um'))} -> "
                   f"{_fmt(e.get('rmse_after_um'))} um, {ev.get('folds_improved', '?')} folds "
                   f"better, residual correlation {_fmt(ev.get('residual_corr'), 2)}"
-                  + ("  DROPPED: no box channel left for its sensor, not in the box's model"
-                     if e.get("dropped_for_channels") else ""))
+                  + (f"  DROPPED: {why}, not in the box's model" if why else ""))
         after = a.get("channel_budget_after_effects")
         if after:
             print(f"  {name}: the box's {after['max_channels']} channels, shared by all axes, "

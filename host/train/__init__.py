@@ -12,9 +12,11 @@ from host.train.ranges import (
     outside_training,
     training_ranges,
 )
-from host.train.summary import axis_sensors, summary
+from host.train.summary import axis_sensors, box_model_note, dropped_reason, summary
 
 __all__ = [
+    "box_model_note",
+    "dropped_reason",
     "DEFAULT_FIT",
     "FITS",
     "DEFAULT_REFERENCE",

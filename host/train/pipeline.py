@@ -48,6 +48,7 @@ from host.selection import (
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from host.train.next_day import (
     DEFAULT_FIT,
+    FAMILIES,
     check_fit,
     nested_validation,
     ridge_axis,
@@ -157,40 +158,59 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
 def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
                          options: dict, period_s: float, n_blocks: int, reference: Reference,
                          n_axes: int) -> dict:
-    """Judge both families by nested validation and keep the one for the next day
+    """Judge the families by nested validation and keep the one for the next day
     (host.train.next_day); the axis gains ``fit`` and the promised error with its spread."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
+    baseline = axis.get("baseline")
+    baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
+                      else final_terms)
     max_states = states_per_axis(n_axes)
     aux = list(options["aux"])
 
-    def train_fold(sub: list[Run]) -> list[Term]:
-        model = train_model(sub, [target], **options, fit="ols", nested=False)
-        return [Term.from_json(x) for x in model["axes"][target]["terms"]]
+    def train_fold(sub: list[Run]) -> tuple[list[Term], list[Term]]:
+        spec = train_model(sub, [target], **options, fit="ols", nested=False)["axes"][target]
+        final = [Term.from_json(x) for x in spec["terms"]]
+        base = spec.get("baseline")
+        return final, ([Term.from_json(x) for x in base["terms"]] if base else final)
 
     result = None
     if nested:
         result = nested_validation(runs, target, train_fold, aux=aux, period_s=period_s,
                                    n_blocks=n_blocks, reference=reference,
                                    max_states=max_states)
-    want_ridge = fit == "ridge" or (fit == "auto" and result is not None
-                                    and result.rms("ridge") < result.rms("ols"))
-    family, alpha = "ols", None
-    if want_ridge:
-        found = ridge_axis(runs, target, final_terms, aux=aux, period_s=period_s,
-                           n_blocks=n_blocks, reference=reference, max_states=max_states)
-        if found is not None:
+    if fit == "auto" and result is not None:
+        candidates = [f for f in FAMILIES if final_terms != baseline_terms
+                      or FAMILIES[f][0]]  # without effects, baseline == ols
+        family = min(candidates, key=result.rms)
+    else:
+        family = "ridge" if fit == "ridge" else "ols"
+    with_effects, shrunk = FAMILIES[family]
+    if not with_effects and final_terms != baseline_terms:
+        axis.update(fit_axis(runs, target, baseline_terms, period_s, n_blocks, reference))
+        for effect in axis.get("effects", []):
+            effect["dropped_by_nested_validation"] = True
+        axis["effects_rejected"] = ("nested validation: the pipeline refitted without each "
+                                    "fold predicted it better without the effects")
+    alpha = None
+    if shrunk:
+        terms = final_terms if with_effects else baseline_terms
+        found = ridge_axis(runs, target, terms, aux=aux, period_s=period_s, n_blocks=n_blocks,
+                           reference=reference, max_states=max_states)
+        if found is None:  # not even the terms alone keep the fixed-point bound: no ridge
+            family = family.replace("ridge-", "").replace("ridge", "ols")
+        else:
             basis, ridge, st = found
             axis = {**axis, **ridge_axis_dict(basis, ridge, st)}
-            family, alpha = "ridge", float(ridge.alpha)
+            alpha = float(ridge.alpha)
     axis["fit"] = {"family": family, "requested": fit, "alpha": alpha,
-                   "rule": ("the family (least squares on the selected terms, or a ridge over "
-                            "them plus lags and speed) with the lower nested error")}
+                   "rule": ("the family with the lowest nested error: least squares on the "
+                            "selected terms with or without the effects, or a ridge over "
+                            "them plus lags and speed")}
     if result is not None:
         axis["fit"]["nested"] = {"scheme": result.scheme, "fold_rmse_um": result.fold_rmse_um,
                                  "rmse_um": {f: result.rms(f) for f in result.fold_rmse_um}}
-        folds = result.fold_rmse_um[family]
         axis["metrics"]["promised_rmse_um"] = result.rms(family)
-        axis["metrics"]["promised_fold_rmse_um"] = folds
+        axis["metrics"]["promised_fold_rmse_um"] = result.fold_rmse_um[family]
     return axis
 
 
@@ -284,9 +304,11 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
 
     X = ref.apply(X, run_ids)  # selection sees what the model will: the change since the start
     ys = {t: ref.apply(np.concatenate([r.target(t) for r in runs]), run_ids) for t in targets}
+    dead = {i for i in range(len(names)) if not np.ptp(X[:, i]) > 0}  # dead or stuck
 
     def select(target: str, pool: list[str] | None = None) -> tuple[list[Term], dict]:
         cols = list(range(len(names))) if pool is None else [names.index(n) for n in pool]
+        cols = [i for i in cols if i not in dead]  # a constant sensor carries no signal
         result = select_sensors(X[:, cols], ys[target], run_ids, folds, period_s,
                                 n_groups=groups, max_sensors=max_sensors, method=selection,
                                 max_delay_s=max_delay_s, seed=seed, scheme=scheme)

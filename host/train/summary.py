@@ -35,10 +35,33 @@ def summary(model: dict, model_path: str) -> dict:
             # issue 7: before/after the effects, what was added and what is still unexplained
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
-                                               "rmse_after_um", "dropped_for_channels")}
+                                               "rmse_after_um", "dropped_for_channels",
+                                               "dropped_by_nested_validation")}
                         for e in axis.get("effects", [])],
             "unexplained": axis.get("unexplained"),
             # what the channel budget took away after the effects (None: nothing)
             "channel_budget_after_effects": axis.get("channel_budget_after_effects"),
         }
     return {"model": model_path, "axes": axes}
+
+
+def dropped_reason(effect: dict) -> str | None:
+    """Why an accepted effect is not in the box's model (None when it is)."""
+    if effect.get("dropped_for_channels"):
+        return "no box channel left for its sensor"
+    if effect.get("dropped_by_nested_validation"):
+        return "nested validation predicted the unseen folds better without it"
+    return None
+
+
+def box_model_note(axis: dict) -> str | None:
+    """How the box's model differs from the last accepted effect's (None: it is that model)."""
+    notes = []
+    after = axis.get("channel_budget_after_effects")
+    if after:
+        notes.append("the channel budget dropped " + ", ".join(after.get("dropped_terms") or []))
+    if axis.get("effects_rejected"):
+        notes.append("without the effects (nested validation)")
+    if (axis.get("fit") or {}).get("family", "ols").startswith("ridge"):
+        notes.append("a ridge over the terms plus lags and speed")
+    return "; ".join(notes) or None
