@@ -382,3 +382,25 @@ def test_ec_caption_says_the_cap_decided(budget_model):
     page = report.index.read_text()
     assert "the --max-sensors cap of 2: the out-of-fold error S<sub>i</sub> is smallest at 5 " \
            "sensors (1.5 µm against 3 µm at 2)" in page
+
+
+def test_fold_stages_come_from_the_effects_evidence_and_are_drawn(tmp_path):
+    from host.analysis import plots
+    from host.analysis.report import fold_stages
+
+    axis = {"effects": [
+        {"name": "lag(T05)", "rmse_before_um": 3.0, "rmse_after_um": 2.0,
+         "evidence": {"fold_rmse_before_um": [2.5, 3.4], "fold_rmse_after_um": [1.8, 2.2]}},
+        {"name": "T03 + square(T03)", "rmse_before_um": 2.0, "rmse_after_um": 1.5,
+         "dropped_for_channels": True,
+         "evidence": {"fold_rmse_before_um": [1.8, 2.2], "fold_rmse_after_um": [1.4, 1.6]}}]}
+    rows = fold_stages(axis)
+    assert [r["stage"] for r in rows] == ["baseline", "+ lag(T05)", "+ T03 + square(T03)"]
+    assert [r["rmse_um"] for r in rows] == [3.0, 2.0, 1.5]
+    assert rows[0]["folds_um"] == [2.5, 3.4] and rows[2]["dropped"]
+    assert fold_stages({"effects": [{"name": "x", "evidence": {}}]}) == []  # nothing recorded
+    fig = plots.fold_errors("dz_um", [r["stage"] for r in rows], [r["rmse_um"] for r in rows],
+                            [r["folds_um"] for r in rows], [r["dropped"] for r in rows])
+    fig.savefig(tmp_path / "f.png")
+    pixels = mpimg.imread(tmp_path / "f.png")
+    assert float(pixels[..., :3].std()) > 0.05

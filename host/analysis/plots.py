@@ -292,7 +292,31 @@ def training_window(run: str, time_s: np.ndarray, inputs: Mapping[str, np.ndarra
     ax.set_ylabel("position in the training range (–)")
     ax.set_title(f"{run}: inputs against their training range (dashed: EXTRAP)")
     ax.grid(True, alpha=0.3)
-    ax.legend(ncol=2, fontsize=9)
+    fig.legend(fontsize=9, loc="outside right upper")  # beside the curves, never over them
+    return fig
+
+
+def fold_errors(axis: str, stages: Sequence[str], mean_um: Sequence[float],
+                folds_um: Sequence[Sequence[float]], dropped: Sequence[bool]) -> Figure:
+    """Validation RMSE of each model stage (baseline, then each effect) as the mean over the
+    validation folds with error bars from the lowest to the highest fold, and each fold as a
+    dot: how much of a gain is larger than the fold-to-fold spread."""
+    fig = Figure(figsize=WIDE, layout="constrained")
+    ax = fig.add_subplot()
+    x = np.arange(len(stages))
+    for k, (m, folds, gone) in enumerate(zip(mean_um, folds_um, dropped, strict=True)):
+        f = np.asarray(folds, dtype=float)
+        colour = "0.6" if gone else OURS_COLOUR
+        lo, hi = (m - f.min(), f.max() - m) if f.size else (0.0, 0.0)
+        ax.errorbar([k], [m], yerr=[[max(lo, 0.0)], [max(hi, 0.0)]], fmt="o", color=colour,
+                    capsize=6, markersize=8, lw=1.5)
+        ax.scatter(np.full(f.size, k + 0.12), f, s=14, color=colour, alpha=0.7)
+    ax.set_xticks(x, [s if len(s) < 28 else s[:26] + "…" for s in stages], rotation=20,
+                  ha="right")
+    ax.set_ylabel("validation RMSE (µm): pooled, fold range, each fold")
+    ax.set_title(f"{axis}: validation error of each stage across the folds")
+    ax.set_ylim(bottom=0)
+    ax.grid(True, axis="y", alpha=0.3)
     return fig
 
 

@@ -275,6 +275,7 @@ SECTIONS = [
     ("ec", "2. How many sensors (paper 000, Fig. 8)"),
     ("runs", "3. Prediction on each run"),
     ("effects", "4. Effects added to close the loop"),
+    ("folds", "4b. The effects' gains against the fold-to-fold spread"),
     ("hysteresis", "5. Heating and cooling paths (pseudo-hysteresis)"),
     ("protocols", "6. Which test protocol to run"),
     ("window", "7. Inside or beyond the training range"),
@@ -362,6 +363,8 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             jobs.append(("runs", axis_name, run))
             if model["axes"][axis_name].get("effects"):
                 jobs.append(("effects", axis_name, run))
+                if run is runs[0] and fold_stages(model["axes"][axis_name]):
+                    jobs.append(("folds", axis_name, None))
             jobs.append(("hysteresis", axis_name, run))
     if matrix is not None:
         jobs.append(("protocols", None, None))
@@ -477,6 +480,19 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                                if axis.get("channel_budget_after_effects") else "")
                             + ": " + html.escape(str(unexplained["message"])))
             file = f"effects_{_slug(run.name)}_{_slug(axis_name)}.png"
+        elif kind == "folds":
+            rows = fold_stages(axis)
+            fig_obj = plots.fold_errors(axis_name, [r["stage"] for r in rows],
+                                        [r["rmse_um"] for r in rows], [r["folds_um"] for r in rows],
+                                        [r["dropped"] for r in rows])
+            title = f"{axis_name}: validation error per stage, across the folds"
+            caption = ("The validation RMSE of the baseline and after each effect, with error "
+                       "bars from the best to the worst validation fold and every fold as a "
+                       "dot (from the effect search's own record). A gain smaller than the "
+                       "spread between folds would be noise; the search only keeps effects that "
+                       "improve every fold that exercises them. Grey: dropped by the channel "
+                       "budget, not in the box's model.")
+            file = f"folds_{_slug(axis_name)}.png"
         elif kind == "hysteresis":
             sensor = most_important_sensor(axis, run, period)
             if sensor is None:
@@ -710,6 +726,28 @@ def _selection_figure(axis_name: str, axis: dict, limit_s: float | None = None):
                     + (", whose true delay may be longer." if at_edge else "."))
     caption += f" Method: {e(str(sel.get('method', '?')))}."
     return fig, title, caption
+
+
+def fold_stages(axis: dict) -> list[dict]:
+    """Validation RMSE of each stage with its per-fold values, from the effects' evidence:
+    the baseline (the first effect's folds before) and after each effect; [] when the model
+    does not carry them."""
+    effects = axis.get("effects") or []
+    first = (effects[0].get("evidence") or {}) if effects else {}
+    if not effects or not first.get("fold_rmse_before_um"):
+        return []
+    rows = [{"stage": "baseline", "rmse_um": effects[0].get("rmse_before_um"),
+             "folds_um": list(first["fold_rmse_before_um"]), "dropped": False}]
+    for e in effects:
+        ev = e.get("evidence") or {}
+        if not ev.get("fold_rmse_after_um") or e.get("rmse_after_um") is None:
+            return []
+        rows.append({"stage": "+ " + str(e.get("name", e.get("kind", "?"))),
+                     "rmse_um": e["rmse_after_um"], "folds_um": list(ev["fold_rmse_after_um"]),
+                     "dropped": bool(e.get("dropped_for_channels"))})
+    if any(r["rmse_um"] is None for r in rows):
+        return []
+    return rows
 
 
 def effect_evidence(effect: dict) -> str:
