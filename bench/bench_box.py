@@ -128,7 +128,14 @@ def instructions_per_step(header: Path, model: dict, csv: Path, build: Path,
     ranges = ",".join(f"0x{syms[f][0]:x}+0x{syms[f][1]:x}" for f in funcs)
     args = ["-singlestep", "-d", "exec,nochain", "-dfilter", ranges, "-D", str(trace)]
     feed = build_feed(model, csv)
-    replay(feed, lambda _wdt: QemuBox(elf, extra_args=args), quiet=True, timeout=120.0)
+    # One sample in flight: single-stepped, the guest reads its USART far slower than a
+    # 64-line chunk arrives, and the feed would overrun (measured: the box fell silent at
+    # sample 8 of 30).
+    capture = replay(feed, lambda _wdt: QemuBox(elf, extra_args=args), quiet=True,
+                     timeout=120.0, window=1, chunk=1)
+    errors = [s.error for s in capture.sessions if s.error]
+    if errors:
+        raise RuntimeError(f"QEMU replay under the trace failed: {errors[0]}")
     start = syms[MODEL_FUNCTION][0]
     spans = [(syms[f][0], syms[f][0] + syms[f][1]) for f in funcs]
     count = entries = 0
