@@ -24,7 +24,7 @@ config file (cnc/config/thermalcomp.conf) and drives ``axis.L.eoffset-counts/-sc
 - **box restart** (``seq`` goes back): the box walks from 0 at its slew limit (SLEW); the
   component holds until the box tracks again, then walks to it.
 - ``zero`` (rising edge, e.g. from the touch-off macro) sends the box ``ZERO``: from the next
-  sample the box outputs the change since then (issue 13); that first value is a new datum and
+  sample the box outputs the change since then; that first value is a new datum and
   is applied without the walk limit (LinuxCNC still ramps it at OFFSET_AV_RATIO).
 
 Runs under Debian's /usr/bin/python3 (where LinuxCNC's ``hal`` module lives); needs only the

@@ -1,5 +1,7 @@
 """Read, check and write ``model.json`` (docs/model-json.md): the one validator of model files.
 
+Over 400 lines on purpose: every rule a model file must meet lives here, in one place.
+
 Every command and codegen read a model through ``read_model`` (a file) or ``check_model`` (a
 dict): the same structural rules everywhere, so ``host evaluate`` cannot accept a model that
 ``host codegen`` refuses. The rules need no quantisation (codegen adds only what does: whole
@@ -303,7 +305,7 @@ class _Checker:
         return [raw[indices.index(i)] for i in range(len(raw))]
 
     def step_limit(self, e: Mapping, where: str, label: str, key: str, unit: str) -> None:
-        """An optional step limit (issue 14): a positive finite number when present."""
+        """An optional step limit: a positive finite number when present."""
         if key not in e:
             return  # a model written before the step limits were kept
         v = self.number(e[key], f"{where}.{key}")

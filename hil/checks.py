@@ -1,13 +1,15 @@
 """Judge a captured replay against the host's expectation.
 
-Four checks (issue 6): 1. every correction equals the integer twin's (after the documented
+Over 400 lines: the line-by-line comparison and the replay judgement share one report.
+
+Four checks: 1. every correction equals the integer twin's (after the documented
 output stage), bit for bit, and so do the status word and the echoed temperature codes;
 2. the float model (contract/terms.py on the quantised temperatures) is within the bound codegen
 proved, wherever the box outputs the model value directly; 3. no sample line is lost,
 duplicated or reordered (``seq``); 4. the residual measured − correction beside the raw
 displacement, per axis, RMS and peak. The lines are decoded with contract/protocol.py only.
 
-And the judgement of issue 14 (``Judging``): a box that matches its twin can still be useless
+And the judgement (``Judging``): a box that matches its twin can still be useless
 or alarming: it fails when it held (HOLD/NO_DATA) or limited (SLEW) more than a stated share
 of the samples, or never corrected at all (a model trained in Kelvin: every reading out of
 range, every sample held).
@@ -33,7 +35,7 @@ MAX_PROBLEMS = 20  # detail lines kept in a report; counts are always complete
 
 @dataclass(frozen=True)
 class Judging:
-    """How much holding and limiting a replay may show before it fails (issue 14).
+    """How much holding and limiting a replay may show before it fails.
 
     The defaults: a box that holds (a faulted input, HOLD/NO_DATA) or limits its output step
     (SLEW: walking back or the per-axis limit) on more than 10 % of the samples of a run is

@@ -1,5 +1,7 @@
 """Load thermal test runs (CSV) into arrays, rejecting bad input with file, line and column.
 
+Over 400 lines: every refusal of a run file names its cell, and they live with the reader.
+
 A run is a CSV file with a header row: ``time_s`` (strictly increasing seconds at one fixed
 period), temperature columns in degC, optional auxiliary columns (e.g. ``spindle_rpm``) and one
 or more displacement columns in micrometres. Which column plays which role is decided by the
@@ -7,7 +9,7 @@ caller (``--target``, ``--sensors``, ``--aux``), never guessed from the values.
 
 Data loggers' dialects are read as well (``CsvFormat``: ``;`` or tab delimiters, decimal
 commas, ISO 8601 timestamps as time), sniffed unless given. What cannot be a thermal test run
-is refused, naming the cell (issue 14): a temperature outside its channel's valid range, a
+is refused, naming the cell: a temperature outside its channel's valid range, a
 displacement or aux value beyond the box's int32, time in milliseconds, a gap in time (the
 filters would restart: cut the run there) and jitter (named with the period it implies).
 """
@@ -112,7 +114,7 @@ DELIMITERS = {",": "comma", ";": "semicolon", "\t": "tab"}
 
 @dataclass(frozen=True)
 class CsvFormat:
-    """How a run file is written (issue 15: data loggers write ``;``, decimal commas and ISO
+    """How a run file is written (data loggers write ``;``, decimal commas and ISO
     timestamps). Every field left ``None`` is sniffed from the file:
 
     - ``sep``: the delimiter; sniffed from the header line (``,``, ``;`` or tab, the most
@@ -395,7 +397,7 @@ def _fill_gaps(path: Path, name: str, values: np.ndarray, time_s: np.ndarray,
     return filled
 
 
-# Time and value checks (issue 14). A run's steps must be one period (the median step) within
+# Time and value checks. A run's steps must be one period (the median step) within
 # JITTER_TOLERANCE; a step beyond GAP_FACTOR periods is a gap (missing rows).
 JITTER_TOLERANCE = 0.05
 GAP_FACTOR = 1.5
@@ -628,7 +630,7 @@ def load_runs(paths: list[str | Path], targets: list[str], sensors: str | list[s
 
 def check_variation(runs: list[Run], targets: list[str]) -> None:
     """Refuse training runs with nothing to learn: a target constant in every run, or every
-    sensor constant in every run (issue 14)."""
+    sensor constant in every run."""
     names = ", ".join(r.path for r in runs)
     for t in targets:
         values = [r.target(t) for r in runs]

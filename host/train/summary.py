@@ -15,7 +15,7 @@ def axis_sensors(axis: dict) -> list[str]:
 
 
 def summary(model: dict, model_path: str) -> dict:
-    """The ``host train --json`` document (issue 2's fixed shape plus a few extras)."""
+    """The ``host train --json`` document (a fixed shape scripts rely on, plus a few extras)."""
     axes = {}
     for name, axis in model["axes"].items():
         m = axis["metrics"]
@@ -32,7 +32,7 @@ def summary(model: dict, model_path: str) -> dict:
             "promised_rmse_um": m.get("promised_rmse_um"),
             "promised_fold_rmse_um": m.get("promised_fold_rmse_um"),
             "fit": (axis.get("fit") or {}).get("family"),
-            # issue 7: before/after the effects, what was added and what is still unexplained
+            # the loop: before/after the effects, what was added and what is still unexplained
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
                                                "rmse_after_um", "dropped_for_channels",
