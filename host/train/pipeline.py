@@ -2,9 +2,9 @@
 
 ``train_model`` is the library entry point (the CLI, the demo, `host compare` and the tests use
 it). Per target axis it runs the selection (host.selection: paper 000's method, ``validated``
-or ``paper``), fits eq. 4 on the chosen sensors with host.fitting, reports training and out-of-fold
-metrics (host.fitting.validation), then searches the effects (closing the loop) and fits for the next day (next_day). The
-model dict follows docs/model-json.md.
+or ``paper``), fits eq. 4 on the chosen sensors with host.fitting, reports training and
+out-of-fold metrics (host.fitting.validation), searches the effects (closing the loop) and
+fits the model for the next day (host.train.next_day). The dict follows docs/model-json.md.
 """
 
 from __future__ import annotations
