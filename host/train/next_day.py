@@ -35,17 +35,15 @@ from contract.terms import FILTER_KINDS, Term, make_lag, make_speed, term_sensor
 from host.effects import fixed_point_refusal, tau_grid
 from host.fitting import (
     Reference,
-    condition_number,
     design_matrix,
     fit_linear,
     fit_ridge,
     fold_groups,
-    r_squared,
     rmse,
     stack,
-    variance_inflation,
 )
 from host.io import Run
+from host.train.axis_fit import axis_dict
 
 FITS = ("auto", "ols", "ridge")
 DEFAULT_FIT = "ridge"  # measured best on unseen runs of every source (docs/next-day.md)
@@ -164,25 +162,11 @@ def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: 
 
 
 def ridge_axis_dict(basis: list[Term], fit, st) -> dict:
-    """The axis dict fields of a ridge fit (the same metrics as host.train's fit_axis)."""
-    residual = st.y - fit.predict(st.X)
-    vif = variance_inflation(st.X)
-    return {
-        "intercept": float(fit.intercept),
-        "terms": [{**t.to_json(), "coef": float(c)} for t, c in zip(basis, fit.coef,
-                                                                      strict=True)],
-        "metrics": {
-            "train_rmse_um": rmse(residual),
-            "validation_rmse_um": fit.validation_rmse_um,
-            "raw_rms_um": rmse(st.y),
-            "r2": r_squared(st.y, st.y - residual),
-            "max_abs_um": float(np.max(np.abs(residual))),
-            "condition_number": condition_number(st.X),
-            "vif": {t.name: float(v) for t, v in zip(basis, vif, strict=True)},
-            "validation": st.scheme,
-            "n_samples": int(st.y.size),
-        },
-    }
+    """The axis dict fields of a ridge fit (the same metrics as a least-squares axis)."""
+    out = axis_dict(basis, fit.coef, fit.intercept, st.X, st.y, fit.validation_rmse_um,
+                    st.scheme)
+    del out["unit"]
+    return out
 
 
 def check_fit(fit: str) -> None:

@@ -26,14 +26,10 @@ from host.fitting import (
     NO_REFERENCE,
     Reference,
     common_period,
-    condition_number,
     fit_linear,
     fold_groups,
-    r_squared,
-    rmse,
     stack,
     validation_rmse,
-    variance_inflation,
 )
 from host.fitting.step_limits import add_step_limits
 from host.io import Run, check_variation, load_runs
@@ -45,6 +41,7 @@ from host.selection import (
     METHODS,
     select_sensors,
 )
+from host.train.axis_fit import axis_dict
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from host.train.next_day import (
     DEFAULT_FIT,
@@ -108,26 +105,8 @@ def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
     """
     st = stack(runs, terms, target, period_s, n_blocks, reference)
     fit = fit_linear(st.X, st.y)
-    residual = st.y - fit.predict(st.X)
-    vif = variance_inflation(st.X)
-    metrics = {
-        "train_rmse_um": rmse(residual),
-        "validation_rmse_um": validation_rmse(st.X, st.y, st.groups) if st.n_folds >= 2
-        else math.nan,
-        "raw_rms_um": rmse(st.y),
-        "r2": r_squared(st.y, st.y - residual),
-        "max_abs_um": float(np.max(np.abs(residual))),
-        "condition_number": condition_number(st.X),
-        "vif": {t.name: float(v) for t, v in zip(terms, vif, strict=True)},
-        "validation": st.scheme,
-        "n_samples": int(st.y.size),
-    }
-    return {
-        "unit": "um",
-        "intercept": float(fit.intercept),
-        "terms": [{**t.to_json(), "coef": float(c)} for t, c in zip(terms, fit.coef, strict=True)],
-        "metrics": metrics,
-    }
+    oof = validation_rmse(st.X, st.y, st.groups) if st.n_folds >= 2 else math.nan
+    return axis_dict(terms, fit.coef, fit.intercept, st.X, st.y, oof, st.scheme)
 
 
 def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: float,
