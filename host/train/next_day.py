@@ -43,6 +43,7 @@ from host.fitting import (
     stack,
 )
 from host.io import Run
+from host.progress import progress
 from host.train.axis_fit import axis_dict
 
 FITS = ("auto", "ols", "ridge")
@@ -119,11 +120,13 @@ def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], per
 
 def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *,
                       aux: Sequence[str], period_s: float, n_blocks: int,
-                      reference: Reference, max_states: int) -> NestedResult:
-    """Each family's held-out error with the whole pipeline refitted without each fold."""
+                      reference: Reference, max_states: int,
+                      quiet: bool = True) -> NestedResult:
+    """Each family's held-out error with the whole pipeline refitted without each fold
+    (a progress bar over the folds: each is a whole training)."""
     groups, scheme = fold_groups(list(runs), n_blocks)
     errors: dict[str, list[float]] = {family: [] for family in FAMILIES}
-    for fold in np.unique(groups):
+    for fold in progress(np.unique(groups), f"{target}: nested folds", quiet=quiet):
         sub = fold_training(runs, groups, int(fold))
         if not sub:
             continue

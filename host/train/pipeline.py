@@ -136,7 +136,7 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
 
 def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
                          options: dict, period_s: float, n_blocks: int, reference: Reference,
-                         n_axes: int) -> dict:
+                         n_axes: int, quiet: bool = True) -> dict:
     """Judge the families by nested validation and keep the one for the next day
     (host.train.next_day); the axis gains ``fit`` and the promised error with its spread."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
@@ -156,7 +156,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     if nested:
         result = nested_validation(runs, target, train_fold, aux=aux, period_s=period_s,
                                    n_blocks=n_blocks, reference=reference,
-                                   max_states=max_states)
+                                   max_states=max_states, quiet=quiet)
     if fit == "auto" and result is not None:
         candidates = [f for f in FAMILIES if final_terms != baseline_terms
                       or FAMILIES[f][0]]  # without effects, baseline == ols
@@ -354,7 +354,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             axes[target] = fit_for_the_next_day(axes[target], runs, target, fit=fit,
                                                 nested=nested, options=options,
                                                 period_s=period_s, n_blocks=n_blocks,
-                                                reference=ref, n_axes=len(targets))
+                                                reference=ref, n_axes=len(targets),
+                                                quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
