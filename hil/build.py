@@ -72,6 +72,11 @@ def _key(header: Path, cflags: str, board: str) -> str:
 def build_firmware(header: str | Path, build_root: str | Path, board: str = "native",
                    cflags: str = "") -> Path:
     """Build ``board`` firmware against ``header``; returns the binary (native) or ELF image."""
+    if not (FIRMWARE_DIR / "Makefile").is_file():
+        raise BuildError(f"the HIL builds the box's firmware from its sources, and there are "
+                         f"none at {FIRMWARE_DIR} (an installed wheel has no firmware/): run it "
+                         "from a checkout of the project (git clone; make setup), or pass "
+                         "--firmware with a native box binary built there")
     header = Path(header).resolve()
     out_dir = Path(build_root).resolve() / f"{board}-{_key(header, cflags, board)}"
     cmd = ["make", "-s", "-C", str(FIRMWARE_DIR), f"BOARD={board}", f"MODEL={header}",
