@@ -55,14 +55,21 @@ def private_pty() -> tuple[int, int]:
 class Box:
     """One native firmware process: ``feed`` writes stdin, ``lines`` reads the pty."""
 
-    def __init__(self, binary: Path, *args: str) -> None:
+    def __init__(self, binary: Path, *args: str, keep_master: bool = False) -> None:
+        """``keep_master``: hold a copy of the pty's master so that lines the board wrote just
+        before it exits are still read (a last master closing hangs the pty up, and Linux then
+        drops what the reader had not read yet); a dead board then shows as silence, not EIO."""
         master, self._slave = private_pty()
+        self._master = -1
         try:
             self.proc = subprocess.Popen([str(binary), "--pty-fd", str(master), *args],
                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                          stderr=subprocess.PIPE, bufsize=0, pass_fds=(master,))
         finally:
-            os.close(master)
+            if keep_master:
+                self._master = master
+            else:
+                os.close(master)
         assert self.proc.stdout is not None
         ready, _, _ = select.select([self.proc.stdout], [], [], 30.0)
         first = self.proc.stdout.readline().decode() if ready else ""
@@ -99,7 +106,7 @@ class Box:
         """Send Q (if stdin is open), wait; returns (exit status, stderr)."""
         try:
             self.feed("Q\n")
-        except (BrokenPipeError, OSError):
+        except (BrokenPipeError, OSError, ValueError):  # the feed may be closed already
             pass
         try:
             rc = self.proc.wait(timeout)
@@ -108,6 +115,9 @@ class Box:
             if self._slave >= 0:
                 os.close(self._slave)
                 self._slave = -1
+            if self._master >= 0:
+                os.close(self._master)
+                self._master = -1
             if self.proc.poll() is None:
                 self.proc.kill()
         assert self.proc.stderr is not None

@@ -210,11 +210,12 @@ def test_bad_feed_lines_stop_with_a_message_naming_the_line(fw, feed, message):
 
 
 def test_end_of_feed_exits_cleanly(fw):
-    box = Box(fw["binary"])
+    box = Box(fw["binary"], keep_master=True)  # the board may exit before the line is read
     box.feed("S 1000 2560 2560 2560 2560 2560 2560 2560 2560")  # last line without newline
     box.close_feed()
     assert p.decode(box.lines(1)[0]).seq == 0  # the unterminated line still counts
     assert box.proc.wait(10) == 0
+    box.finish()
 
 
 def test_a_slow_reader_loses_no_line(fw):
