@@ -279,10 +279,12 @@ def float_predictions(model: dict, feed: Feed, codes: np.ndarray, rows: slice) -
 
 def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
           bounds_um: dict[str, float], judging: Judging | None = None,
-          zero_at: Sequence[int] = ()) -> ReplayReport:
+          zero_at: Sequence[int] = (), box_zeroes: bool = False) -> ReplayReport:
     """Compare every session's lines with its expectation and compute the residuals.
 
     ``zero_at``: samples before which ZERO was sent (each reply must name the sample before).
+    ``box_zeroes``: the header was built with TCM_ZERO_AT_POWERUP (the box's output is already
+    the change since its start).
     """
     n = capture.n_samples
     n_axes = len(feed.axes)
@@ -406,7 +408,7 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
             # the box's output is the change since its start when it zeroes at power-up (a
             # ``start`` model's header); otherwise it is referenced here like the measurement
             box = fw_out[got, a] / 1000.0
-            zeroed = bool(model.get("fixed_point", {}).get("zero_at_powerup")) or bool(zero_at)
+            zeroed = box_zeroes or bool(zero_at)
             comp = meas - (box if zeroed else feed.reference.apply(box))
             ax.raw_rms_um = float(np.sqrt(np.mean(meas ** 2)))
             ax.raw_peak_um = float(np.max(np.abs(meas)))

@@ -97,6 +97,7 @@ def run(setup: ReplaySetup, events: Sequence[Event] = (), model_bad: bool = Fals
     judging = replace(setup.judging, require_correction=False) if model_bad else setup.judging
     report = judge(capture, expectations(setup, capture, events, model_bad), setup.feed,
                    setup.model, setup.bounds_um(), judging,
-                   [e.at for e in events if isinstance(e, Zero)])
+                   [e.at for e in events if isinstance(e, Zero)],
+                   box_zeroes=setup.build.zero_at_powerup)
     report.elapsed_s = elapsed
     return report, capture

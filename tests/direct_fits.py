@@ -24,3 +24,13 @@ def direct_out_of_fold_residual(X: np.ndarray, y: np.ndarray, groups: np.ndarray
 def direct_validation_rmse(X: np.ndarray, y: np.ndarray, groups: np.ndarray) -> float:
     """RMSE of all out-of-fold predictions, each fold refitted on the other folds' rows."""
     return rmse(direct_out_of_fold_residual(X, y, groups)[0])
+
+
+def direct_lag(x: np.ndarray, alpha: float) -> np.ndarray:
+    """First-order lag written out as a loop (y[0] = x[0], y[n] = y[n-1] + alpha (x[n] -
+    y[n-1])), independent of host.fitting's lfilter."""
+    y = np.empty_like(np.asarray(x, dtype=float))
+    y[0] = x[0]
+    for n in range(1, len(x)):
+        y[n] = y[n - 1] + alpha * (x[n] - y[n - 1])
+    return y

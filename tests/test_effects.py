@@ -14,7 +14,7 @@ import re
 
 import numpy as np
 import pytest
-from direct_fits import direct_out_of_fold_residual
+from direct_fits import direct_lag, direct_out_of_fold_residual
 
 from contract.terms import make_lag, make_rate, make_speed, make_temp, make_time
 from host.effects import (
@@ -43,13 +43,8 @@ DT = 60.0
 
 
 def lowpass(x: np.ndarray, tau: float, dt: float = DT) -> np.ndarray:
-    """First-order lag written out as a loop (independent of host.fitting.features' lfilter)."""
-    a = 1.0 - math.exp(-dt / tau)
-    y = np.empty_like(x)
-    y[0] = x[0]
-    for i in range(1, x.size):
-        y[i] = y[i - 1] + a * (x[i] - y[i - 1])
-    return y
+    """First-order lag at time constant ``tau`` (the loop of tests/direct_fits.py)."""
+    return direct_lag(x, 1.0 - math.exp(-dt / tau))
 
 
 def synth_run(effect: str, seed: int, hours: float = 12.0, noise_um: float = 0.1) -> Run:

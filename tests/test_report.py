@@ -12,6 +12,7 @@ from pathlib import Path
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
+from direct_fits import direct_lag
 
 from host.analysis.report import ReportError, build_report, load_protocols
 from host.cli import main as host_main
@@ -25,13 +26,7 @@ TAU_S = 1800.0
 PERIOD_S = 60.0
 
 
-def lag(x: np.ndarray, alpha: float) -> np.ndarray:
-    """Explicit first-order lag, written out here rather than taken from contract.terms."""
-    y = np.empty_like(x)
-    y[0] = x[0]
-    for n in range(1, len(x)):
-        y[n] = y[n - 1] + alpha * (x[n] - y[n - 1])
-    return y
+lag = direct_lag  # written out as a loop, independent of host.fitting
 
 
 def best_delay(y: np.ndarray, x: np.ndarray, max_lag: int) -> float:
