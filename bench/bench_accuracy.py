@@ -105,7 +105,7 @@ def reference_window(period_s: float) -> int:
     """K, the samples of the start reference: the project's (host.fitting.reference), else
     ``REF_WINDOW_S`` of samples."""
     if Reference is not None:
-        return int(Reference.for_period("start", period_s).samples)
+        return int(Reference.of_kind("start").samples)
     return max(1, int(round(REF_WINDOW_S / period_s)))
 
 

@@ -24,7 +24,7 @@ def test_reference_is_the_running_mean_of_the_first_k_samples():
     from host.fitting.reference import Reference
 
     for period in (15.0, 60.0):
-        assert acc.reference_window(period) == Reference.for_period("start", period).samples
+        assert acc.reference_window(period) == Reference.of_kind("start").samples
         np.testing.assert_allclose(acc.referenced(cols, 3), Reference("start", 3).apply(cols))
 
 

@@ -45,8 +45,8 @@ def test_window_is_the_box_zero_window():
 
     cfg = (Path(__file__).resolve().parent.parent / "firmware/include/box_config.h").read_text()
     box = int(re.search(r"#define BOX_ZERO_SAMPLES (\d+)", cfg).group(1))
-    assert Reference.for_period("start", 60.0).samples == box
-    assert Reference.for_period("start", 1.0).samples == box
+    assert Reference.of_kind("start").samples == box
+    assert Reference.of_kind("none").samples == 1
     with pytest.raises(ValueError, match="--reference"):
         Reference("tomorrow")
 

@@ -161,8 +161,8 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
     for run in test_runs:
         if run.sensor_names != names:
             raise InputError(f"{run.path}: sensor columns differ from the training runs")
-    period = common_period(train_runs + test_runs)
-    ref = Reference.for_period(reference, period)
+    common_period(train_runs + test_runs)  # one period for all, or a clear error
+    ref = Reference.of_kind(reference)
     X = np.vstack([r.temperatures for r in train_runs])
     Xt_runs = [r.temperatures for r in test_runs]
     folds, scheme = fold_groups(train_runs, n_blocks)

@@ -51,7 +51,7 @@ def model_reference(model: dict, reference: str | None = None) -> Reference:
     own = Reference.of_model(model)
     if reference is None or reference == own.kind:
         return own
-    return Reference.for_period(reference, float(model["sample_period_s"]))
+    return Reference.of_kind(reference)
 
 
 def predict(model: dict, run: Run, reference: str | None = None) -> dict[str, np.ndarray]:

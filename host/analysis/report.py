@@ -27,6 +27,7 @@ from contract.errors import InputError
 from contract.model_file import channel_ranges, read_model
 from contract.terms import TEMPERATURE_KINDS, Term
 from host.analysis import plots
+from host.analysis.evaluate import model_reference
 from host.analysis.metrology import coefficient_table, iso230_drift, wiring_rows
 from host.fitting import NO_REFERENCE, Reference, design_matrix, fit_linear
 from host.io import CsvFormat, Run, load_run, read_header
@@ -339,9 +340,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
     sits on the machine) for the wiring sheet."""
     model = read_model(model_path)
     where = load_locations(locations) if locations else {}
-    ref = Reference.of_model(model)  # measured and predicted drift are judged alike
-    if reference is not None and reference != ref.kind:
-        ref = Reference.for_period(reference, float(model["sample_period_s"]))
+    ref = model_reference(model, reference)  # measured and predicted drift judged alike
     runs = [referenced(run, ref)
             for run in load_report_runs(model, list(run_paths), fill_gaps, fmt)]
     matrix = load_protocols(protocols) if protocols else None

@@ -56,7 +56,8 @@ class Reference:
             raise InputError(f"reference samples must be >= 1 (got {self.samples})")
 
     @staticmethod
-    def for_period(kind: str, period_s: float) -> Reference:
+    def of_kind(kind: str) -> Reference:
+        """``start`` over the box's ZERO window (whatever the sample period), or ``none``."""
         return Reference(kind, ZERO_SAMPLES if kind == "start" else 1)
 
     @staticmethod

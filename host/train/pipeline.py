@@ -276,7 +276,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     if len(runs) == 1 and n_min < 2 * n_blocks:
         raise TrainingError(f"{runs[0].path}: {n_min} samples is too few for {n_blocks} "
                             "validation blocks")
-    ref = Reference.for_period(reference, period_s)
+    ref = Reference.of_kind(reference)
     X = np.vstack([r.temperatures for r in runs])
     run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
     folds, scheme = fold_groups(runs, n_blocks)
