@@ -14,6 +14,7 @@ from hil.build import BuildError
 from hil.checks import Judging, ReplayReport, write_box_csv
 from hil.link import LinkTimeout
 from hil.native import BoxStartError
+from host.fitting import REFERENCE_KINDS
 
 
 def _fmt(value: float | None, digits: int = 3) -> str:
@@ -98,6 +99,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--zero-at-powerup", action=argparse.BooleanOptionalAction, default=None,
                    help="build the header with TCM_ZERO_AT_POWERUP (as host codegen "
                         "--zero-at-powerup; default: on for a model with the start reference)")
+    p.add_argument("--reference", choices=REFERENCE_KINDS, default=None,
+                   help="judge the run by its change since the start (start) or against one "
+                        "fixed datum (none), and zero the box at power-up to match "
+                        "(default: the model's reference)")
     d = Judging()
     p.add_argument("--max-held-fraction", type=float, default=d.max_held_fraction,
                    help="fail when more than this share of the samples held (HOLD/NO_DATA; "
@@ -117,7 +122,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"--{name.replace('_', '-')} {v:g} must be between 0 and 1")
     setup = hil_replay.prepare(args.model, args.data, args.build_dir, args.box_cflags,
-                               args.firmware, zero_at_powerup=args.zero_at_powerup)
+                               args.firmware, zero_at_powerup=args.zero_at_powerup,
+                               reference=args.reference)
     n = setup.feed.n_samples
     bad = [z for z in args.zero_at if not 0 <= z < n]
     if bad:

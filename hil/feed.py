@@ -61,8 +61,10 @@ channel_sensors = model_sensors  # the box's channel order, from the one model.j
 aux_names = model_aux
 
 
-def build_feed(model: dict, data_path: str | Path, max_aux: int = 1) -> Feed:
-    """Load ``data_path`` with the model's sensors/aux/axes and quantise it like the box does."""
+def build_feed(model: dict, data_path: str | Path, reference: str | None = None,
+               max_aux: int = 1) -> Feed:
+    """Load ``data_path`` with the model's sensors/aux/axes and quantise it like the box does;
+    judged with ``reference`` (``start``/``none``), by default the model's own."""
     from codegen.fixed import temp_to_code
 
     path = Path(data_path)
@@ -87,7 +89,7 @@ def build_feed(model: dict, data_path: str | Path, max_aux: int = 1) -> Feed:
         run.n_samples, len(sensors))
     aux_values = (np.rint(run.aux).astype(np.int64) if run.aux is not None
                   else np.zeros((run.n_samples, 0), dtype=np.int64))
-    # judged as the model is: with a ``start`` reference, the change since the run's start
-    ref = Reference.of_model(model)
+    # judged as the model is (or as asked): with ``start``, the change since the run's start
+    ref = Reference.of_kind(reference) if reference is not None else Reference.of_model(model)
     measured = {a: ref.apply(run.target(a)) for a in targets}
     return Feed(run, codes, aux_values, axes, measured, ref)

@@ -22,6 +22,7 @@ from hil.expect import Expected, OutputConfig, expect_session, sr_timeline
 from hil.feed import Feed, build_feed
 from hil.native import NativeBox
 from hil.runner import Box, Capture, ChipFault, Event, Zero, replay
+from host.fitting import Reference
 
 
 @dataclass
@@ -50,8 +51,20 @@ def default_build_dir(model_json: str | Path) -> Path:
 
 def prepare(model_json: str | Path, data: str | Path, build_dir: str | Path | None = None,
             cflags: str = "", binary: str | Path | None = None,
-            zero_at_powerup: bool | None = None) -> ReplaySetup:
-    """Generate the header, build the native firmware (unless ``binary``) and load the run."""
+            zero_at_powerup: bool | None = None, reference: str | None = None) -> ReplaySetup:
+    """Generate the header, build the native firmware (unless ``binary``) and load the run.
+
+    ``reference`` (``start``/``none``) judges the run that way instead of by the model's own
+    reference, and the header zeroes at power-up to match unless ``zero_at_powerup`` says.
+    A box zeroed at power-up outputs the change since then, which ``none`` cannot judge.
+    """
+    if reference is not None:
+        Reference.of_kind(reference)  # a clear error for an unknown kind
+        if zero_at_powerup is None:
+            zero_at_powerup = reference == "start"
+        elif zero_at_powerup and reference == "none":
+            raise ValueError("--reference none judges the box's absolute output, but a box "
+                             "zeroed at power-up outputs the change since then: drop one")
     build_dir = Path(build_dir) if build_dir is not None else default_build_dir(model_json)
     mb = prepare_header(model_json, build_dir, zero_at_powerup)
     output = OutputConfig.from_build(cflags)
@@ -59,7 +72,7 @@ def prepare(model_json: str | Path, data: str | Path, build_dir: str | Path | No
     output.check_fits(len(q.channels), len(q.axes), len(q.aux), str(model_json))
     exe = Path(binary) if binary is not None else build_firmware(mb.header_path, build_dir,
                                                                  "native", cflags)
-    feed = build_feed(mb.model, data)
+    feed = build_feed(mb.model, data, reference)
     return ReplaySetup(mb, feed, FixedModel(q), exe, output)
 
 

@@ -260,3 +260,34 @@ def test_judging_thresholds_are_applied(setup):
     loose = hil_replay.ReplaySetup(setup.build, setup.feed, setup.twin, setup.binary,
                                    setup.output, Judging(max_held_fraction=0.3))
     assert hil_replay.run(loose, events)[0].ok
+
+
+def test_reference_option_judges_the_run_as_asked(setup, tmp_path):
+    """``hil replay --reference``: ``start`` on a model without one zeroes the box at power-up
+    and judges the change since the start; ``none`` judges the absolute output; a box zeroed at
+    power-up cannot be judged against one fixed datum."""
+    model = _model_path(setup, tmp_path)
+    assert setup.model.get("reference", {"kind": "none"})["kind"] == "none"
+    run = load_run(setup.feed.run.path, targets=["ch1_um", "ch3_um"], sensors="T*")
+    for kind in ("start", "none"):
+        z = hil_replay.prepare(model, setup.feed.run.path, tmp_path / "hil", reference=kind)
+        assert z.build.zero_at_powerup is (kind == "start")
+        assert z.feed.reference.kind == kind
+        report, _ = hil_replay.run(z)
+        assert report.ok, report.problems
+        for a, name in enumerate(["ch1_um", "ch3_um"]):
+            meas = run.target(name)
+            if kind == "start":  # the mean of the first 8 samples, then frozen, as the box
+                k = np.minimum(np.arange(N), 7) + 1
+                meas = meas - np.cumsum(np.where(np.arange(N) < 8, meas, 0.0)) / k
+            comp = meas - report.fw_out_nm[:, a] / 1000.0
+            assert report.axes[name].compensated_rms_um == pytest.approx(
+                np.sqrt(np.mean(comp ** 2)), rel=1e-9)
+    with pytest.raises(ValueError, match="zeroed at power-up"):
+        hil_replay.prepare(model, setup.feed.run.path, tmp_path / "hil", reference="none",
+                           zero_at_powerup=True)
+    cli = subprocess.run([sys.executable, "-m", "hil", "replay", "--model", str(model),
+                          "--data", str(setup.feed.run.path), "--build-dir",
+                          str(tmp_path / "hil"), "--reference", "sometimes"],
+                         capture_output=True, text=True, cwd=REPO)
+    assert cli.returncode == 2 and "--reference" in cli.stderr

@@ -14,6 +14,7 @@ from host.fitting.out_of_fold import (
     solve_normal,
     validation_rmse,
 )
+from host.fitting.reference import KINDS as REFERENCE_KINDS
 from host.fitting.reference import NO_REFERENCE, Reference, causal_reference
 from host.fitting.ridge import RidgeFit, fit_ridge
 from host.fitting.validation import (
@@ -30,6 +31,7 @@ __all__ = [
     "NO_REFERENCE",
     "Reference",
     "causal_reference",
+    "REFERENCE_KINDS",
     "DEFAULT_BLOCKS",
     "FoldGram",
     "axis_terms",
