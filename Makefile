@@ -46,7 +46,7 @@ test-python: $(STAMP)
 FLOORS_VENV := .venv-floors
 FLOORS_TESTS := tests/test_sklearn_checks.py tests/test_selection.py tests/test_codegen.py \
                 tests/test_report.py tests/test_protocol.py tests/test_monitor.py \
-                tests/test_model_estimator.py
+                tests/test_model_estimator.py tests/test_free_channels.py
 $(FLOORS_VENV)/.installed: pyproject.toml scripts/floors.py
 	rm -rf $(FLOORS_VENV)
 	python3 -m venv $(FLOORS_VENV)

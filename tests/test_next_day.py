@@ -62,7 +62,8 @@ def test_nested_validation_is_refit_without_each_run_and_predicts_it():
 
     def train_fold(sub):
         seen.append([r.path for r in sub])
-        return terms + [make_lag("T1", 1800.0, PERIOD)], terms  # with an "effect", baseline
+        # with an "effect", the baseline, and no free channel read
+        return terms + [make_lag("T1", 1800.0, PERIOD)], terms, []
 
     res = nested_validation(runs, "dz_um", train_fold, aux=[], period_s=PERIOD, n_blocks=3,
                             reference=NO_REFERENCE, max_states=0)
@@ -88,6 +89,10 @@ def test_ridge_basis_spends_only_the_states_it_is_given():
     assert sum(t.kind == "lag" for t in full) == 4
     assert sum(t.kind == "lag" for t in ridge_basis(terms, [], PERIOD, 8 * 3600.0, 3)) == 2
     assert ridge_basis(terms, [], PERIOD, 8 * 3600.0, 1) == terms  # one state: no lag pair
+    # a sensor read on a free channel: its temperature, no lag (the states stay with T1, T2)
+    also = ridge_basis(terms, [], PERIOD, 8 * 3600.0, 8, also=["T3", "T1"])
+    assert also[:3] == [*terms, make_temp("T3")]
+    assert sum(t.kind == "lag" for t in also) == 4 and all(t.source != "T3" for t in also[3:])
 
 
 def test_train_promises_a_nested_error_and_the_box_runs_either_family():

@@ -86,6 +86,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "selected sensors and the speed, shrunk; ols: least squares on "
                              "the selected terms and effects (paper 000's eq. 4); auto: the "
                              "family with the lowest nested error (docs/next-day.md)")
+    parser.add_argument("--no-fill-channels", action="store_true",
+                        help="the ridge reads only the selected sensors (default: also the "
+                             "best of the others, by an L1 ranking, on the box's free channels)")
     parser.add_argument("--no-nested", action="store_true",
                         help="skip nested validation (the pipeline refitted per fold: the "
                              "promised error); 3-4x faster; auto then means ols")
@@ -110,7 +113,9 @@ def print_table(doc: dict, model: dict) -> None:
         folds = a.get("promised_fold_rmse_um") or []
         if a.get("promised_rmse_um") is not None and folds:
             print(f"{name}: promised for an unseen day {_fmt(a['promised_rmse_um'])} um (nested, "
-                  f"folds {_fmt(min(folds))}..{_fmt(max(folds))} um), fit {a.get('fit')}")
+                  f"folds {_fmt(min(folds))}..{_fmt(max(folds))} um), fit {a.get('fit')}"
+                  + (f", free channels read: {','.join(a['free_channels_read'])}"
+                     if a.get("free_channels_read") else ""))
     if "header" in doc:
         print(f"header: {doc['header']}")
 
@@ -123,8 +128,11 @@ def print_effects(doc: dict) -> None:
         effects = a.get("effects") or []
         kept = [e for e in effects if not dropped_reason(e)]
         if kept:
-            print(f"{name}: effects lower the validation RMSE {_fmt(before)} -> {_fmt(after)} um"
-                  " (the box's model)")
+            verb = "lower" if after is not None and before is not None and after <= before \
+                else "change"
+            print(f"{name}: effects {verb} the validation RMSE {_fmt(before)} -> {_fmt(after)} um"
+                  " (the box's model: its own validation, which does not see the next day; "
+                  "the promise below does)")
         elif effects:
             print(f"{name}: no effect survived the channel budget (validation RMSE "
                   f"{_fmt(after)} um)")
@@ -158,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
                         n_blocks=args.blocks, seed=args.seed, fill_gaps=args.fill_gaps,
                         tc_type=args.tc_type, max_channels=args.max_channels,
                         reference=args.reference, fit=args.fit, nested=not args.no_nested,
-                        quiet=args.json)
+                        fill_channels=not args.no_fill_channels, quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"
     header = None

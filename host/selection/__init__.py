@@ -13,6 +13,7 @@ from host.selection.correlation import (
     pearson_r,
     thermal_parameters,
 )
+from host.selection.screening import fill_free_channels, l1_ranking
 from host.selection.selector import (
     DEFAULT_BLOCKS,
     DEFAULT_GROUPS,
@@ -35,6 +36,8 @@ __all__ = [
     "cross_correlation",
     "default_max_lag",
     "ec_reduction",
+    "fill_free_channels",
+    "l1_ranking",
     "fold_labels",
     "group_refinement",
     "hard_c_means",

@@ -16,9 +16,11 @@ select-then-accept is high-variance on data this small. So, per axis:
   fold (host.fitting.ridge). ``auto`` (the default) keeps the family with the lowest nested
   error; effects it gives up stay in the report, marked as not in the box's model.
 
-The ridge basis spends filter states: at most ``contract.box.BOX_STATES`` over all axes, and
-its coefficients must keep codegen's fixed-point bound (host.effects.fixed_point_refusal);
-lags are given up, longest first, until both hold.
+The ridge reads every wired thermocouple: the sensors the axes selected plus, up to the
+channel budget, the best of the others by an L1 ranking (host.selection.screening), so the box's
+free inputs are not left unused. Its basis spends filter states: at most
+``contract.box.BOX_STATES`` over all axes, and its coefficients must keep codegen's fixed-point
+bound (host.effects.fixed_point_refusal); lags are given up, longest first, until both hold.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import numpy as np
 
 from contract.box import BOX_STATES
 from contract.errors import InputError
-from contract.terms import FILTER_KINDS, Term, make_lag, make_speed, term_sensors
+from contract.terms import FILTER_KINDS, Term, make_lag, make_speed, make_temp, term_sensors
 from host.effects import fixed_point_refusal, tau_grid
 from host.fitting import (
     Reference,
@@ -44,6 +46,7 @@ from host.fitting import (
 )
 from host.io import Run
 from host.progress import progress
+from host.selection import fill_free_channels, l1_ranking
 from host.train.axis_fit import axis_dict
 
 FITS = ("auto", "ols", "ridge")
@@ -51,8 +54,9 @@ DEFAULT_FIT = "ridge"  # measured best on unseen runs of every source (docs/next
 LAG_TAUS_S = (900.0, 3600.0)  # a fast and a slow part of the structure behind each sensor
 MIN_FOLD_SAMPLES = 8  # a training piece shorter than this is left out of a nested fold
 
-# the pipeline on a fold's training data: one axis's final terms and its baseline (no effects)
-TrainFold = Callable[[list[Run]], tuple[list[Term], list[Term]]]
+# the pipeline on a fold's training data: one axis's final terms, its baseline (no effects)
+# and the sensors the ridge reads besides the terms' own (the free channels filled)
+TrainFold = Callable[[list[Run]], tuple[list[Term], list[Term], list[str]]]
 # family -> (effects kept?, fitted by ridge?)
 FAMILIES = {"ols": (True, False), "baseline": (False, False), "ridge": (True, True),
             "ridge-baseline": (False, True)}
@@ -91,12 +95,38 @@ def held_out(runs: Sequence[Run], groups: np.ndarray, fold: int, target: str,
     return (meas, pred) if rows is None else (meas[rows], pred[rows])
 
 
+def lag_taus(runs: Sequence[Run], period_s: float) -> list[float]:
+    """The ridge's lag time constants that the shortest run identifies."""
+    return tau_grid(period_s, min(r.time_s[-1] - r.time_s[0] for r in runs), LAG_TAUS_S)
+
+
+def reading(terms: Sequence[Term], sensors: Sequence[str]) -> list[Term]:
+    """The terms plus the temperature of every sensor in ``sensors`` they do not read yet."""
+    have = set(term_sensors(terms))
+    return list(terms) + [make_temp(s) for s in sensors if s not in have]
+
+
+def channel_fill(runs: Sequence[Run], targets: Sequence[str], wired: Sequence[str],
+                 pool: Sequence[str], *, max_channels: int, period_s: float, n_blocks: int,
+                 reference: Reference) -> list[str]:
+    """The sensors of ``pool`` the ridge reads on the free channels: each axis's L1 ranking
+    in turn (host.selection.screening) until ``max_channels`` are wired."""
+    if len(wired) >= max_channels:
+        return []
+    taus = lag_taus(runs, period_s)
+    rankings = [l1_ranking(runs, t, pool, period_s=period_s, taus=taus, n_blocks=n_blocks,
+                           reference=reference) for t in targets]
+    return fill_free_channels(wired, rankings, max_channels)
+
+
 def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
-                shortest_s: float, max_states: int) -> list[Term]:
-    """The terms plus lags of every sensor they use (as many time constants as the states
-    allow, fastest first) and the speed of every aux input."""
-    out = list(terms)
-    sensors = term_sensors(out)
+                shortest_s: float, max_states: int, also: Sequence[str] = ()) -> list[Term]:
+    """The terms, the temperature of each sensor in ``also`` they do not read, lags of the
+    terms' own sensors (as many time constants as the states allow, fastest first) and the
+    speed of every aux input. The other sensors get no lags: with them the ridge lost more
+    often by over 1.5x on unseen runs (docs/next-day.md)."""
+    sensors = term_sensors(terms)
+    out = reading(terms, also)
     taus = tau_grid(period_s, shortest_s, LAG_TAUS_S)
     free = max_states - sum(t.kind in FILTER_KINDS for t in out)
     n_lags = min(len(taus), free // len(sensors)) if sensors else 0
@@ -130,12 +160,12 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
         sub = fold_training(runs, groups, int(fold))
         if not sub:
             continue
-        final, baseline = train_fold(sub)
+        final, baseline, fill = train_fold(sub)
         shortest = min(r.time_s[-1] - r.time_s[0] for r in sub)
         for family, (with_effects, shrunk) in FAMILIES.items():
             terms = final if with_effects else baseline
             if shrunk:
-                terms = ridge_basis(terms, aux, period_s, shortest, max_states)
+                terms = ridge_basis(terms, aux, period_s, shortest, max_states, fill)
                 predict_x = fit_ridge_terms(sub, target, terms, period_s, n_blocks,
                                             reference)[0].predict
             else:
@@ -150,12 +180,14 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
 
 def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: Sequence[str],
                period_s: float, n_blocks: int, reference: Reference,
-               max_states: int) -> tuple[list[Term], object, object] | None:
-    """The ridge family fitted on all runs, within the box's states and fixed-point bound
-    (None when not even the terms alone fit: then the box keeps the least-squares model)."""
+               max_states: int, also: Sequence[str] = ()
+               ) -> tuple[list[Term], object, object] | None:
+    """The ridge family fitted on all runs (reading the sensors ``also`` too), within the box's
+    states and fixed-point bound (None when not even the terms and temperatures alone fit:
+    then the box keeps the least-squares model)."""
     shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
     for states in range(max_states, -1, -1):
-        basis = ridge_basis(terms, aux, period_s, shortest, states)
+        basis = ridge_basis(terms, aux, period_s, shortest, states, also)
         fit, st = fit_ridge_terms(runs, target, basis, period_s, n_blocks, reference)
         if fixed_point_refusal(basis, fit.coef) is None:
             return basis, fit, st

@@ -46,6 +46,7 @@ from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_b
 from host.train.next_day import (
     DEFAULT_FIT,
     FAMILIES,
+    channel_fill,
     check_fit,
     nested_validation,
     ridge_axis,
@@ -136,9 +137,13 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
 
 def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
                          options: dict, period_s: float, n_blocks: int, reference: Reference,
-                         n_axes: int, quiet: bool = True) -> dict:
+                         n_axes: int, fill: Sequence[str] = (), pool: Sequence[str] = (),
+                         quiet: bool = True) -> dict:
     """Judge the families by nested validation and keep the one for the next day
-    (host.train.next_day); the axis gains ``fit`` and the promised error with its spread."""
+    (host.train.next_day); the axis gains ``fit`` and the promised error with its spread.
+
+    The ridge also reads the sensors ``fill`` (free channels); each nested fold fills its own
+    from ``pool`` when ``fill`` is not empty (the fold's ranking, not the final one)."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
     baseline = axis.get("baseline")
     baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
@@ -146,11 +151,14 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     max_states = states_per_axis(n_axes)
     aux = list(options["aux"])
 
-    def train_fold(sub: list[Run]) -> tuple[list[Term], list[Term]]:
+    def train_fold(sub: list[Run]) -> tuple[list[Term], list[Term], list[str]]:
         spec = train_model(sub, [target], **options, fit="ols", nested=False)["axes"][target]
         final = [Term.from_json(x) for x in spec["terms"]]
         base = spec.get("baseline")
-        return final, ([Term.from_json(x) for x in base["terms"]] if base else final)
+        extra = channel_fill(sub, [target], term_sensors(final), pool,
+                             max_channels=options["max_channels"], period_s=period_s,
+                             n_blocks=n_blocks, reference=reference) if fill else []
+        return final, ([Term.from_json(x) for x in base["terms"]] if base else final), extra
 
     result = None
     if nested:
@@ -170,18 +178,20 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
             effect["dropped_by_nested_validation"] = True
         axis["effects_rejected"] = ("nested validation: the pipeline refitted without each "
                                     "fold predicted it better without the effects")
-    alpha = None
+    alpha, extra = None, []
     if shrunk:
         terms = final_terms if with_effects else baseline_terms
         found = ridge_axis(runs, target, terms, aux=aux, period_s=period_s, n_blocks=n_blocks,
-                           reference=reference, max_states=max_states)
+                           reference=reference, max_states=max_states, also=fill)
         if found is None:  # not even the terms alone keep the fixed-point bound: no ridge
             family = family.replace("ridge-", "").replace("ridge", "ols")
         else:
             basis, ridge, st = found
+            extra = [s for s in fill if s not in term_sensors(terms)]
             axis = {**axis, **ridge_axis_dict(basis, ridge, st)}
             alpha = float(ridge.alpha)
     axis["fit"] = {"family": family, "requested": fit, "alpha": alpha,
+                   "free_channels_read": extra,
                    "rule": ("the family with the lowest nested error: least squares on the "
                             "selected terms with or without the effects, or a ridge over "
                             "them plus lags and speed")}
@@ -240,13 +250,15 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
                 tc_type: str = DEFAULT_TC_TYPE, max_channels: int = BOX_CHANNELS,
                 reference: str = DEFAULT_REFERENCE, fit: str = DEFAULT_FIT, nested: bool = True,
-                quiet: bool = True) -> dict:
+                fill_channels: bool = True, quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
     (representatives and EC subset by out-of-fold error, default) or ``"paper"`` (paper 000
     exactly: by training error). ``channels`` maps sensor -> box channel (others get the
     free indices in data-column order). ``max_delay_s`` limits the delay search.
+    ``fill_channels``: the ridge also reads the best-ranked other sensors on the box's free
+    channels (host.train.next_day.channel_fill).
     ``max_channels`` is the box's thermocouple budget shared by all axes
     (see fit_channel_budget).
     """
@@ -350,12 +362,20 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                        effects=effects, ambient=ambient, selection=selection,
                        max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
                        max_channels=max_channels, reference=reference)
+        wired = [n for n in names if n in channels_of(
+            {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})]
+        pool = [n for i, n in enumerate(names) if i not in dead]
+        # every axis's ridge reads every wired sensor, the free channels filled first
+        read = [*wired, *channel_fill(runs, list(axes), wired, pool, max_channels=max_channels,
+                                      period_s=period_s, n_blocks=n_blocks, reference=ref)
+                ] if fill_channels and fit != "ols" else []
         for target in progress(list(axes), "nested validation (the next day)", quiet=quiet):
             axes[target] = fit_for_the_next_day(axes[target], runs, target, fit=fit,
                                                 nested=nested, options=options,
                                                 period_s=period_s, n_blocks=n_blocks,
                                                 reference=ref, n_axes=len(targets),
-                                                quiet=quiet)
+                                                fill=read,
+                                                pool=pool, quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
@@ -388,6 +408,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "reference": ref.kind,
             "fit": fit,
             "nested": bool(nested),
+            "fill_channels": bool(fill_channels),
             "ambient": ambient,
             "max_channels": int(max_channels),
         },

@@ -14,6 +14,11 @@ def axis_sensors(axis: dict) -> list[str]:
     return out
 
 
+def free_channels(axis: dict) -> list[str]:
+    """Sensors the axis's ridge reads besides the ones selected for it (its free channels)."""
+    return list((axis.get("fit") or {}).get("free_channels_read") or [])
+
+
 def summary(model: dict, model_path: str) -> dict:
     """The ``host train --json`` document (a fixed shape scripts rely on, plus a few extras)."""
     axes = {}
@@ -32,6 +37,8 @@ def summary(model: dict, model_path: str) -> dict:
             "promised_rmse_um": m.get("promised_rmse_um"),
             "promised_fold_rmse_um": m.get("promised_fold_rmse_um"),
             "fit": (axis.get("fit") or {}).get("family"),
+            # sensors the ridge reads on the box's free channels (L1 ranking), not selected
+            "free_channels_read": free_channels(axis),
             # the loop: before/after the effects, what was added and what is still unexplained
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
@@ -63,5 +70,7 @@ def box_model_note(axis: dict) -> str | None:
     if axis.get("effects_rejected"):
         notes.append("without the effects (nested validation)")
     if (axis.get("fit") or {}).get("family", "ols").startswith("ridge"):
-        notes.append("a ridge over the terms plus lags and speed")
+        extra = free_channels(axis)
+        notes.append("a ridge over the terms plus lags and speed"
+                     + (f", reading {', '.join(extra)} on free channels" if extra else ""))
     return "; ".join(notes) or None

@@ -1,0 +1,68 @@
+"""Which thermocouples fill the box's free channels: an L1 ranking of every sensor.
+
+Paper 000's selection (and the effects) choose a few sensors per axis, while the box has 8
+inputs and shrinkage copes with more. A lasso over every sensor's temperature and its
+first-order lags (referenced as the model is, columns standardised, penalty chosen on the
+training folds) ranks the sensors by the weight it gives each one's group of features; the
+next-day ridge then reads the selected sensors plus the best-ranked others up to the channel
+budget (host.train.next_day). Measured on unseen runs of three sources in docs/next-day.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from contract.terms import make_lag, make_temp
+from host.fitting import NO_REFERENCE, Reference, stack
+from host.io import Run
+
+MAX_ROWS = 4000  # the lasso sees every k-th row beyond this: thermal data is smooth
+N_ALPHAS = 30  # penalties on the lasso path, from the one that keeps nothing down 1000x
+
+
+def l1_ranking(runs: Sequence[Run], target: str, sensors: Sequence[str], *, period_s: float,
+               taus: Sequence[float], n_blocks: int,
+               reference: Reference = NO_REFERENCE) -> list[str]:
+    """``sensors`` ordered by the lasso weight of their temperature and lags on ``target``
+    (largest first; sensors the lasso leaves out keep their given order at the end)."""
+    from sklearn.linear_model import LassoCV  # imported here: only the ridge fill needs it
+    from sklearn.model_selection import PredefinedSplit
+
+    sensors = list(sensors)
+    if len(sensors) <= 1:
+        return sensors
+    terms = [make_temp(s) for s in sensors]
+    terms += [make_lag(s, tau, period_s) for tau in taus for s in sensors]
+    st = stack(list(runs), terms, target, period_s, n_blocks, reference)
+    step = max(1, len(st.y) // MAX_ROWS)
+    X, y, groups = st.X[::step], st.y[::step], st.groups[::step]
+    sd = X.std(axis=0)
+    sd[sd == 0] = 1.0
+    Z = (X - X.mean(axis=0)) / sd
+    if np.unique(groups).size < 2:
+        return sensors
+    top = float(np.max(np.abs(Z.T @ (y - y.mean())))) / len(y)  # every weight 0 from here
+    if not top > 0:
+        return sensors
+    alphas = top * np.logspace(0, -3, N_ALPHAS)
+    lasso = LassoCV(alphas=alphas, cv=PredefinedSplit(groups), max_iter=5000,
+                    tol=1e-3).fit(Z, y)
+    weight = np.abs(lasso.coef_).reshape(-1, len(sensors)).sum(axis=0)
+    return [sensors[i] for i in np.argsort(-weight, kind="stable")]
+
+
+def fill_free_channels(wired: Sequence[str], rankings: Sequence[Sequence[str]],
+                       max_channels: int) -> list[str]:
+    """The sensors to add to ``wired`` until ``max_channels``: each axis's ranking in turn
+    gives its best sensor not yet wired (so every axis gets its share of the free inputs)."""
+    chosen = list(wired)
+    queues = [[s for s in r] for r in rankings]
+    while len(chosen) < max_channels and any(queues):
+        for q in queues:
+            while q and q[0] in chosen:
+                q.pop(0)
+            if q and len(chosen) < max_channels:
+                chosen.append(q.pop(0))
+    return chosen[len(wired):]
