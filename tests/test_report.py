@@ -399,3 +399,31 @@ def test_fold_stages_come_from_the_effects_evidence_and_are_drawn(tmp_path):
     fig.savefig(tmp_path / "f.png")
     pixels = mpimg.imread(tmp_path / "f.png")
     assert float(pixels[..., :3].std()) > 0.05
+
+
+def test_run_figure_draws_the_promise_as_a_band_and_ec_figure_the_fold_bars():
+    from matplotlib.collections import LineCollection
+
+    from host.analysis import plots
+
+    t = np.arange(100) * 60.0
+    meas = np.sin(t / 900.0)
+    fig = plots.run_fit("day", "dz_um", t, meas, {"our model": 0.9 * meas},
+                        (1.5, [1.0, 2.0]))
+    bottom = fig.axes[1]
+    labels = bottom.get_legend_handles_labels()[1]
+    assert any(lb.startswith("promised for an unseen day: ±1.50 µm RMS (folds 1.00–2.00 µm")
+               for lb in labels)
+    # the band's corners in data units (a Rectangle or a Polygon, by matplotlib version)
+    ys = np.concatenate([p.get_patch_transform().transform(p.get_path().vertices)[:, 1]
+                         for p in bottom.patches])
+    assert ys.min() == pytest.approx(-1.5) and ys.max() == pytest.approx(1.5)
+    assert {round(ln.get_ydata()[0], 6) for ln in bottom.lines if ln.get_linestyle() == ":"} \
+        == {-2.0, 2.0}
+    assert not plots.run_fit("day", "dz_um", t, meas, {"m": meas}).axes[1].patches
+    ec = plots.ec_curve("dz_um", [1.0, 0.8, 0.9], 2, errors=[3.0, 2.0, 2.2], rule="min",
+                        fold_errors=[[2.5, 3.4], [1.5, 2.4], [2.0, 2.4]])
+    bars = [c for a in ec.axes for c in a.collections if isinstance(c, LineCollection)]
+    segs = np.concatenate([np.asarray(s) for c in bars for s in c.get_segments()])
+    np.testing.assert_allclose(sorted(set(segs[:, 1].round(6))),
+                               [1.5, 2.0, 2.4, 2.5, 3.4])

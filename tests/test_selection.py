@@ -83,6 +83,9 @@ class _FixedErrors:
     def error(self, cols, kind):
         return self.table[tuple(cols)]
 
+    def fold_rmse(self, cols):  # one fold: its error is the subset's
+        return np.array([self.table[tuple(cols)]])
+
 
 def test_ec_picks_argmin_of_constructed_curve():
     reps = [0, 1, 2, 3, 4]
@@ -242,3 +245,29 @@ def test_only_validated_refined_refines_and_the_trace_says_so():
         assert ("refinement" in trace) is refines
         if not refines:
             assert result.sensors == result.ec.subsets[result.ec.chosen_count - 1]
+
+
+def test_the_ec_trace_keeps_each_size_fold_errors_for_the_error_bars():
+    """Each out-of-fold S_i comes with the held-out RMSE of every fold (the report's EC
+    error bars): recomputed here by numpy least squares without each fold."""
+    X, y = _two_source_data()
+    n = len(y)
+    folds = fold_labels(np.zeros(n))
+    names = [f"T{i:02d}" for i in range(X.shape[1])]
+    trace = select_sensors(X, y, np.zeros(n), folds, 60.0, n_groups=3).trace(names)
+    per_fold = trace["ec_fold_errors_um"]
+    assert len(per_fold) == len(trace["ec_errors_um"])
+    for subset, s_i, fold_rmse in zip(trace["ec_subsets"], trace["ec_errors_um"], per_fold,
+                                      strict=True):
+        cols = [names.index(s) for s in subset]
+        want = []
+        for f in np.unique(folds):
+            tr, te = folds != f, folds == f
+            A = np.column_stack([np.ones(tr.sum()), X[tr][:, cols]])
+            beta = np.linalg.lstsq(A, y[tr], rcond=None)[0]
+            pred = beta[0] + X[te][:, cols] @ beta[1:]
+            want.append(np.sqrt(np.mean((y[te] - pred) ** 2)))
+        np.testing.assert_allclose(fold_rmse, want, rtol=1e-6)
+        assert min(fold_rmse) - 1e-12 <= s_i <= max(fold_rmse) + 1e-12
+    paper = select_sensors(X, y, np.zeros(n), folds, 60.0, n_groups=3, method="paper")
+    assert "ec_fold_errors_um" not in paper.trace(names)  # a training error has no folds

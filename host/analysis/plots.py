@@ -7,6 +7,7 @@ than ``pyplot`` so no global state or GUI backend is involved.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 
 import matplotlib
@@ -147,13 +148,14 @@ def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
              subsets: Sequence[Sequence[str]] | None = None,
              errors: Sequence[float] | None = None, rule: str = "ec",
              max_sensors: int | None = None,
-             error_spread: Sequence[float] | None = None) -> Figure:
+             fold_errors: Sequence[Sequence[float]] | None = None) -> Figure:
     """Paper 000 Fig. 8: EC_i over model size; with ``errors`` also S_i itself (right axis).
 
     ``rule`` says what fixed the count: "ec" (paper 000: smallest EC_i), "min" (validated:
     smallest out-of-fold S_i) or "cap" (the smallest S_i lay beyond ``max_sensors``, so the cap
     decided); the chosen size is circled on the curve that fixed it, the cap drawn as a line.
-    ``error_spread`` (one value per size) draws error bars on S_i.
+    ``fold_errors`` (each size's held-out RMSE per fold) draws S_i's bar from the best to the
+    worst fold.
     """
     fig = Figure(figsize=WIDE, layout="constrained")
     ax = fig.add_subplot()
@@ -163,11 +165,15 @@ def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
     marked_ax, marked = ax, list(ec)
     if errors is not None and len(errors) == len(ec):
         ax2 = ax.twinx()
-        if error_spread is not None and len(error_spread) == len(errors):
-            ax2.errorbar(sizes, errors, yerr=error_spread, fmt="none", ecolor=PEER_COLOURS[0],
+        label = "S$_i$, error of the best i-sensor model (µm)"
+        if fold_errors is not None and len(fold_errors) == len(errors):
+            pairs = list(zip(errors, fold_errors, strict=True))
+            lo = [max(e - min(f), 0.0) if len(f) else 0.0 for e, f in pairs]
+            hi = [max(max(f) - e, 0.0) if len(f) else 0.0 for e, f in pairs]
+            ax2.errorbar(sizes, errors, yerr=[lo, hi], fmt="none", ecolor=PEER_COLOURS[0],
                          alpha=0.6, capsize=3)
-        lines += ax2.plot(sizes, errors, "s--", color=PEER_COLOURS[0],
-                          label="S$_i$, error of the best i-sensor model (µm)")
+            label += ", bar: best to worst fold"
+        lines += ax2.plot(sizes, errors, "s--", color=PEER_COLOURS[0], label=label)
         ax2.set_ylabel("S$_i$ (µm)")
         if rule in ("min", "cap"):
             marked_ax, marked = ax2, list(errors)
@@ -197,8 +203,12 @@ def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
 
 
 def run_fit(run: str, axis: str, time_s: np.ndarray, measured: np.ndarray,
-            predictions: Mapping[str, np.ndarray]) -> Figure:
-    """Measured displacement, each model's prediction (top) and its residual (bottom)."""
+            predictions: Mapping[str, np.ndarray],
+            promise: tuple[float, Sequence[float]] | None = None) -> Figure:
+    """Measured displacement, each model's prediction (top) and its residual (bottom).
+
+    ``promise`` (the error ``host train`` promised for an unseen day and its per-fold values)
+    is drawn on the residual as a band of ± that RMS, the worst fold as dotted lines."""
     fig = Figure(figsize=(9.0, 6.5), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
     t, tlabel = time_axis(np.asarray(time_s, dtype=float))
@@ -211,6 +221,16 @@ def run_fit(run: str, axis: str, time_s: np.ndarray, measured: np.ndarray,
         bottom.plot(t, residual, style, color=colour, lw=1.2,
                     label=f"{name}: RMS {rms(residual):.2f} µm")
     bottom.axhline(0.0, color="black", lw=0.8)
+    if promise is not None and math.isfinite(promise[0]):
+        band, folds = promise
+        label = f"promised for an unseen day: ±{band:.2f} µm RMS"
+        bottom.axhspan(-band, band, color=OURS_COLOUR, alpha=0.12, lw=0)
+        if len(folds):
+            worst = max(folds)
+            label += f" (folds {min(folds):.2f}–{worst:.2f} µm, worst dotted)"
+            for y in (-worst, worst):
+                bottom.axhline(y, color=OURS_COLOUR, lw=0.8, ls=":")
+        bottom.plot([], [], color=OURS_COLOUR, alpha=0.3, lw=6, label=label)
     top.set_ylabel("displacement (µm)")
     top.set_title(f"{run}, {axis}: prediction against measurement")
     top.legend(fontsize=8, loc="best")

@@ -384,7 +384,8 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             rule = count_rule(sel, model)
             cap = int(model.get("training", {}).get("max_sensors") or 0) or None
             fig_obj = plots.ec_curve(axis_name, sel["ec_curve"], int(sel.get("chosen_count", 0)),
-                                     sel.get("ec_subsets"), sel.get("ec_errors_um"), rule, cap)
+                                     sel.get("ec_subsets"), sel.get("ec_errors_um"), rule, cap,
+                                     sel.get("ec_fold_errors_um"))
             title = f"{axis_name}: evaluation criterion"
             errors = sel.get("ec_errors_um") or []
             caption = ("EC<sub>i</sub> = (S<sub>i</sub>/S<sub>1</sub>)·(i/c) trades the error "
@@ -419,7 +420,11 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             for peer_name, per_run in peer_models.items():
                 if (run.path, axis_name) in per_run:
                     preds[peer_name] = per_run[(run.path, axis_name)]
-            fig_obj = plots.run_fit(run.name, axis_name, run.time_s, measured, preds)
+            metrics = axis.get("metrics", {})
+            promised = metrics.get("promised_rmse_um")
+            fig_obj = plots.run_fit(run.name, axis_name, run.time_s, measured, preds,
+                                    None if promised is None else
+                                    (float(promised), metrics.get("promised_fold_rmse_um") or []))
             entry = run_table.setdefault(run.name, {})
             entry[axis_name] = {
                 "raw_rms_um": plots.rms(measured),
@@ -429,7 +434,10 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             }
             title = f"{run.name}, {axis_name}"
             caption = ("Top: the measured displacement and what each model predicts from what "
-                       "the box measures. Bottom: what is left (RMS in the legend)."
+                       "the box measures. Bottom: what is left (RMS in the legend)"
+                       + ("; the shaded band is ± the error host train promised for an "
+                          "unseen day (nested validation), dotted its worst fold."
+                          if promised is not None else ".")
                        + (" This run was used for training." if entry[axis_name]["in_training"]
                           else " The model never saw this run."))
             file = f"run_{_slug(run.name)}_{_slug(axis_name)}.png"

@@ -117,6 +117,7 @@ class ECResult:
     chosen_count: int
     exhaustive_up_to: int
     rule: str = "ec"
+    fold_errors: list[list[float]] | None = None  # held-out RMSE per fold of each best subset
 
 
 def ec_reduction(cache: GramCache, reps: Sequence[int], error: str, max_sensors: int,
@@ -159,7 +160,10 @@ def ec_reduction(cache: GramCache, reps: Sequence[int], error: str, max_sensors:
     curve = [((s / s1) if s1 > 0 else (0.0 if s == 0 else math.inf)) * (i + 1) / c
              for i, s in enumerate(best_err)]
     chosen = int(np.argmin(curve[:cap] if rule == "ec" else best_err[:cap])) + 1
-    return ECResult(best_err, curve, best_sub, chosen, exhaustive_to, rule)
+    # the spread behind each out-of-fold S_i (a training error has no folds)
+    folds = ([[float(e) for e in cache.fold_rmse(sub)] for sub in best_sub]
+             if error == "validation" else None)
+    return ECResult(best_err, curve, best_sub, chosen, exhaustive_to, rule, folds)
 
 
 @dataclass
@@ -237,6 +241,8 @@ class SelectionResult:
                 {names[m]: float(e) for m, e in zip(s.candidates, s.errors, strict=True)}
                 for s in self.steps],
             "ec_errors_um": [float(e) for e in self.ec.errors],
+            **({} if self.ec.fold_errors is None
+               else {"ec_fold_errors_um": self.ec.fold_errors}),
             "ec_curve": [float(e) for e in self.ec.curve],
             "ec_subsets": [[names[i] for i in s] for s in self.ec.subsets],
             "ec_exhaustive_up_to": self.ec.exhaustive_up_to,
