@@ -48,6 +48,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from contract import protocol  # noqa: E402  (stdlib only: docs/architecture.md, floor 0)
+from contract.tilt import unit_of  # noqa: E402
 
 NAME = "thermalcomp"
 MODEL_BAD, HOLD, SLEW, NO_DATA, EXTRAP = 1 << 0, 1 << 1, 1 << 2, 1 << 9, 1 << 10
@@ -140,7 +141,11 @@ def load_config(path: str | Path) -> Config:
         nm = float(get(section, "nm_per_count", float, 1.0))
         if not (math.isfinite(nm) and nm > 0):
             raise ConfigError(f"{path}: [{section}] nm_per_count = {nm:g} must be positive")
-        cfg.axes.append(AxisMap(letter, str(get(section, "box_axis", str)),
+        box_axis = str(get(section, "box_axis", str))
+        if unit_of(box_axis) != "um":
+            raise ConfigError(f"{path}: [{section}] box_axis = {box_axis}: a tilt axis (urad) "
+                              "is not a linear offset; only axes in um drive external offsets")
+        cfg.axes.append(AxisMap(letter, box_axis,
                                 -1 if sign_text.startswith("-") else 1, nm))
     if not cfg.axes:
         raise ConfigError(f"{path}: no [axis.<letter>] section: nothing to drive")

@@ -47,6 +47,7 @@ from contract.fixed_point import (
 )
 from contract.model_file import SCHEMA, ModelFormatError, check_model
 from contract.terms import AUX_KINDS, FILTER_KINDS, KIND_CODES, TC_TYPES, TEMPERATURE_KINDS
+from contract.tilt import AXIS_UNITS
 
 # Runtime capacity (firmware/include/model_eval.h), named as codegen's messages use them.
 MAX_CHANNELS = RUNTIME_MAX_CHANNELS
@@ -477,8 +478,9 @@ def _parse_axis(index: int, name: str, ax: Mapping, channels: Sequence[QChannel]
     if not isinstance(ax, Mapping):
         raise CodegenError(f"axis '{name}': expected an object")
     unit = ax.get("unit", "um")
-    if unit != "um":
-        raise CodegenError(f"axis '{name}': unit {unit!r} is not supported (only 'um')")
+    if unit not in AXIS_UNITS:  # a tilt axis (urad) is computed like any: in thousandths
+        raise CodegenError(f"axis '{name}': unit {unit!r} is not supported (one of "
+                           f"{', '.join(AXIS_UNITS)})")
     intercept = _number(ax.get("intercept"), f"axis '{name}': intercept")
     terms = ax.get("terms", [])
     if not isinstance(terms, list):

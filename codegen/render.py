@@ -143,7 +143,11 @@ def _axis_view(ax: QAxis, b: AxisBound, model: QModel) -> dict:
         "n_terms": len(ax.terms),
         "intercept_um": _num(ax.intercept_um),
         "intercept_q_lit": c_int64(ax.intercept_q),
-        "terms": [_term_view(t, prefix, model) for t in ax.terms],
+        "terms": [{**tv, "coef_unit": tv["coef_unit"].replace("um/", f"{ax.unit}/")}
+                  for tv in (_term_view(t, prefix, model) for t in ax.terms)],
+        "unit": ax.unit,  # um, or urad for a tilt axis (contract/tilt.py)
+        "nano": "nanoradians" if ax.unit == "urad" else "nanometres",
+        "pico": "picoradians" if ax.unit == "urad" else "picometres",
         "bound": {k: _num(v) for k, v in b.to_json().items()},
         "bound_pm": _ceil_pm(b.bound_exact_um),
         "input_pm": _ceil_pm(sum((e.input_um for e in b.terms), Fraction(0))),

@@ -51,6 +51,7 @@ from contract.errors import InputError
 from contract.fixed_point import INT32_MAX
 from contract.terms import AUX_KINDS, FILTER_KINDS, KINDS, TC_TYPES, TEMPERATURE_KINDS, Term
 from contract.textfile import read_utf8
+from contract.tilt import AXIS_UNITS, Tilt, unit_of
 
 SCHEMA = "thermal-model/1"
 # Names end up in C string literals, comments and the wire protocol's INFO line
@@ -400,6 +401,7 @@ def check_model(model: Any, where: str = "model", *, output_range: bool = True) 
                "BOX_MAX_AXES in box_config.h); the firmware would not build")
     axes = [_check_axis(c, name, ax, channels, aux, time_max_s, output_range)
             for name, ax in axes_raw.items()]
+    _check_tilts(c, model.get("tilts"), axes)
     states = sum(1 for ax in axes for t in ax.terms if t.kind in FILTER_KINDS)
     if states > BOX_STATES:
         c.fail(f"the model has {states} lag/rate terms; the box holds {BOX_STATES} filter "
@@ -409,6 +411,24 @@ def check_model(model: Any, where: str = "model", *, output_range: bool = True) 
 
 
 REFERENCE_KINDS = ("start", "none")
+
+
+def _check_tilts(c: _Checker, raw: object, axes: list[AxisSpec]) -> None:
+    """``tilts`` (docs/model-json.md): how each µrad axis is computed from two gap probes."""
+    if raw is None:
+        return
+    if not isinstance(raw, list):
+        c.fail(f"tilts: expected a list of {{name, upper, lower, distance_mm}}, got {raw!r}")
+    units = {ax.name: ax.unit for ax in axes}
+    for i, entry in enumerate(raw):
+        try:
+            tilt = Tilt.from_json(entry)
+        except InputError as exc:
+            c.fail(f"tilts[{i}]: {exc}")
+        except (KeyError, TypeError, ValueError) as exc:
+            c.fail(f"tilts[{i}]: expected {{name, upper, lower, distance_mm}} ({exc})")
+        if units.get(tilt.name) != "urad":
+            c.fail(f"tilts[{i}]: '{tilt.name}' is not an axis in urad of this model")
 
 
 def _check_reference(c: _Checker, ref: object) -> None:
@@ -432,10 +452,13 @@ def _check_axis(c: _Checker, name: object, ax: object, channels: list[ChannelSpe
     if not isinstance(ax, Mapping):
         c.fail(f"axis '{name}': expected an object")
     unit = ax.get("unit", "um")
-    if unit != "um":
-        c.fail(f"axis '{name}': unit {unit!r} is not supported (only 'um')")
+    if unit not in AXIS_UNITS:
+        c.fail(f"axis '{name}': unit {unit!r} is not supported (one of {', '.join(AXIS_UNITS)})")
+    if unit != unit_of(name):
+        c.fail(f"axis '{name}': unit {unit!r}, but the name declares {unit_of(name)!r} (a tilt "
+               "axis's name ends in '_urad', every other axis is in um)")
     intercept = c.number(ax.get("intercept"), f"axis '{name}': intercept")
-    c.step_limit(ax, f"axis '{name}'", name, "max_step_um", "um")
+    c.step_limit(ax, f"axis '{name}'", name, "max_step_um", unit)
     raw = ax.get("terms")
     if not isinstance(raw, list):
         c.fail(f"axis '{name}': 'terms' must be a list")

@@ -10,6 +10,7 @@ import argparse
 import json
 import sys
 
+from contract.tilt import unit_of
 from hil.build import BuildError
 from hil.checks import Judging, ReplayReport, write_box_csv
 from hil.link import LinkTimeout
@@ -29,8 +30,12 @@ def format_table(report: ReplayReport, data: str) -> str:
              f"received{rate}", ""]
     head = (f"{'axis':<10} {'raw rms':>9} {'raw peak':>9} {'comp rms':>9} {'comp peak':>10} "
             f"{'twin diff':>10} {'float diff':>11} {'bound':>9}")
+    units = ("um (urad for a tilt axis)" if any(unit_of(a) == "urad" for a in report.axes)
+             else "um")
     lines += [head, f"{'':<10} {'um':>9} {'um':>9} {'um':>9} {'um':>10} {'nm':>10} "
-              f"{'um':>11} {'um':>9}", "-" * len(head)]
+              f"{'um':>11} {'um':>9}" if units == "um" else
+              f"{'':<10} in each axis's unit: {units}; twin diff in thousandths of it",
+              "-" * len(head)]
     for name, a in report.axes.items():
         lines.append(f"{name:<10} {_fmt(a.raw_rms_um):>9} {_fmt(a.raw_peak_um):>9} "
                      f"{_fmt(a.compensated_rms_um):>9} {_fmt(a.compensated_peak_um):>10} "

@@ -16,6 +16,7 @@ import numpy as np
 
 from contract.errors import InputError
 from contract.model_file import model_aux, model_sensors
+from contract.tilt import available_axes, model_tilts
 from host.fitting import NO_REFERENCE, Reference
 from host.io import Run, load_run
 
@@ -79,8 +80,9 @@ def build_feed(model: dict, data_path: str | Path, reference: str | None = None,
             raise FeedError(f"{path}, line 1, column '{name}': the model needs this column "
                             f"but the run does not have it")
     axes = list(model["axes"])
-    targets = [a for a in axes if a in header]
-    run = load_run(path, targets=targets, sensors=sensors, aux=aux)
+    tilts = model_tilts(model)
+    targets = available_axes(header, axes, tilts)
+    run = load_run(path, targets=targets, sensors=sensors, aux=aux, tilts=tilts)
     period = float(model["sample_period_s"])
     if abs(run.period_s - period) > 1e-6 * max(1.0, period):
         raise FeedError(f"{path}: the run is sampled every {run.period_s:g} s but the model "

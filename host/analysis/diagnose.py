@@ -35,6 +35,7 @@ import numpy as np
 
 from contract.errors import InputError
 from contract.model_file import channel_ranges, model_aux, model_sensors
+from contract.tilt import available_axes, model_tilts, probe_columns
 from host.analysis.evaluate import measured, model_reference, predict
 from host.effects import (
     TAU_GRID_S,
@@ -82,14 +83,14 @@ def load_for_diagnosis(model: Mapping, path: str | Path, fill_gaps: int = 0,
     header = _header(path, fmt)
     training = model.get("training", {})
     pattern = training.get("sensors", "T*")
-    targets = [a for a in model["axes"] if a in header]
+    targets = available_axes(header, list(model["axes"]), model_tilts(model))
     aux = model_aux(model)
     missing_aux = [a for a in aux if a not in header]
     if missing_aux:
         raise DiagnoseError(f"{path}, line 1: missing aux column(s) {', '.join(missing_aux)} "
                             "the model reads")
     aux = aux + [a for a in training.get("aux", []) if a in header and a not in aux]
-    reserved = {"time_s", *model["axes"], *aux}
+    reserved = {"time_s", *probe_columns(list(model["axes"]), model_tilts(model)), *aux}
     if isinstance(pattern, str):
         sensors = [h for h in header if fnmatch.fnmatchcase(h, pattern) and h not in reserved]
     else:
@@ -102,7 +103,7 @@ def load_for_diagnosis(model: Mapping, path: str | Path, fill_gaps: int = 0,
         if s not in sensors:
             sensors.append(s)
     return load_run(path, targets, sensors, aux, fill_gaps=fill_gaps, min_samples=6, fmt=fmt,
-                    temperature_ranges=channel_ranges(model))
+                    temperature_ranges=channel_ranges(model), tilts=model_tilts(model))
 
 
 # ------------------------------------------------------------------ the model's error

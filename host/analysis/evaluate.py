@@ -17,6 +17,7 @@ import numpy as np
 
 from contract.errors import InputError
 from contract.model_file import channel_ranges, model_aux, model_sensors
+from contract.tilt import model_tilts
 from host.fitting import Reference, axis_terms, design_matrix, rmse
 from host.io import CsvFormat, Run, load_run
 from host.train import outside_training
@@ -35,7 +36,7 @@ def load_for_model(path: str | Path, model: dict, fill_gaps: int = 0,
     channel ranges)."""
     axes = list(model["axes"]) if axes is None else axes
     return load_run(path, axes, model_sensors(model), model_aux(model), fill_gaps, fmt=fmt,
-                    temperature_ranges=channel_ranges(model))
+                    temperature_ranges=channel_ranges(model), tilts=model_tilts(model))
 
 
 def _check_period(model: dict, run: Run) -> None:

@@ -26,6 +26,7 @@ import numpy as np
 from contract.errors import InputError
 from contract.model_file import channel_ranges, read_model
 from contract.terms import TEMPERATURE_KINDS, Term
+from contract.tilt import available_axes, model_tilts
 from host.analysis import plots
 from host.analysis.evaluate import model_reference
 from host.analysis.metrology import coefficient_table, iso230_drift, wiring_rows
@@ -132,11 +133,12 @@ def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0,
     sensors = training.get("sensors", "T*")
     aux_names = [a["name"] for a in model.get("aux", [])]
     needed = {c["sensor"] for c in model["channels"]}
+    tilts = model_tilts(model)
     runs = []
     for p in paths:
         path = Path(p)
         header = _header(path, fmt)
-        targets = [a for a in model["axes"] if a in header]
+        targets = available_axes(header, list(model["axes"]), tilts)
         if not targets:
             raise ReportError(f"{path}: none of the model's axes "
                               f"({', '.join(model['axes'])}) is a column of this run")
@@ -146,11 +148,11 @@ def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0,
                               f"{', '.join(missing)}")
         ranges = channel_ranges(model)
         run = load_run(path, targets, sensors, aux_names, fill_gaps=fill_gaps, fmt=fmt,
-                       temperature_ranges=ranges)
+                       temperature_ranges=ranges, tilts=tilts)
         absent = sorted(needed - set(run.sensor_names))
         if absent:  # the model's sensors may lie outside the training glob: add them
             run = load_run(path, targets, sorted(set(run.sensor_names) | needed), aux_names,
-                           fill_gaps=fill_gaps, fmt=fmt, temperature_ranges=ranges)
+                           fill_gaps=fill_gaps, fmt=fmt, temperature_ranges=ranges, tilts=tilts)
         runs.append(run)
     return runs
 
@@ -599,8 +601,9 @@ def training_runs(model: dict) -> list[Run]:
     needed = sorted({c["sensor"] for c in model["channels"]})
     aux = [a["name"] for a in model.get("aux", [])]
     try:
-        return [load_run(p, [a for a in model["axes"] if a in _header(p)], needed, aux)
-                for p in paths]
+        tilts = model_tilts(model)
+        return [load_run(p, available_axes(_header(p), list(model["axes"]), tilts), needed, aux,
+                         tilts=tilts) for p in paths]
     except (ValueError, InputError):
         return []
 
@@ -837,8 +840,9 @@ def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, 
     if not paths or not all(p.is_file() for p in paths) or not axes:
         return {}
     try:
-        train_runs = [load_run(p, [a for a in axes if a in _header(p)],
-                               training.get("sensors", "T*")) for p in paths]
+        tilts = model_tilts(model)
+        train_runs = [load_run(p, available_axes(_header(p), axes, tilts),
+                               training.get("sensors", "T*"), tilts=tilts) for p in paths]
     except ValueError:
         return {}
     names = train_runs[0].sensor_names

@@ -33,11 +33,13 @@ import serial
 
 from contract import protocol
 from contract.errors import InputError
+from contract.tilt import unit_of
 
 RETRY_S = 1.0
 INFO_TIMEOUT_S = 1.0
 INFO_ATTEMPTS = 3
 REDRAW_S = 0.1
+UNIT_TEXT = {"um": "µm", "urad": "µrad"}
 STATUS_EVERY_S = 1.0  # while a fault flag is up, the per-channel fault words are re-read this often
 STALE_PERIODS = 2.0  # no line for more than this many expected intervals: STALE
 
@@ -242,7 +244,8 @@ def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
         for name, nm in zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
                             strict=True):
             mark = "  (HOLD: last good value)" if name in held else ""
-            lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} µm{mark}")
+            lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} "
+                         f"{UNIT_TEXT[unit_of(name)]}{mark}")
         faulted = state.faulted_channels()
         temps = []
         for name, code in zip(state.channel_names(len(s.temp_codes)), s.temp_codes,
@@ -265,7 +268,7 @@ def plain_sample_line(state: MonitorState) -> str:
     """One line per sample when the output is not a terminal (logs, pipes, scripts)."""
     s = state.sample
     assert s is not None
-    corr = " ".join(f"{n}={nm / 1000.0:+.3f}um" for n, nm in
+    corr = " ".join(f"{n}={nm / 1000.0:+.3f}{unit_of(n)}" for n, nm in
                     zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm, strict=True))
     faulted = state.faulted_channels()
     temps = " ".join(f"{n}=FAULT({'/'.join(faulted[n])})" if n in faulted else
@@ -277,8 +280,9 @@ def plain_sample_line(state: MonitorState) -> str:
 
 
 def json_sample(state: MonitorState, received: float) -> dict:
-    """One sample as the ``--json`` object: corrections (µm) per axis, temperatures (°C, null
-    for a faulted channel) per sensor, flags, faulted channels and held axes."""
+    """One sample as the ``--json`` object: corrections per axis (µm; µrad for a tilt axis,
+    named in ``units``), temperatures (°C, null for a faulted channel) per sensor, flags,
+    faulted channels and held axes."""
     s = state.sample
     assert s is not None
     faulted = state.faulted_channels()
@@ -288,6 +292,7 @@ def json_sample(state: MonitorState, received: float) -> dict:
         "corrections_um": {n: nm / 1000.0 for n, nm in
                            zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
                                strict=True)},
+        "units": {n: unit_of(n) for n in state.axis_names(len(s.corrections_nm))},
         "temperatures_c": {n: (None if n in faulted else c / 128.0)
                            for n, c in zip(names, s.temp_codes, strict=True)},
         "faulted_channels": faulted, "held_axes": state.held_axes(),

@@ -10,6 +10,7 @@ from pathlib import Path
 from contract.box import BOX_CHANNELS
 from contract.errors import InputError
 from contract.model_file import jsonable, write_model, write_text_atomic
+from contract.tilt import Tilt
 from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
 from host.io import load_runs
@@ -28,10 +29,25 @@ def parse_channel(text: str) -> tuple[str, int]:
     return name.strip(), int(ch)
 
 
-def add_data_arguments(parser: argparse.ArgumentParser) -> None:
-    """Column roles shared by train and compare."""
-    parser.add_argument("--target", action="append", required=True, metavar="COL",
+def parse_tilt(text: str) -> Tilt:
+    try:
+        return Tilt.parse(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_data_arguments(parser: argparse.ArgumentParser, tilts: bool = False) -> None:
+    """Column roles shared by train and compare (``tilts``: also ``--tilt``)."""
+    parser.add_argument("--target", action="append", required=not tilts, default=[],
+                        metavar="COL",
                         help="displacement column to model (repeat for several axes)")
+    if tilts:
+        parser.add_argument("--tilt", action="append", type=parse_tilt, default=[],
+                            metavar="NAME=UPPER,LOWER,DISTANCE_MM",
+                            help="a tilt axis in urad from two gap probes DISTANCE_MM apart on "
+                                 "the test bar: (UPPER - LOWER) * 1000 / DISTANCE_MM, positive "
+                                 "when the upper probe reads more; NAME ends in _urad "
+                                 "(repeatable; paper 002's five-probe setup)")
     parser.add_argument("--sensors", default="T*", metavar="GLOB",
                         help="temperature columns (glob, default %(default)s)")
     parser.add_argument("--aux", action="append", default=[], metavar="COL",
@@ -60,7 +76,7 @@ def add_selection_arguments(parser: argparse.ArgumentParser) -> None:
 
 def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("runs", nargs="+", metavar="RUN.csv", help="training runs")
-    add_data_arguments(parser)
+    add_data_arguments(parser, tilts=True)
     add_selection_arguments(parser)
     parser.add_argument("--channel", action="append", type=parse_channel, default=[],
                         metavar="SENSOR=INDEX", help="wire a sensor to a box channel "
@@ -156,9 +172,12 @@ def print_effects(doc: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    runs = load_runs(args.runs, args.target, args.sensors, args.aux, args.fill_gaps,
-                     min_samples=4, fmt=csv_format(args))
-    model = train_model(runs, args.target, sensors=args.sensors, aux=args.aux,
+    targets = [*args.target, *(t.name for t in args.tilt if t.name not in args.target)]
+    if not targets:
+        raise InputError("give at least one --target (or --tilt)")
+    runs = load_runs(args.runs, targets, args.sensors, args.aux, args.fill_gaps,
+                     min_samples=4, fmt=csv_format(args), tilts=args.tilt)
+    model = train_model(runs, targets, sensors=args.sensors, aux=args.aux,
                         max_sensors=args.max_sensors, groups=args.groups,
                         effects=not args.no_effects, ambient=args.ambient,
                         channels=dict(args.channel), selection=args.selection,
@@ -166,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
                         n_blocks=args.blocks, seed=args.seed, fill_gaps=args.fill_gaps,
                         tc_type=args.tc_type, max_channels=args.max_channels,
                         reference=args.reference, fit=args.fit, nested=not args.no_nested,
-                        fill_channels=not args.no_fill_channels, quiet=args.json)
+                        fill_channels=not args.no_fill_channels, tilts=args.tilt,
+                        quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"
     header = None

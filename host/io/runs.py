@@ -20,7 +20,7 @@ import csv
 import fnmatch
 import io
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -31,6 +31,7 @@ from contract.box import CHANNEL_MAX_C, CHANNEL_MIN_C
 from contract.errors import InputError, MissingColumnError
 from contract.fixed_point import INT32_MAX
 from contract.textfile import read_utf8
+from contract.tilt import Tilt, probe_columns
 
 TIME_COLUMN = "time_s"
 
@@ -520,7 +521,8 @@ def _check_temperatures(path: Path, name: str, values: np.ndarray, lines: np.nda
 def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T*",
              aux: list[str] | None = None, fill_gaps: int = 0, min_samples: int = 2,
              fmt: CsvFormat | None = None,
-             temperature_ranges: Mapping[str, tuple[float, float]] | None = None) -> Run:
+             temperature_ranges: Mapping[str, tuple[float, float]] | None = None,
+             tilts: Sequence[Tilt] = ()) -> Run:
     """Load one run.
 
     ``sensors`` is a glob (``"T*"``) or an explicit list of column names. ``fill_gaps`` > 0
@@ -531,9 +533,13 @@ def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T
     channel's valid range (``temperature_ranges`` by sensor, default the box's
     CHANNEL_MIN_C..CHANNEL_MAX_C), displacements within the box's int32 nanometres, aux values
     within int32; time_s must be seconds at one fixed period (no gap, no jitter).
+    A target named by one of ``tilts`` is computed from its two gap-probe columns (µrad,
+    contract/tilt.py); the probes are checked like any displacement column.
     """
     path = Path(path)
     aux = list(aux or [])
+    tilt_of = {t.name: t for t in tilts if t.name in targets}
+    requested, targets = list(targets), probe_columns(targets, list(tilt_of.values()))
     header, data, lines = read_table(path, fmt)
     if TIME_COLUMN not in header:
         hint = (f"; the header is one column ({header[0][:60]!r}): is the file delimited by "
@@ -543,7 +549,10 @@ def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T
                              column=TIME_COLUMN)
     for name in targets:
         if name not in header:
-            raise RunFormatError(path, "missing target column (given by --target)", line=1,
+            tilt = next((t for t in tilt_of.values() if name in (t.upper, t.lower)), None)
+            given = (f"a gap probe of --tilt {tilt.name}" if tilt is not None
+                     else "given by --target")
+            raise RunFormatError(path, f"missing target column ({given})", line=1,
                                  column=name)
     for name in aux:
         if name not in header:
@@ -611,15 +620,21 @@ def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T
             return np.empty((len(time_s), 0))
         return np.column_stack([arrays[n] for n in names])
 
-    return Run(str(path), time_s, sensor_names, stack(sensor_names), list(targets),
-               stack(list(targets)), aux, stack(aux) if aux else None, filled)
+    for name, tilt in tilt_of.items():
+        arrays[name] = tilt.of(arrays[tilt.upper], arrays[tilt.lower])
+        _check_values(path, name, arrays[name], lines, -TARGET_LIMIT_UM, TARGET_LIMIT_UM,
+                      f"urad is beyond any correction the box can output (±{TARGET_LIMIT_UM:g}"
+                      f" urad): are the probes {tilt.distance_mm:g} mm apart, in micrometres?")
+    return Run(str(path), time_s, sensor_names, stack(sensor_names), requested,
+               stack(requested), aux, stack(aux) if aux else None, filled)
 
 
 def load_runs(paths: list[str | Path], targets: list[str], sensors: str | list[str] = "T*",
               aux: list[str] | None = None, fill_gaps: int = 0, min_samples: int = 2,
-              fmt: CsvFormat | None = None) -> list[Run]:
+              fmt: CsvFormat | None = None, tilts: Sequence[Tilt] = ()) -> list[Run]:
     """Load several runs; all must have the same sensor columns in the same order."""
-    runs = [load_run(p, targets, sensors, aux, fill_gaps, min_samples, fmt) for p in paths]
+    runs = [load_run(p, targets, sensors, aux, fill_gaps, min_samples, fmt, tilts=tilts)
+            for p in paths]
     for run in runs[1:]:
         if run.sensor_names != runs[0].sensor_names:
             missing = sorted(set(runs[0].sensor_names) ^ set(run.sensor_names))

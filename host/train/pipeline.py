@@ -21,6 +21,7 @@ from contract.box import BOX_CHANNELS, CHANNEL_MAX_C, CHANNEL_MIN_C
 from contract.errors import InputError
 from contract.model_file import SCHEMA
 from contract.terms import AUX_KINDS, TEMPERATURE_KINDS, Term, make_temp, term_sensors
+from contract.tilt import Tilt, unit_of
 from host.effects import search_effects, sensor_reference
 from host.fitting import (
     NO_REFERENCE,
@@ -66,12 +67,14 @@ class TrainingError(InputError):
 
 
 def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str | list[str],
-             aux: list[str], fill_gaps: int) -> list[Run]:
-    """Load paths; restrict already-loaded runs to the requested sensors."""
+             aux: list[str], fill_gaps: int, tilts: Sequence[Tilt] = ()) -> list[Run]:
+    """Load paths (tilt targets computed from their probes); restrict already-loaded runs to
+    the requested sensors."""
     if not runs:
         raise TrainingError("no training runs given")
     if all(isinstance(r, (str, Path)) for r in runs):
-        return load_runs(list(runs), targets, sensors, aux, fill_gaps, min_samples=4)
+        return load_runs(list(runs), targets, sensors, aux, fill_gaps, min_samples=4,
+                         tilts=tilts)
     out = []
     for run in runs:
         if not isinstance(run, Run):
@@ -250,7 +253,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
                 tc_type: str = DEFAULT_TC_TYPE, max_channels: int = BOX_CHANNELS,
                 reference: str = DEFAULT_REFERENCE, fit: str = DEFAULT_FIT, nested: bool = True,
-                fill_channels: bool = True, quiet: bool = True) -> dict:
+                fill_channels: bool = True, tilts: Sequence[Tilt] = (),
+                quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
@@ -258,7 +262,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     exactly: by training error). ``channels`` maps sensor -> box channel (others get the
     free indices in data-column order). ``max_delay_s`` limits the delay search.
     ``fill_channels``: the ridge also reads the best-ranked other sensors on the box's free
-    channels (host.train.next_day.channel_fill).
+    channels (host.train.next_day.channel_fill). ``tilts``: targets that are tilt axes (µrad)
+    computed from two gap probes of each run (contract/tilt.py); each must be a target.
     ``max_channels`` is the box's thermocouple budget shared by all axes
     (see fit_channel_budget).
     """
@@ -280,7 +285,11 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     if tc_type not in ("K", "J"):
         raise TrainingError(f"thermocouple type must be K or J (got {tc_type!r})")
     aux = list(aux or [])
-    runs = _as_runs(runs, targets, sensors, aux, fill_gaps)
+    for tilt in tilts:
+        if tilt.name not in targets:
+            raise TrainingError(f"--tilt {tilt.name}: not among the targets "
+                                f"({', '.join(targets)})")
+    runs = _as_runs(runs, targets, sensors, aux, fill_gaps, tilts)
     check_variation(runs, list(targets))
     period_s = common_period(runs)
     names = runs[0].sensor_names
@@ -381,6 +390,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
                             f"({', '.join(sorted(used))}), the box has {max_channels}")
 
+    for name, axis in axes.items():  # µm, or µrad for a tilt axis: the name says which
+        axis["unit"] = unit_of(name)
     wired = _channels(axes, names, dict(channels or {}), tc_type)
     aux_inputs = _aux(axes, runs)
     add_training_ranges(wired, aux_inputs, runs)
@@ -393,6 +404,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         "aux": aux_inputs,
         "time_max_s": TIME_MAX_S,
         "axes": axes,
+        **({"tilts": [t.to_json() for t in tilts]} if tilts else {}),
         "training": {
             "runs": [r.path for r in runs],
             "targets": targets,
