@@ -11,6 +11,7 @@ budget (host.train.next_day). Measured on unseen runs of three sources in docs/n
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -18,7 +19,7 @@ from contract.terms import make_lag, make_temp
 from host.fitting import NO_REFERENCE, Reference, stack
 from host.io import Run
 
-MAX_ROWS = 4000  # the lasso sees every k-th row beyond this: thermal data is smooth
+MAX_ROWS = 4000  # beyond this the ranking works on every k-th sample: thermal data is smooth
 N_ALPHAS = 30  # penalties on the lasso path, from the one that keeps nothing down 1000x
 
 
@@ -33,11 +34,13 @@ def l1_ranking(runs: Sequence[Run], target: str, sensors: Sequence[str], *, peri
     sensors = list(sensors)
     if len(sensors) <= 1:
         return sensors
+    step = max(1, sum(r.n_samples for r in runs) // MAX_ROWS)
+    runs = [thinned(r, step) for r in runs]  # the lags too: a screening, not the model
+    period_s *= step
     terms = [make_temp(s) for s in sensors]
-    terms += [make_lag(s, tau, period_s) for tau in taus for s in sensors]
+    terms += [make_lag(s, tau, period_s) for tau in taus if tau > period_s for s in sensors]
     st = stack(list(runs), terms, target, period_s, n_blocks, reference)
-    step = max(1, len(st.y) // MAX_ROWS)
-    X, y, groups = st.X[::step], st.y[::step], st.groups[::step]
+    X, y, groups = st.X, st.y, st.groups
     sd = X.std(axis=0)
     sd[sd == 0] = 1.0
     Z = (X - X.mean(axis=0)) / sd
@@ -51,6 +54,15 @@ def l1_ranking(runs: Sequence[Run], target: str, sensors: Sequence[str], *, peri
                     tol=1e-3).fit(Z, y)
     weight = np.abs(lasso.coef_).reshape(-1, len(sensors)).sum(axis=0)
     return [sensors[i] for i in np.argsort(-weight, kind="stable")]
+
+
+def thinned(run: Run, step: int) -> Run:
+    """Every ``step``-th sample of a run (its period ``step`` times longer)."""
+    if step <= 1:
+        return run
+    return replace(run, time_s=run.time_s[::step], temperatures=run.temperatures[::step],
+                   displacements=run.displacements[::step],
+                   aux=None if run.aux is None else run.aux[::step])
 
 
 def fill_free_channels(wired: Sequence[str], rankings: Sequence[Sequence[str]],
