@@ -141,3 +141,18 @@ def test_linuxcnc_refuses_to_drive_a_linear_axis_from_a_tilt(tmp_path):
     (tmp_path / "t.conf").write_text(conf.replace(box_axis, "box_axis = tilt_y_urad", 1))
     with pytest.raises(ConfigError, match="tilt axis"):
         load_config(tmp_path / "t.conf")
+
+
+def test_figures_and_the_equation_speak_in_the_tilt_unit():
+    from contract.terms import make_temp
+    from host.analysis import plots
+    from host.analysis.metrology import term_unit
+
+    t = np.arange(50) * 60.0
+    fig = plots.run_fit("day", "tilt_y_urad", t, np.sin(t / 600.0), {"m": np.sin(t / 600.0)},
+                        (1.0, [0.5, 1.5]))
+    assert fig.axes[0].get_ylabel() == "tilt (µrad)"
+    assert all("µm" not in lb for lb in fig.axes[1].get_legend_handles_labels()[1])
+    assert plots.run_fit("day", "dz_um", t, t, {"m": t}).axes[0].get_ylabel() \
+        == "displacement (µm)"
+    assert term_unit(make_temp("T01"), out="µrad") == "µrad/K"

@@ -35,7 +35,7 @@ import numpy as np
 
 from contract.errors import InputError
 from contract.model_file import channel_ranges, model_aux, model_sensors
-from contract.tilt import available_axes, model_tilts, probe_columns
+from contract.tilt import available_axes, model_tilts, probe_columns, unit_of
 from host.analysis.evaluate import measured, model_reference, predict
 from host.effects import (
     TAU_GRID_S,
@@ -324,14 +324,15 @@ def summary_lines(doc: Mapping, units: Mapping[str, str] | None = None) -> list[
     lines = [f"run: {doc['run']} ({doc['samples']} samples)"]
     for axis, a in doc["axes"].items():
         val = a.get("model_validation_rmse_um")
-        lines.append(f"{axis}: error RMSE {a['rmse_um']:.3g} um (max {a['max_abs_um']:.3g}, mean "
-                     f"{a['mean_um']:+.3g})" + (f"; {a['ratio_to_validation']:.1f}x the "
-                                                f"training validation RMSE {val:.3g} um"
-                                                if val else ""))
+        u = unit_of(axis)
+        lines.append(f"{axis}: error RMSE {a['rmse_um']:.3g} {u} (max {a['max_abs_um']:.3g}, "
+                     f"mean {a['mean_um']:+.3g})" + (f"; {a['ratio_to_validation']:.1f}x the "
+                                                     f"training validation RMSE {val:.3g} {u}"
+                                                     if val else ""))
         for e in a["explained_by"][:1]:
             ev = e["evidence"]
             lines.append(f"  explained by {e['kind']}: {e['feature']} -- residual "
-                         f"{e['rmse_before_um']:.3g} -> {e['rmse_after_um']:.3g} um "
+                         f"{e['rmse_before_um']:.3g} -> {e['rmse_after_um']:.3g} {u} "
                          f"({ev['improvement_pct']:.0f} %, {ev['folds_improved']} blocks, "
                          f"residual correlation {ev['residual_corr']:+.2f})")
         if a["unexplained"]:

@@ -16,22 +16,23 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from contract.terms import Term
+from contract.tilt import unit_of
 from host.fitting import NO_REFERENCE, Reference, design_matrix
 from host.io import Run
 
 FIRST_HOUR_S = 3600.0
 
 
-def term_unit(term: Term, units: Mapping[str, str] | None = None) -> str:
-    """The unit of a coefficient of ``term`` (the model's output is in µm)."""
+def term_unit(term: Term, units: Mapping[str, str] | None = None, out: str = "µm") -> str:
+    """The unit of a coefficient of ``term`` (``out``: the axis's, µm or µrad for a tilt)."""
     if term.kind in ("temp", "lag", "rate"):
-        return "µm/K"
+        return f"{out}/K"
     if term.kind == "square":
-        return "µm/K²"
+        return f"{out}/K²"
     if term.kind == "time":
-        return "µm/s"
+        return f"{out}/s"
     unit = (units or {}).get(str(term.source), "") or "unit"
-    return f"µm/{unit}" if term.kind == "speed" else f"µm/{unit}²"
+    return f"{out}/{unit}" if term.kind == "speed" else f"{out}/{unit}²"
 
 
 def term_symbol(term: Term) -> str:
@@ -100,11 +101,12 @@ def coefficient_table(axis_name: str, axis: Mapping, runs: Sequence[Run], period
             rho = num / den if den > 0 else 0.0
             inflate = math.sqrt((1 + rho) / (1 - rho)) if -1 < rho < 1 else math.inf
             se_ar1 = [v * inflate for v in se]
-    rows = [{"term": "intercept", "symbol": "C₀", "coef": intercept, "unit": "µm",
+    out = "µrad" if unit_of(axis_name) == "urad" else "µm"
+    rows = [{"term": "intercept", "symbol": "C₀", "coef": intercept, "unit": out,
              "se": se[0], "se_ar1": se_ar1[0], "vif": None}]
     for k, (term, c) in enumerate(zip(terms, coefs, strict=True), start=1):
         rows.append({"term": term.name, "symbol": term_symbol(term), "coef": float(c),
-                     "unit": term_unit(term, units), "se": se[k], "se_ar1": se_ar1[k],
+                     "unit": term_unit(term, units, out), "se": se[k], "se_ar1": se_ar1[k],
                      "vif": vif.get(term.name)})
     return {"axis": axis_name, "rows": rows, "n_samples": n, "residual_lag1": rho,
             "condition_number": metrics.get("condition_number"),

@@ -20,6 +20,8 @@ from matplotlib.colors import Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.transforms import offset_copy  # noqa: E402
 
+from contract.tilt import unit_of  # noqa: E402
+
 WIDE = (9.0, 5.0)
 SQUARE = (7.0, 6.0)
 OURS_COLOUR = "tab:blue"
@@ -45,6 +47,11 @@ def delay_axis(delays_s: np.ndarray) -> tuple[np.ndarray, str]:
     if span > 180:
         return delays_s / 60.0, "time delay τ (min)"
     return delays_s, "time delay τ (s)"
+
+
+def axis_unit(axis: str) -> tuple[str, str]:
+    """The unit text and the quantity of an axis: µm displacement, or µrad tilt."""
+    return ("µrad", "tilt") if unit_of(axis) == "urad" else ("µm", "displacement")
 
 
 def rms(x: np.ndarray) -> float:
@@ -157,6 +164,7 @@ def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
     ``fold_errors`` (each size's held-out RMSE per fold) draws S_i's bar from the best to the
     worst fold.
     """
+    unit, what = axis_unit(axis)
     fig = Figure(figsize=WIDE, layout="constrained")
     ax = fig.add_subplot()
     sizes = np.arange(1, len(ec) + 1)
@@ -165,7 +173,7 @@ def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
     marked_ax, marked = ax, list(ec)
     if errors is not None and len(errors) == len(ec):
         ax2 = ax.twinx()
-        label = "S$_i$, error of the best i-sensor model (µm)"
+        label = f"S$_i$, error of the best i-sensor model ({unit})"
         if fold_errors is not None and len(fold_errors) == len(errors):
             pairs = list(zip(errors, fold_errors, strict=True))
             lo = [max(e - min(f), 0.0) if len(f) else 0.0 for e, f in pairs]
@@ -174,7 +182,7 @@ def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,
                          alpha=0.6, capsize=3)
             label += ", bar: best to worst fold"
         lines += ax2.plot(sizes, errors, "s--", color=PEER_COLOURS[0], label=label)
-        ax2.set_ylabel("S$_i$ (µm)")
+        ax2.set_ylabel(f"S$_i$ ({unit})")
         if rule in ("min", "cap"):
             marked_ax, marked = ax2, list(errors)
     if max_sensors is not None and max_sensors < len(ec):
@@ -209,33 +217,34 @@ def run_fit(run: str, axis: str, time_s: np.ndarray, measured: np.ndarray,
 
     ``promise`` (the error ``host train`` promised for an unseen day and its per-fold values)
     is drawn on the residual as a band of ± that RMS, the worst fold as dotted lines."""
+    unit, what = axis_unit(axis)
     fig = Figure(figsize=(9.0, 6.5), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
     t, tlabel = time_axis(np.asarray(time_s, dtype=float))
-    top.plot(t, measured, color="black", lw=2.2, label=f"measured (RMS {rms(measured):.2f} µm)")
+    top.plot(t, measured, color="black", lw=2.2, label=f"measured (RMS {rms(measured):.2f} {unit})")
     for k, (name, pred) in enumerate(predictions.items()):
         colour = OURS_COLOUR if k == 0 else PEER_COLOURS[(k - 1) % len(PEER_COLOURS)]
         style = "-" if k == 0 else "--"
         top.plot(t, pred, style, color=colour, lw=1.5, label=f"{name}")
         residual = measured - pred
         bottom.plot(t, residual, style, color=colour, lw=1.2,
-                    label=f"{name}: RMS {rms(residual):.2f} µm")
+                    label=f"{name}: RMS {rms(residual):.2f} {unit}")
     bottom.axhline(0.0, color="black", lw=0.8)
     if promise is not None and math.isfinite(promise[0]):
         band, folds = promise
-        label = f"promised for an unseen day: ±{band:.2f} µm RMS"
+        label = f"promised for an unseen day: ±{band:.2f} {unit} RMS"
         bottom.axhspan(-band, band, color=OURS_COLOUR, alpha=0.12, lw=0)
         if len(folds):
             worst = max(folds)
-            label += f" (folds {min(folds):.2f}–{worst:.2f} µm, worst dotted)"
+            label += f" (folds {min(folds):.2f}–{worst:.2f} {unit}, worst dotted)"
             for y in (-worst, worst):
                 bottom.axhline(y, color=OURS_COLOUR, lw=0.8, ls=":")
         bottom.plot([], [], color=OURS_COLOUR, alpha=0.3, lw=6, label=label)
-    top.set_ylabel("displacement (µm)")
+    top.set_ylabel(f"{what} ({unit})")
     top.set_title(f"{run}, {axis}: prediction against measurement")
     top.legend(fontsize=8, loc="best")
     top.grid(True, alpha=0.3)
-    bottom.set_ylabel("residual = measured − predicted (µm)")
+    bottom.set_ylabel(f"residual = measured − predicted ({unit})")
     bottom.set_xlabel(tlabel)
     bottom.legend(fontsize=8, loc="best")
     bottom.grid(True, alpha=0.3)
@@ -249,6 +258,7 @@ def residual_steps(run: str, axis: str, time_s: np.ndarray,
 
     ``dropped`` marks stages that are not part of the final model (drawn dashed grey); the last
     stage is the final model and is drawn thickest."""
+    unit, what = axis_unit(axis)
     fig = Figure(figsize=WIDE, layout="constrained")
     ax = fig.add_subplot()
     t, tlabel = time_axis(np.asarray(time_s, dtype=float))
@@ -259,15 +269,15 @@ def residual_steps(run: str, axis: str, time_s: np.ndarray,
     for k, (label, residual) in enumerate(stages):
         if gone[k]:
             ax.plot(t, residual, color="0.6", lw=1.0, ls="--",
-                    label=f"{label}: RMS {rms(residual):.2f} µm")
+                    label=f"{label}: RMS {rms(residual):.2f} {unit}")
             continue
         pos = kept.index(k)
         colour = cmap(0.85 * pos / max(1, len(kept) - 1))
         ax.plot(t, residual, color=colour, lw=2.0 if k == n - 1 else 1.6 if k == 0 else 1.0,
-                label=f"{label}: RMS {rms(residual):.2f} µm")
+                label=f"{label}: RMS {rms(residual):.2f} {unit}")
     ax.axhline(0.0, color="black", lw=0.8)
     ax.set_xlabel(tlabel)
-    ax.set_ylabel("residual = measured − predicted (µm)")
+    ax.set_ylabel(f"residual = measured − predicted ({unit})")
     ax.set_title(f"{run}, {axis}: residual before and after each added effect")
     ax.grid(True, alpha=0.3)
     fig.legend(fontsize=8, loc="outside lower center", ncol=2)
@@ -321,6 +331,7 @@ def fold_errors(axis: str, stages: Sequence[str], mean_um: Sequence[float],
     """Validation RMSE of each model stage (baseline, then each effect) as the mean over the
     validation folds with error bars from the lowest to the highest fold, and each fold as a
     dot: how much of a gain is larger than the fold-to-fold spread."""
+    unit, what = axis_unit(axis)
     fig = Figure(figsize=WIDE, layout="constrained")
     ax = fig.add_subplot()
     x = np.arange(len(stages))
@@ -333,7 +344,7 @@ def fold_errors(axis: str, stages: Sequence[str], mean_um: Sequence[float],
         ax.scatter(np.full(f.size, k + 0.12), f, s=14, color=colour, alpha=0.7)
     ax.set_xticks(x, [s if len(s) < 28 else s[:26] + "…" for s in stages], rotation=20,
                   ha="right")
-    ax.set_ylabel("validation RMSE (µm): pooled, fold range, each fold")
+    ax.set_ylabel(f"validation RMSE ({unit}): pooled, fold range, each fold")
     ax.set_title(f"{axis}: validation error of each stage across the folds")
     ax.set_ylim(bottom=0)
     ax.grid(True, axis="y", alpha=0.3)
@@ -344,16 +355,17 @@ def hysteresis(run: str, axis: str, sensor: str, temperature: np.ndarray, measur
                residual: np.ndarray, period_s: float) -> Figure:
     """Displacement against the most important temperature: the heating/cooling loop
     (pseudo-hysteresis) before compensation, and what is left of it after."""
+    unit, what = axis_unit(axis)
     fig = Figure(figsize=(10.0, 5.0), layout="constrained")
     left, right = fig.subplots(1, 2, sharey=True)
     heating = heating_mask(temperature, period_s)
     for ax, y, title in ((left, measured, "before compensation (measured)"),
                          (right, residual, "after compensation (residual)")):
         _paths(ax, temperature, y, heating)
-        ax.set_title(f"{title}: span {np.ptp(y):.1f} µm")
+        ax.set_title(f"{title}: span {np.ptp(y):.1f} {unit}")
         ax.set_xlabel(f"{sensor} temperature (°C)")
         ax.grid(True, alpha=0.3)
-    left.set_ylabel(f"{axis} displacement (µm)")
+    left.set_ylabel(f"{axis} {what} ({unit})")
     right.plot([], [], color=HEATING_COLOUR, label="heating (temperature rising)")
     right.plot([], [], color=COOLING_COLOUR, label="cooling (temperature falling)")
     fig.legend(loc="outside lower center", ncol=2, fontsize=9)

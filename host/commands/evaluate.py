@@ -6,6 +6,7 @@ import argparse
 import json
 
 from contract.model_file import jsonable, read_model
+from contract.tilt import unit_of
 from host.analysis import evaluate_model, load_for_model
 from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
@@ -36,6 +37,8 @@ def run(args: argparse.Namespace) -> int:
     for name, m in doc["axes"].items():
         print(f"{name:<10} {m['rmse_um']:>9.3f} {m['max_abs_um']:>10.3f} {m['raw_rms_um']:>11.3f} "
               f"{m['raw_peak_um']:>12.3f} {m['reduction_pct']:>9.1f}%")
+    if any(unit_of(name) != "um" for name in doc["axes"]):
+        print("(a tilt axis, *_urad, is in urad)")
     for line in describe(doc["outside_training_range"], input_units(model)):
         print(line)
     return 0

@@ -10,7 +10,7 @@ from pathlib import Path
 from contract.box import BOX_CHANNELS
 from contract.errors import InputError
 from contract.model_file import jsonable, write_model, write_text_atomic
-from contract.tilt import Tilt
+from contract.tilt import Tilt, unit_of
 from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
 from host.io import load_runs
@@ -124,12 +124,15 @@ def print_table(doc: dict, model: dict) -> None:
         print(f"{name:<10} {','.join(a['sensors']):<34} {_fmt(a['train_rmse_um']):>9} "
               f"{_fmt(a['validation_rmse_um']):>9} {_fmt(a['raw_rms_um']):>9} "
               f"{_fmt(a['r2'], 4):>7} {_fmt(a['condition_number']):>7}")
+    if any(unit_of(name) != "um" for name in doc["axes"]):
+        print("(errors of a tilt axis, *_urad, are in urad)")
     print_effects(doc)
     for name, a in doc["axes"].items():
         folds = a.get("promised_fold_rmse_um") or []
         if a.get("promised_rmse_um") is not None and folds:
-            print(f"{name}: promised for an unseen day {_fmt(a['promised_rmse_um'])} um (nested, "
-                  f"folds {_fmt(min(folds))}..{_fmt(max(folds))} um), fit {a.get('fit')}"
+            u = unit_of(name)
+            print(f"{name}: promised for an unseen day {_fmt(a['promised_rmse_um'])} {u} (nested,"
+                  f" folds {_fmt(min(folds))}..{_fmt(max(folds))} {u}), fit {a.get('fit')}"
                   + (f", free channels read: {','.join(a['free_channels_read'])}"
                      if a.get("free_channels_read") else ""))
     if "header" in doc:
@@ -140,24 +143,25 @@ def print_effects(doc: dict) -> None:
     """Each axis's validation RMSE before/after effects, what was added and why; an effect the
     channel budget dropped afterwards is listed as dropped (the box does not run it)."""
     for name, a in doc["axes"].items():
+        u = unit_of(name)
         before, after = a.get("baseline_validation_rmse_um"), a.get("validation_rmse_um")
         effects = a.get("effects") or []
         kept = [e for e in effects if not dropped_reason(e)]
         if kept:
             verb = "lower" if after is not None and before is not None and after <= before \
                 else "change"
-            print(f"{name}: effects {verb} the validation RMSE {_fmt(before)} -> {_fmt(after)} um"
+            print(f"{name}: effects {verb} the validation RMSE {_fmt(before)} -> {_fmt(after)} {u}"
                   " (the box's model: its own validation, which does not see the next day; "
                   "the promise below does)")
         elif effects:
             print(f"{name}: no effect survived the channel budget (validation RMSE "
-                  f"{_fmt(after)} um)")
+                  f"{_fmt(after)} {u})")
         for e in effects:
             ev = e.get("evidence") or {}
             why = dropped_reason(e)
             mark = "x" if why else "+"
             print(f"  {mark} {e['kind']:<9} {e['feature']}: {_fmt(e.get('rmse_before_um'))} -> "
-                  f"{_fmt(e.get('rmse_after_um'))} um, {ev.get('folds_improved', '?')} folds "
+                  f"{_fmt(e.get('rmse_after_um'))} {u}, {ev.get('folds_improved', '?')} folds "
                   f"better, residual correlation {_fmt(ev.get('residual_corr'), 2)}"
                   + (f"  DROPPED: {why}, not in the box's model" if why else ""))
         after = a.get("channel_budget_after_effects")
