@@ -197,7 +197,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                    "free_channels_read": extra,
                    "rule": ("the family with the lowest nested error: least squares on the "
                             "selected terms with or without the effects, or a ridge over "
-                            "them plus lags and speed")}
+                            "them plus lags and speed and the sensors on the free channels")}
     if result is not None:
         axis["fit"]["nested"] = {"scheme": result.scheme, "fold_rmse_um": result.fold_rmse_um,
                                  "rmse_um": {f: result.rms(f) for f in result.fold_rmse_um}}
@@ -374,7 +374,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         wired = [n for n in names if n in channels_of(
             {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})]
         pool = [n for i, n in enumerate(names) if i not in dead]
-        # every axis's ridge reads every wired sensor, the free channels filled first
+        # every axis's ridge reads every wired sensor, and the free channels filled by the
+        # axes' L1 rankings (a nested fold, trained for one axis, fills its own)
         read = [*wired, *channel_fill(runs, list(axes), wired, pool, max_channels=max_channels,
                                       period_s=period_s, n_blocks=n_blocks, reference=ref)
                 ] if fill_channels and fit != "ols" else []
@@ -383,8 +384,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                                                 nested=nested, options=options,
                                                 period_s=period_s, n_blocks=n_blocks,
                                                 reference=ref, n_axes=len(targets),
-                                                fill=read,
-                                                pool=pool, quiet=quiet)
+                                                fill=read, pool=pool, quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
