@@ -184,13 +184,16 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     alpha, extra = None, []
     if shrunk:
         terms = final_terms if with_effects else baseline_terms
-        found = ridge_axis(runs, target, terms, aux=aux, period_s=period_s, n_blocks=n_blocks,
-                           reference=reference, max_states=max_states, also=fill)
+        found = None
+        for also in ([fill, ()] if fill else [()]):  # the free channels go first if need be
+            found = found or ridge_axis(runs, target, terms, aux=aux, period_s=period_s,
+                                        n_blocks=n_blocks, reference=reference,
+                                        max_states=max_states, also=also)
         if found is None:  # not even the terms alone keep the fixed-point bound: no ridge
             family = family.replace("ridge-", "").replace("ridge", "ols")
         else:
             basis, ridge, st = found
-            extra = [s for s in fill if s not in term_sensors(terms)]
+            extra = [s for s in term_sensors(basis) if s not in term_sensors(terms)]
             axis = {**axis, **ridge_axis_dict(basis, ridge, st)}
             alpha = float(ridge.alpha)
     axis["fit"] = {"family": family, "requested": fit, "alpha": alpha,
