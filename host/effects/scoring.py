@@ -23,7 +23,7 @@ ACTIVE_SHARE = 0.1  # a fold exercises an effect if its contribution varies ther
 MAX_IDLE_LOSS = 0.05  # a fold that does not exercise it may get at most 5 % worse
 MAX_FOLD_SPREAD = 1.0  # the effect fitted without a fold keeps its shape (RMS change < size)
 PARSIMONY = 0.01  # a candidate with fewer terms within 1 % of the best is preferred
-MAX_SEARCH_ROWS = 20_000  # the search scores at most about this many samples (search_stride)
+MAX_SEARCH_ROWS = 10_000  # the search scores at most about this many samples (search_stride)
 
 
 def search_stride(runs: Sequence[Run], max_rows: int = MAX_SEARCH_ROWS) -> int:
