@@ -103,3 +103,18 @@ def test_bad_shapes_are_refused(data):
         ThermalModel(sensor_names=["a", "b"]).fit(X, y)
     with pytest.raises(ValueError, match="not contiguous"):
         ThermalModel(effects=False).fit(X, y, groups=np.arange(len(y)) % 2)
+
+
+def test_the_fit_family_and_the_free_channels_are_estimator_parameters(data):
+    run, X, y = data
+    kw = dict(sensor_names=run.sensor_names, target_names=["dz_um"], period_s=run.period_s,
+              effects=False, max_sensors=2)
+    for family, fill in (("ols", True), ("ridge", False), ("ridge", True)):
+        est = ThermalModel(**kw, family=family, fill_channels=fill).fit(X, y)
+        direct = train_model([RUN], ["dz_um"], effects=False, max_sensors=2, fit=family,
+                             fill_channels=fill)
+        assert est.model_["axes"]["dz_um"]["terms"] == direct["axes"]["dz_um"]["terms"]
+        assert est.model_["axes"]["dz_um"]["fit"]["family"] == family
+        # only the ridge with the fill reads more than the two selected sensors
+        assert (len(est.sensors_) > 2) is (family == "ridge" and fill)
+    assert ThermalModel().get_params()["family"] == "ridge"

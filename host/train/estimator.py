@@ -29,6 +29,7 @@ from contract.terms import Term
 from host.fitting import Reference, design_matrix
 from host.io import Run
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS
+from host.train.next_day import DEFAULT_FIT
 from host.train.pipeline import train_model
 
 
@@ -46,6 +47,7 @@ class ThermalModel(RegressorMixin, BaseEstimator):
                  n_groups: int = DEFAULT_GROUPS, selection: str = "validated",
                  effects: bool = True, max_channels: int = BOX_CHANNELS,
                  n_blocks: int = DEFAULT_BLOCKS, reference: str | None = None,
+                 family: str = DEFAULT_FIT, fill_channels: bool = True,
                  random_state: int = 0) -> None:
         self.sensor_names = sensor_names
         self.aux_names = aux_names
@@ -58,6 +60,8 @@ class ThermalModel(RegressorMixin, BaseEstimator):
         self.max_channels = max_channels
         self.n_blocks = n_blocks
         self.reference = reference
+        self.family = family  # host train --fit (ridge, ols, auto): ``fit`` is the method
+        self.fill_channels = fill_channels
         self.random_state = random_state
 
     # ---- helpers ---------------------------------------------------------------------------
@@ -112,7 +116,8 @@ class ThermalModel(RegressorMixin, BaseEstimator):
                                   max_sensors=self.max_sensors, groups=self.n_groups,
                                   effects=self.effects, selection=self.selection,
                                   n_blocks=self.n_blocks, seed=self.random_state,
-                                  max_channels=self.max_channels, quiet=True, **kwargs)
+                                  max_channels=self.max_channels, fit=self.family,
+                                  fill_channels=self.fill_channels, quiet=True, **kwargs)
         self.axes_ = targets
         self.sensors_ = [c["sensor"] for c in self.model_["channels"]]
         self._single = y.ndim == 1
