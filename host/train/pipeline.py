@@ -18,29 +18,25 @@ import numpy as np
 
 from contract import __version__
 from contract.box import BOX_CHANNELS, CHANNEL_MAX_C, CHANNEL_MIN_C
-from contract.errors import InputError
 from contract.model_file import SCHEMA
-from contract.terms import AUX_KINDS, TEMPERATURE_KINDS, Term, make_temp, term_sensors
+from contract.terms import AUX_KINDS, TEMPERATURE_KINDS, Term, term_sensors
 from contract.tilt import Tilt, unit_of
 from host.effects import search_effects, sensor_reference
 from host.fitting import (
     NO_REFERENCE,
     Reference,
-    common_period,
     fit_linear,
-    fold_groups,
     stack,
     validation_rmse,
 )
 from host.fitting.step_limits import add_step_limits
-from host.io import Run, check_variation, load_runs
+from host.io import Run, load_runs
 from host.progress import progress
 from host.selection import (
     DEFAULT_BLOCKS,
     DEFAULT_GROUPS,
     DEFAULT_MAX_SENSORS,
     METHODS,
-    select_sensors,
 )
 from host.train.axis_fit import axis_dict
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
@@ -55,15 +51,12 @@ from host.train.next_day import (
     states_per_axis,
 )
 from host.train.ranges import add_training_ranges
+from host.train.training_data import TrainingData, TrainingError
 
 DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
 AUX_HEADROOM = 2.0  # valid aux range: twice the training extremes (see _aux)
 TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
 DEFAULT_TC_TYPE = "K"
-
-
-class TrainingError(InputError):
-    """Training inputs are inconsistent (unknown target, bad channel map, ...)."""
 
 
 def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str | list[str],
@@ -271,6 +264,74 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     (see fit_channel_budget).
     """
     targets = list(targets)
+    aux = list(aux or [])
+    _check_options(targets, fit=fit, selection=selection, n_blocks=n_blocks,
+                   max_channels=max_channels, max_sensors=max_sensors, tc_type=tc_type,
+                   tilts=tilts)
+    data = TrainingData.of(_as_runs(runs, targets, sensors, aux, fill_gaps, tilts), targets,
+                           n_blocks, Reference.of_kind(reference))
+    choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
+                  max_delay_s=max_delay_s, seed=seed)
+    selected = _selected_within_budget(data, targets, max_channels, choose, quiet)
+    axes = _axes_with_effects(data, selected, effects=effects, ambient=ambient,
+                              max_sensors=max_sensors, max_channels=max_channels, quiet=quiet)
+    _budget_after_effects(data, axes, max_channels)
+    if nested or fit == "ridge":
+        options = dict(sensors=list(data.names), aux=aux, max_sensors=max_sensors,
+                       groups=groups, effects=effects, ambient=ambient, selection=selection,
+                       max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
+                       max_channels=max_channels, reference=reference)
+        axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
+                                      fill_channels=fill_channels, max_channels=max_channels,
+                                      quiet=quiet)
+    used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
+    if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
+        raise TrainingError(f"model needs {len(used)} thermocouple channels "
+                            f"({', '.join(sorted(used))}), the box has {max_channels}")
+    for name, axis in axes.items():  # µm, or µrad for a tilt axis: the name says which
+        axis["unit"] = unit_of(name)
+    wired = _channels(axes, data.names, dict(channels or {}), tc_type)
+    aux_inputs = _aux(axes, data.runs)
+    add_training_ranges(wired, aux_inputs, data.runs)
+    model = {
+        "schema": SCHEMA,
+        "tool_version": __version__,
+        "sample_period_s": float(data.period_s),
+        "reference": data.ref.to_json(),
+        "channels": wired,
+        "aux": aux_inputs,
+        "time_max_s": TIME_MAX_S,
+        "axes": axes,
+        **({"tilts": [t.to_json() for t in tilts]} if tilts else {}),
+        "training": {
+            "runs": [r.path for r in data.runs],
+            "targets": targets,
+            "sensors": sensors if isinstance(sensors, str) else list(sensors),
+            "aux": aux,
+            "selection": selection,
+            "max_sensors": int(max_sensors),
+            "groups": int(groups),
+            "max_delay_s": max_delay_s,
+            "validation": data.scheme,
+            "seed": int(seed),
+            "effects": bool(effects),
+            "reference": data.ref.kind,
+            "fit": fit,
+            "nested": bool(nested),
+            "fill_channels": bool(fill_channels),
+            "ambient": ambient,
+            "max_channels": int(max_channels),
+        },
+    }
+    # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
+    add_step_limits(model, data.runs)
+    return model
+
+
+def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
+                   max_channels: int, max_sensors: int, tc_type: str,
+                   tilts: Sequence[Tilt]) -> None:
+    """Refuse inconsistent options before any data is read, each with its reason."""
     if not targets:
         raise TrainingError("give at least one --target")
     if len(set(targets)) != len(targets):
@@ -287,53 +348,34 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         raise TrainingError(f"--max-sensors {max_sensors} exceeds --max-channels {max_channels}")
     if tc_type not in ("K", "J"):
         raise TrainingError(f"thermocouple type must be K or J (got {tc_type!r})")
-    aux = list(aux or [])
     for tilt in tilts:
         if tilt.name not in targets:
             raise TrainingError(f"--tilt {tilt.name}: not among the targets "
                                 f"({', '.join(targets)})")
-    runs = _as_runs(runs, targets, sensors, aux, fill_gaps, tilts)
-    check_variation(runs, list(targets))
-    period_s = common_period(runs)
-    names = runs[0].sensor_names
-    n_min = min(r.n_samples for r in runs)
-    if len(runs) == 1 and n_min < 2 * n_blocks:
-        raise TrainingError(f"{runs[0].path}: {n_min} samples is too few for {n_blocks} "
-                            "validation blocks")
-    ref = Reference.of_kind(reference)
-    X = np.vstack([r.temperatures for r in runs])
-    run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
-    folds, scheme = fold_groups(runs, n_blocks)
 
-    X = ref.apply(X, run_ids)  # selection sees what the model will: the change since the start
-    ys = {t: ref.apply(np.concatenate([r.target(t) for r in runs]), run_ids) for t in targets}
-    dead = {i for i in range(len(names)) if not np.ptp(X[:, i]) > 0}  # dead or stuck
 
-    def select(target: str, pool: list[str] | None = None) -> tuple[list[Term], dict]:
-        cols = list(range(len(names))) if pool is None else [names.index(n) for n in pool]
-        cols = [i for i in cols if i not in dead]  # a constant sensor carries no signal
-        result = select_sensors(X[:, cols], ys[target], run_ids, folds, period_s,
-                                n_groups=groups, max_sensors=max_sensors, method=selection,
-                                max_delay_s=max_delay_s, seed=seed, scheme=scheme)
-        pool_names = [names[i] for i in cols]
-        return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
-
-    def vrmse(target: str, terms: list[Term]) -> float:
-        st = stack(runs, terms, target, period_s, n_blocks, ref)
-        return validation_rmse(st.X, st.y, st.groups)
-
-    selected = {t: select(t) for t in progress(targets, "selecting sensors", quiet=quiet)}
+def _selected_within_budget(data: TrainingData, targets: list[str], max_channels: int,
+                            choose: dict, quiet: bool) -> dict[str, tuple[list[Term], dict]]:
+    """Every axis's selection, then the box's channel budget over all of them."""
+    selected = {t: data.select(t, **choose)
+                for t in progress(targets, "selecting sensors", quiet=quiet)}
     selected, budget = fit_channel_budget(
-        selected, max_channels, vrmse,
-        reselect=lambda pool: {t: select(t, pool) for t in targets})
+        selected, max_channels, data.vrmse,
+        reselect=lambda pool: {t: data.select(t, pool, **choose) for t in targets})
     for _terms, trace in selected.values():
         if budget:  # the axes together wanted more channels than the box has
             trace["channel_budget"] = budget
+    return selected
 
+
+def _axes_with_effects(data: TrainingData, selected: dict[str, tuple[list[Term], dict]], *,
+                       effects: bool, ambient: str | None, max_sensors: int,
+                       max_channels: int, quiet: bool) -> dict[str, dict]:
+    """Each axis fitted on its selection, then the loop: the effects its residual shows."""
     axes: dict[str, dict] = {}
-    for target in progress(targets, "fitting axes and effects", quiet=quiet):
+    for target in progress(list(selected), "fitting axes and effects", quiet=quiet):
         terms, trace = selected[target]
-        axis = fit_axis(runs, target, terms, period_s, n_blocks, ref)
+        axis = fit_axis(data.runs, target, terms, data.period_s, data.n_blocks, data.ref)
         axis["selection"] = trace
         baseline_validation = axis["metrics"]["validation_rmse_um"]
         axis["baseline_validation_rmse_um"] = baseline_validation
@@ -346,90 +388,56 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         others |= channels_of({k: t for k, (t, _) in selected.items() if k not in axes})
         free = max(0, max_channels - len(others | channels_of({target: terms})))
         if effects:
-            axis = axis_with_effects(axis, runs=runs, target=target, period_s=period_s,
-                                     n_blocks=n_blocks, ambient=ambient,
-                                     max_sensors=max_sensors, channels_in_use=sorted(others),
-                                     reference=ref, max_new_sensors=free)
+            axis = axis_with_effects(axis, runs=data.runs, target=target,
+                                     period_s=data.period_s, n_blocks=data.n_blocks,
+                                     ambient=ambient, max_sensors=max_sensors,
+                                     channels_in_use=sorted(others), reference=data.ref,
+                                     max_new_sensors=free)
         # on long runs the search scores a thinned-out copy; the baseline figure is full-rate
         axis["baseline_validation_rmse_um"] = baseline_validation
         axes[target] = axis
+    return axes
 
-    # Effects may have brought in sensors (the shop-air sensor, re-selected ones): if all axes
-    # together now need more channels than the box has, give up the cheapest sensors again.
+
+def _budget_after_effects(data: TrainingData, axes: dict[str, dict], max_channels: int) -> None:
+    """Effects may have brought in sensors (the shop-air sensor, re-selected ones): if all
+    axes together now need more channels than the box has, give up the cheapest again."""
     final = {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()}
-    if len(channels_of(final)) > max_channels:
-        kept, dropped = drop_to_budget(final, vrmse, max_channels)
-        for target, axis in axes.items():
-            if kept[target] != final[target]:
-                gone = {t.name for t in final[target]} - {t.name for t in kept[target]}
-                axis.update(fit_axis(runs, target, kept[target], period_s, n_blocks, ref))
-                axis["channel_budget_after_effects"] = {
-                    "max_channels": max_channels, "dropped_sensors": dropped,
-                    "dropped_terms": sorted(gone)}
-                for effect in axis.get("effects", []):
-                    if any(t.get("source") in dropped for t in effect.get("added", [])):
-                        effect["dropped_for_channels"] = True
-    if nested or fit == "ridge":
-        options = dict(sensors=list(names), aux=aux, max_sensors=max_sensors, groups=groups,
-                       effects=effects, ambient=ambient, selection=selection,
-                       max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
-                       max_channels=max_channels, reference=reference)
-        wired = [n for n in names if n in channels_of(
-            {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})]
-        pool = [n for i, n in enumerate(names) if i not in dead]
-        # every axis's ridge reads every wired sensor, and the free channels filled by the
-        # axes' L1 rankings (a nested fold, trained for one axis, fills its own)
-        read = [*wired, *channel_fill(runs, list(axes), wired, pool, max_channels=max_channels,
-                                      period_s=period_s, n_blocks=n_blocks, reference=ref)
-                ] if fill_channels and fit != "ols" else []
-        for target in progress(list(axes), "nested validation (the next day)", quiet=quiet):
-            axes[target] = fit_for_the_next_day(axes[target], runs, target, fit=fit,
-                                                nested=nested, options=options,
-                                                period_s=period_s, n_blocks=n_blocks,
-                                                reference=ref, n_axes=len(targets),
-                                                fill=read, pool=pool, quiet=quiet)
-    used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
-    if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
-        raise TrainingError(f"model needs {len(used)} thermocouple channels "
-                            f"({', '.join(sorted(used))}), the box has {max_channels}")
+    if len(channels_of(final)) <= max_channels:
+        return
+    kept, dropped = drop_to_budget(final, data.vrmse, max_channels)
+    for target, axis in axes.items():
+        if kept[target] != final[target]:
+            gone = {t.name for t in final[target]} - {t.name for t in kept[target]}
+            axis.update(fit_axis(data.runs, target, kept[target], data.period_s, data.n_blocks,
+                                 data.ref))
+            axis["channel_budget_after_effects"] = {
+                "max_channels": max_channels, "dropped_sensors": dropped,
+                "dropped_terms": sorted(gone)}
+            for effect in axis.get("effects", []):
+                if any(t.get("source") in dropped for t in effect.get("added", [])):
+                    effect["dropped_for_channels"] = True
 
-    for name, axis in axes.items():  # µm, or µrad for a tilt axis: the name says which
-        axis["unit"] = unit_of(name)
-    wired = _channels(axes, names, dict(channels or {}), tc_type)
-    aux_inputs = _aux(axes, runs)
-    add_training_ranges(wired, aux_inputs, runs)
-    model = {
-        "schema": SCHEMA,
-        "tool_version": __version__,
-        "sample_period_s": float(period_s),
-        "reference": ref.to_json(),
-        "channels": wired,
-        "aux": aux_inputs,
-        "time_max_s": TIME_MAX_S,
-        "axes": axes,
-        **({"tilts": [t.to_json() for t in tilts]} if tilts else {}),
-        "training": {
-            "runs": [r.path for r in runs],
-            "targets": targets,
-            "sensors": sensors if isinstance(sensors, str) else list(sensors),
-            "aux": aux,
-            "selection": selection,
-            "max_sensors": int(max_sensors),
-            "groups": int(groups),
-            "max_delay_s": max_delay_s,
-            "validation": scheme,
-            "seed": int(seed),
-            "effects": bool(effects),
-            "reference": ref.kind,
-            "fit": fit,
-            "nested": bool(nested),
-            "fill_channels": bool(fill_channels),
-            "ambient": ambient,
-            "max_channels": int(max_channels),
-        },
-    }
-    # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
-    add_step_limits(model, runs)
-    return model
+
+def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, *,
+                           fit: str, nested: bool, fill_channels: bool, max_channels: int,
+                           quiet: bool) -> dict[str, dict]:
+    """Every axis's family for the next day (fit_for_the_next_day), reading the free
+    channels: every axis's ridge reads every wired sensor, and the free channels filled by
+    the axes' L1 rankings (a nested fold, trained for one axis, fills its own)."""
+    wired = [n for n in data.names if n in channels_of(
+        {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})]
+    pool = data.pool
+    read = [*wired, *channel_fill(data.runs, list(axes), wired, pool, max_channels=max_channels,
+                                  period_s=data.period_s, n_blocks=data.n_blocks,
+                                  reference=data.ref)
+            ] if fill_channels and fit != "ols" else []
+    return {target: fit_for_the_next_day(axes[target], data.runs, target, fit=fit,
+                                         nested=nested, options=options,
+                                         period_s=data.period_s, n_blocks=data.n_blocks,
+                                         reference=data.ref, n_axes=len(axes), fill=read,
+                                         pool=pool, quiet=quiet)
+            for target in progress(list(axes), "nested validation (the next day)",
+                                   quiet=quiet)}
 
 
