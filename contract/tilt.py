@@ -22,9 +22,17 @@ TILT_SUFFIX = "_urad"
 _SPEC = re.compile(r"\s*([^=,\s]+)\s*=\s*([^=,\s]+)\s*,\s*([^=,\s]+)\s*,\s*([^=,\s]+)\s*")
 
 
+UNIT_TEXT = {"um": "µm", "urad": "µrad"}  # how people read them
+
+
 def unit_of(axis: str) -> str:
     """The unit an axis name declares: ``urad`` for a tilt axis, else ``um``."""
     return "urad" if axis.endswith(TILT_SUFFIX) else "um"
+
+
+def unit_text(axis: str) -> str:
+    """The unit of an axis as printed: µm, or µrad for a tilt axis."""
+    return UNIT_TEXT[unit_of(axis)]
 
 
 @dataclass(frozen=True)

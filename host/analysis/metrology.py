@@ -16,7 +16,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from contract.terms import Term
-from contract.tilt import unit_of
+from contract.tilt import unit_text
 from host.fitting import NO_REFERENCE, Reference, design_matrix
 from host.io import Run
 
@@ -101,7 +101,7 @@ def coefficient_table(axis_name: str, axis: Mapping, runs: Sequence[Run], period
             rho = num / den if den > 0 else 0.0
             inflate = math.sqrt((1 + rho) / (1 - rho)) if -1 < rho < 1 else math.inf
             se_ar1 = [v * inflate for v in se]
-    out = "µrad" if unit_of(axis_name) == "urad" else "µm"
+    out = unit_text(axis_name)
     rows = [{"term": "intercept", "symbol": "C₀", "coef": intercept, "unit": out,
              "se": se[0], "se_ar1": se_ar1[0], "vif": None}]
     for k, (term, c) in enumerate(zip(terms, coefs, strict=True), start=1):

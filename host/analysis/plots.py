@@ -20,7 +20,7 @@ from matplotlib.colors import Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.transforms import offset_copy  # noqa: E402
 
-from contract.tilt import unit_of  # noqa: E402
+from contract.tilt import unit_of, unit_text  # noqa: E402
 
 WIDE = (9.0, 5.0)
 SQUARE = (7.0, 6.0)
@@ -51,7 +51,7 @@ def delay_axis(delays_s: np.ndarray) -> tuple[np.ndarray, str]:
 
 def axis_unit(axis: str) -> tuple[str, str]:
     """The unit text and the quantity of an axis: µm displacement, or µrad tilt."""
-    return ("µrad", "tilt") if unit_of(axis) == "urad" else ("µm", "displacement")
+    return unit_text(axis), "tilt" if unit_of(axis) == "urad" else "displacement"
 
 
 def rms(x: np.ndarray) -> float:

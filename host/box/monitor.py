@@ -33,13 +33,12 @@ import serial
 
 from contract import protocol
 from contract.errors import InputError
-from contract.tilt import unit_of
+from contract.tilt import unit_of, unit_text
 
 RETRY_S = 1.0
 INFO_TIMEOUT_S = 1.0
 INFO_ATTEMPTS = 3
 REDRAW_S = 0.1
-UNIT_TEXT = {"um": "µm", "urad": "µrad"}
 STATUS_EVERY_S = 1.0  # while a fault flag is up, the per-channel fault words are re-read this often
 STALE_PERIODS = 2.0  # no line for more than this many expected intervals: STALE
 
@@ -245,7 +244,7 @@ def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
                             strict=True):
             mark = "  (HOLD: last good value)" if name in held else ""
             lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} "
-                         f"{UNIT_TEXT[unit_of(name)]}{mark}")
+                         f"{unit_text(name)}{mark}")
         faulted = state.faulted_channels()
         temps = []
         for name, code in zip(state.channel_names(len(s.temp_codes)), s.temp_codes,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from contract.tilt import unit_of
+from contract.tilt import unit_text
 from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
 
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     for row in report.summary["axes"]:
         val, raw = row["validation_rmse_um"], row["raw_rms_um"]
         if val is not None and raw:
-            u = "µrad" if unit_of(row["axis"]) == "urad" else "µm"
+            u = unit_text(row["axis"])
             print(f"  {row['axis']}: {', '.join(row['sensors'])}; validation RMSE {val:.2f} {u} "
                   f"of {raw:.2f} {u} raw ({row['reduction_pct']:.1f} % less)")
     return 0
