@@ -102,6 +102,15 @@ class Run:
     def target(self, name: str) -> np.ndarray:
         return self.displacements[:, self.target_names.index(name)]
 
+    def every(self, step: int) -> Run:
+        """Every ``step``-th sample (its period ``step`` times longer), for a quick screening."""
+        if step <= 1:
+            return self
+        return Run(self.path + f"[::{step}]", self.time_s[::step], list(self.sensor_names),
+                   self.temperatures[::step], list(self.target_names),
+                   self.displacements[::step], list(self.aux_names),
+                   None if self.aux is None else self.aux[::step])
+
     def slice(self, start: int, stop: int) -> Run:
         """A contiguous part of the run (for time-blocked validation)."""
         return Run(self.path + f"[{start}:{stop}]", self.time_s[start:stop],

@@ -11,7 +11,6 @@ budget (host.train.next_day). Measured on unseen runs of three sources in docs/n
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
 
 import numpy as np
 
@@ -35,17 +34,17 @@ def l1_ranking(runs: Sequence[Run], target: str, sensors: Sequence[str], *, peri
     if len(sensors) <= 1:
         return sensors
     step = max(1, sum(r.n_samples for r in runs) // MAX_ROWS)
-    runs = [thinned(r, step) for r in runs]  # the lags too: a screening, not the model
+    runs = [r.every(step) for r in runs]  # the lags too: a screening, not the model
     period_s *= step
     terms = [make_temp(s) for s in sensors]
     terms += [make_lag(s, tau, period_s) for tau in taus if tau > period_s for s in sensors]
     st = stack(list(runs), terms, target, period_s, n_blocks, reference)
     X, y, groups = st.X, st.y, st.groups
+    if np.unique(groups).size < 2:
+        return sensors
     sd = X.std(axis=0)
     sd[sd == 0] = 1.0
     Z = (X - X.mean(axis=0)) / sd
-    if np.unique(groups).size < 2:
-        return sensors
     top = float(np.max(np.abs(Z.T @ (y - y.mean())))) / len(y)  # every weight 0 from here
     if not top > 0:
         return sensors
@@ -54,15 +53,6 @@ def l1_ranking(runs: Sequence[Run], target: str, sensors: Sequence[str], *, peri
                     tol=1e-3).fit(Z, y)
     weight = np.abs(lasso.coef_).reshape(-1, len(sensors)).sum(axis=0)
     return [sensors[i] for i in np.argsort(-weight, kind="stable")]
-
-
-def thinned(run: Run, step: int) -> Run:
-    """Every ``step``-th sample of a run (its period ``step`` times longer)."""
-    if step <= 1:
-        return run
-    return replace(run, time_s=run.time_s[::step], temperatures=run.temperatures[::step],
-                   displacements=run.displacements[::step],
-                   aux=None if run.aux is None else run.aux[::step])
 
 
 def fill_free_channels(wired: Sequence[str], rankings: Sequence[Sequence[str]],
