@@ -29,9 +29,8 @@ def _five_probe_run(tmp: Path, protocol: str, seed: int) -> Path:
     """A simulated day with two probes on the test bar's Y side: the upper reads the tool's dy,
     the lower, nearer the spindle nose, part of dy and of dz (the column bends)."""
     program = build_program(protocol, hours=4.0, cool_hours=2.0, seed=seed)
-    sim = write_simulation(simulate(program, SimConfig(seed=seed, machine_seed=0)),
-                           tmp / f"{protocol}_sim.csv")
-    del sim
+    write_simulation(simulate(program, SimConfig(seed=seed, machine_seed=0)),
+                     tmp / f"{protocol}_sim.csv")
     run = load_run(tmp / f"{protocol}_sim.csv", ["dy_um", "dz_um"], "T*", ["spindle_rpm"])
     cols = {n: run.temperatures[:, i] for i, n in enumerate(run.sensor_names)}
     cols["spindle_rpm"] = run.aux[:, 0]
@@ -88,12 +87,19 @@ def _host(*args: str, cwd: Path) -> subprocess.CompletedProcess:
                           cwd=cwd)
 
 
-def test_a_tilt_axis_trains_evaluates_and_generates_like_any_axis(runs):
-    tmp, step, random = runs
+@pytest.fixture(scope="module")
+def trained(runs) -> Path:
+    """``host train`` with a tilt on the first simulated day: the model.json path."""
+    tmp, step, _ = runs
     done = _host("train", str(step), "--target", "dz_um", "--tilt", TILT, "--aux",
                  "spindle_rpm", "--out", str(tmp / "m"), "--no-nested", "-q", cwd=REPO)
     assert done.returncode == 0, done.stderr
-    model = json.loads((tmp / "m" / "model.json").read_text())
+    return tmp / "m" / "model.json"
+
+
+def test_a_tilt_axis_trains_evaluates_and_generates_like_any_axis(runs, trained):
+    tmp, step, random = runs
+    model = json.loads(trained.read_text())
     assert model["axes"]["tilt_y_urad"]["unit"] == "urad" and model["axes"]["dz_um"]["unit"] == "um"
     assert model["tilts"] == [Tilt.parse(TILT).to_json()]
     check_model(model)
@@ -113,19 +119,17 @@ def test_a_tilt_axis_trains_evaluates_and_generates_like_any_axis(runs):
     bad["tilts"][0]["name"] = "dz_um"
     with pytest.raises(ModelFormatError, match=r"tilts\[0\]"):
         check_model(bad)
-    assert codegen.generate(model).model.axes[0].unit in ("um", "urad")
+    units = {ax.name: ax.unit for ax in codegen.generate(model).model.axes}
+    assert units == {"dz_um": "um", "tilt_y_urad": "urad"}
 
 
 @pytest.mark.skipif(shutil.which("gcc") is None or shutil.which("make") is None,
                     reason="gcc/make not installed: the native firmware cannot be built")
-def test_the_box_runs_a_tilt_axis_bit_exact_with_the_twin(runs):
+def test_the_box_runs_a_tilt_axis_bit_exact_with_the_twin(runs, trained):
     from hil import replay as hil_replay
 
-    tmp, step, random = runs
-    model = tmp / "m" / "model.json"
-    if not model.is_file():
-        pytest.skip("needs the trained model of the test above")
-    setup = hil_replay.prepare(model, random, tmp / "hil")
+    tmp, _, random = runs
+    setup = hil_replay.prepare(trained, random, tmp / "hil")
     assert "tilt_y_urad" in setup.feed.measured
     report, _ = hil_replay.run(setup)
     assert report.checks["twin_bit_exact"] and report.checks["float_within_bound"], \
