@@ -24,7 +24,7 @@ def serialise(model: QModel) -> bytes:
     for ax in model.axes:
         out += struct.pack("<BBqi", ax.shift, len(ax.terms), ax.intercept_q, ax.max_step_nm)
         for t in ax.terms:
-            out += struct.pack("<BBiq", t.kind_code, t.input, t.param, t.coef_q)
+            out += struct.pack("<BBBiq", t.kind_code, t.input, t.state or 0, t.param, t.coef_q)
     return bytes(out)
 
 

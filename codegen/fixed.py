@@ -128,8 +128,12 @@ class FixedModel:
         if valid_mask is None:
             valid_mask = (1 << self.n_channels) - 1
         ch_ok, aux_ok = self._inputs_ok(temp_codes, valid_mask, aux)
-        for t in self.terms:  # filter states first, in table order
-            if t.kind in FILTER_KINDS and ch_ok[t.input]:
+        updated = set()
+        for t in self.terms:  # filter states first, each once, at its first term in the table
+            if t.kind not in FILTER_KINDS or t.state in updated:
+                continue
+            updated.add(t.state)
+            if ch_ok[t.input]:
                 target = int(temp_codes[t.input]) * _STATE_ONE
                 if not self.started[t.state]:
                     self.s[t.state], self.started[t.state] = target, True
@@ -178,7 +182,7 @@ class FixedModel:
 
         states = {}
         for t in self.terms:
-            if t.kind in FILTER_KINDS:
+            if t.kind in FILTER_KINDS and t.state not in states:
                 states[t.state] = self._filter_run(codes[:, t.input].tolist(),
                                                    ch_ok[:, t.input].tolist(), t.param)
         k = np.minimum(np.arange(n, dtype=np.int64), UINT32_MAX)

@@ -115,7 +115,7 @@ class QTerm:
     source: str | None
     input: int  # channel or aux index (0 for time)
     param: int  # a, ref_code, time_max_samples or 0
-    state: int | None  # filter state index (lag/rate)
+    state: int | None  # filter state index (lag/rate; shared by equal input and a)
     coef_um: float
     c: Fraction
     coef_q: int
@@ -162,7 +162,8 @@ class QModel:
 
     @property
     def n_states(self) -> int:
-        return sum(1 for ax in self.axes for t in ax.terms if t.kind in FILTER_KINDS)
+        """Distinct filter states: lags and rates of one channel with one a share one."""
+        return len({t.state for ax in self.axes for t in ax.terms if t.kind in FILTER_KINDS})
 
     def all_terms(self) -> list[QTerm]:
         return [t for ax in self.axes for t in ax.terms]
@@ -508,20 +509,23 @@ def _parse_axis(index: int, name: str, ax: Mapping, channels: Sequence[QChannel]
 
 
 def _number_states(axes: list[QAxis]) -> tuple[QAxis, ...]:
-    """A filter term's state index = its rank among lag/rate terms in table order."""
-    out, n = [], 0
+    """A filter term's state index: the rank of its (channel, a) among the distinct ones in
+    table order. The lags and rates of one sensor with one time constant share a state
+    (rate = T - lag), on any axis, so the box updates it once per sample."""
+    out, index = [], {}
     for ax in axes:
         terms = []
         for t in ax.terms:
             if t.kind in FILTER_KINDS:
-                terms.append(QTerm(**{**t.__dict__, "state": n}))
-                n += 1
+                state = index.setdefault((t.input, t.param), len(index))
+                terms.append(QTerm(**{**t.__dict__, "state": state}))
             else:
                 terms.append(t)
         out.append(QAxis(**{**ax.__dict__, "terms": tuple(terms)}))
-    if n > MAX_STATES:
-        raise CodegenError(f"the model has {n} lag/rate terms; the runtime holds "
-                           f"{MAX_STATES} filter states (TCM_MAX_STATES)")
+    if len(index) > MAX_STATES:
+        raise CodegenError(f"the model has {len(index)} distinct lag/rate filters (sensor and "
+                           f"time constant); the runtime holds {MAX_STATES} filter states "
+                           "(TCM_MAX_STATES)")
     return tuple(out)
 
 

@@ -98,6 +98,7 @@ def _term_view(t: QTerm, ax_prefix: str, model: QModel) -> dict:
         "range_hi": hi,
         "kind_upper": t.kind.upper(),
         "input": t.input,
+        "state": t.state or 0,
     }
 
 

@@ -12,15 +12,16 @@ from __future__ import annotations
 BOX_CHANNELS = 8  # MAX31856 chip selects on the box (PC0..PC7)
 BOX_AXES = 6  # axes the application keeps output state for (BOX_MAX_AXES)
 BOX_AUX = 2  # auxiliary inputs (BOX_MAX_AUX)
-BOX_STATES = 32  # filter states the box has room for over all axes
+BOX_STATES = 32  # distinct filters (sensor, time constant) the box has room for, all axes
 RUNTIME_MAX_CHANNELS = 32
 RUNTIME_MAX_AUX = 8
 RUNTIME_MAX_AXES = 32
 RUNTIME_MAX_STATES = 32
 RUNTIME_MAX_TERMS_PER_AXIS = 255
 # TCM_RUNTIME_FORMAT: 2 channels carry the training window (EXTRAP); 3 channels carry their
-# largest plausible step (IMPLAUSIBLE) and axes their output step limit, both CRC-covered
-RUNTIME_FORMAT = 3
+# largest plausible step (IMPLAUSIBLE) and axes their output step limit, both CRC-covered; 4 a
+# lag/rate term names its filter state, shared by the terms of one channel and time constant
+RUNTIME_FORMAT = 4
 HEADER_FORMAT = RUNTIME_FORMAT
 ZERO_SAMPLES = 8  # a ZERO's reference is the mean of this many samples (BOX_ZERO_SAMPLES)
 CHANNEL_MIN_C = -40.0  # default valid range of a thermocouple channel

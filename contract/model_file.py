@@ -49,7 +49,15 @@ from contract.box import (
 )
 from contract.errors import InputError
 from contract.fixed_point import INT32_MAX
-from contract.terms import AUX_KINDS, FILTER_KINDS, KINDS, TC_TYPES, TEMPERATURE_KINDS, Term
+from contract.terms import (
+    AUX_KINDS,
+    FILTER_KINDS,
+    KINDS,
+    TC_TYPES,
+    TEMPERATURE_KINDS,
+    Term,
+    filter_states,
+)
 from contract.textfile import read_utf8
 from contract.tilt import AXIS_UNITS, Tilt, unit_of
 
@@ -402,10 +410,10 @@ def check_model(model: Any, where: str = "model", *, output_range: bool = True) 
     axes = [_check_axis(c, name, ax, channels, aux, time_max_s, output_range)
             for name, ax in axes_raw.items()]
     _check_tilts(c, model.get("tilts"), axes)
-    states = sum(1 for ax in axes for t in ax.terms if t.kind in FILTER_KINDS)
+    states = filter_states(t for ax in axes for t in ax.terms)
     if states > BOX_STATES:
-        c.fail(f"the model has {states} lag/rate terms; the box holds {BOX_STATES} filter "
-               "states (contract.box.BOX_STATES)")
+        c.fail(f"the model has {states} distinct lag/rate filters (sensor and time constant); "
+               f"the box holds {BOX_STATES} filter states (contract.box.BOX_STATES)")
     return ModelSpec(period, tuple(channels), tuple(aux), time_max_s, tuple(axes),
                      model_hash(model))
 

@@ -19,7 +19,7 @@ Kinds and their feature value at sample n (x = sensor temperature in degC):
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 from contract.errors import InputError
@@ -30,6 +30,7 @@ KINDS = tuple(KIND_CODES)
 TEMPERATURE_KINDS = ("temp", "lag", "rate", "square")  # need a thermocouple channel
 AUX_KINDS = ("speed", "speed2")  # need an auxiliary input
 FILTER_KINDS = ("lag", "rate")  # carry a filter state on the box
+KELVIN_KINDS = ("temp", "lag", "rate")  # features in kelvin (a square is in K^2)
 TC_TYPES = {"K": 0, "J": 1}  # thermocouple types the box linearises (TCM_TC_*)
 
 
@@ -83,6 +84,13 @@ class Term:
 
 def make_temp(sensor: str) -> Term:
     return Term("temp", sensor)
+
+
+def filter_states(terms: Iterable[Term]) -> int:
+    """Filter states the box spends on ``terms``: one per distinct sensor and filter
+    coefficient. The lags and rates of one sensor with one time constant share a state (a rate
+    is T minus the lag), on every axis (docs/fixed-point.md)."""
+    return len({(t.source, t.params.get("alpha")) for t in terms if t.kind in FILTER_KINDS})
 
 
 def make_lag(sensor: str, tau_s: float, period_s: float) -> Term:

@@ -25,6 +25,7 @@ from test_codegen_models import MODELS, base, channel, model, term
 import codegen
 from codegen.fixed import FixedModel, temp_to_code
 from contract.fixed_point import rdiv
+from contract.model_file import check_model
 from contract.terms import make_lag, make_temp
 from host.cli import main as host_main
 
@@ -171,7 +172,7 @@ def _one_term_crc() -> int:
     # no training range (window = valid range), no max_step_c (default 1 degC = 128 codes per
     # 1 s sample), type K
     data += struct.pack("<BBqi", ONE_SHIFT, 1, ONE_INTERCEPT_Q, 1000)  # default 1 um/s x 1 s
-    data += struct.pack("<BBiq", 0, 0, 0, ONE_COEF_Q)  # temp, channel 0, no param
+    data += struct.pack("<BBBiq", 0, 0, 0, 0, ONE_COEF_Q)  # temp, channel 0, no state, no param
     return zlib.crc32(data)
 
 
@@ -183,7 +184,7 @@ GOLDEN = """\
  * Model {hash} (schema thermal-model/1), sample period 1000 ms.
  * Output: per axis, int32_t nanometres. Inputs: int32_t temperature codes, LSB 1/128 degC
  * (MAX31856 LTCB >> 5, sign-extended); a code outside its channel's range below is a fault.
- * Arithmetic: docs/fixed-point.md (runtime format 3); bounds: docs/codegen.md.
+ * Arithmetic: docs/fixed-point.md (runtime format 4); bounds: docs/codegen.md.
  * Include this file from exactly one firmware source file.
  */
 #ifndef TCM_GENERATED_MODEL_H
@@ -193,9 +194,9 @@ GOLDEN = """\
 
 #include "model_eval.h"
 
-#define TCM_HEADER_FORMAT 3
+#define TCM_HEADER_FORMAT 4
 #if TCM_HEADER_FORMAT != TCM_RUNTIME_FORMAT
-#error "model.h is header format 3 but model_eval.h is another runtime format: regenerate \
+#error "model.h is header format 4 but model_eval.h is another runtime format: regenerate \
 model.h with the codegen matching this firmware (host codegen)"
 #endif
 
@@ -285,7 +286,7 @@ _Static_assert(sizeof tcm_channels / sizeof tcm_channels[0] == TCM_N_CHANNELS, \
 
 static const tcm_term_t tcm_terms[] = {{
     /* axis 0 (dz_um) term 0: temp channel 0 (T01) */
-    {{.kind = TCM_KIND_TEMP, .input = 0u, .param = TCM_AXIS0_TERM0_PARAM, \
+    {{.kind = TCM_KIND_TEMP, .input = 0u, .state = 0u, .param = TCM_AXIS0_TERM0_PARAM, \
 .coef_q = TCM_AXIS0_TERM0_COEF_Q}},
 }};
 _Static_assert(sizeof tcm_terms / sizeof tcm_terms[0] == TCM_N_TERMS, "term table size");
@@ -314,6 +315,24 @@ static inline const tcm_model_t *tcm_model_get(void) {{ return &tcm_model; }}
 
 #endif /* TCM_GENERATED_MODEL_H */
 """
+
+
+def test_terms_of_one_sensor_and_time_constant_share_a_filter_state():
+    gen = codegen.generate(model("shared_filters"))
+    filters = [t for ax in gen.model.axes for t in ax.terms if t.kind in ("lag", "rate")]
+    assert len(filters) == 7 and gen.model.n_states == 3
+    # numbered in table order of first use: lag(T01,600) 0, lag(T02,600) 1, lag(T01,3600) 2;
+    # the rate of T01 at 600 s is T - that lag, so it reads state 0
+    assert [t.state for t in filters] == [0, 1, 2, 0, 2, 1, 1]
+    assert "#define TCM_N_STATES 3u" in gen.text
+    # 33 filter terms (one more than the box's 32 states), 11 distinct: the same 11 lags on
+    # each of three axes cost 11 states
+    lags = [term(make_lag("T01", 10.0 + i, 1.0), 0.01) for i in range(11)]
+    pool = _single(lags)
+    pool["axes"]["dy_um"] = {"unit": "um", "intercept": 0.0, "terms": lags}
+    pool["axes"]["dx_um"] = {"unit": "um", "intercept": 0.0, "terms": lags}
+    assert codegen.generate(pool).model.n_states == 11
+    check_model(pool)  # the model file's check counts the same way
 
 
 def test_golden_header_of_the_one_term_model():
@@ -387,7 +406,7 @@ REFUSALS = [
     ("period", _edit(GOOD, lambda m: m.update(sample_period_s=0.0005)),
      ["sample_period_s", "0.0005", "whole number of milliseconds"]),
     ("states", _single([term(make_lag("T01", 10.0 + i, 1.0), 0.01) for i in range(33)]),
-     ["33 lag/rate terms", "32"]),
+     ["33 distinct lag/rate filters", "32"]),
     ("name", _edit(GOOD, lambda m: (m["channels"][0].update(sensor="T,1"),
                                     m["axes"]["dz_um"]["terms"][0].update(source="T,1"))),
      ["channels[0].sensor", "'T,1'"]),

@@ -74,7 +74,7 @@ def test_header_compiles_warning_free_on_host_and_cortex_m4(name, tmp_path):
 @pytest.mark.skipif(GCC is None, reason="needs gcc")
 def test_stale_header_format_is_a_compile_error(tmp_path):
     gen = _write_header(tmp_path, "one_term")
-    stale = gen.text.replace("#define TCM_HEADER_FORMAT 3", "#define TCM_HEADER_FORMAT 2")
+    stale = gen.text.replace("#define TCM_HEADER_FORMAT 4", "#define TCM_HEADER_FORMAT 3")
     assert stale != gen.text
     (tmp_path / "model.h").write_text(stale)
     r = _compile(GCC, ["-c", "use.c", "-o", "/dev/null"], tmp_path)
@@ -132,6 +132,7 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
     kinds = ["temp", "lag", "rate", "speed", "speed2", "square", "time"]
     sensors = {c["sensor"]: c["channel"] for c in channels}
     aux_index = {a["name"]: a["input"] for a in aux}
+    states: dict[tuple[int, int], int] = {}  # one per distinct (channel, a), in table order
     for name, ax in m["axes"].items():
         fp = fixed_point["axes"][name]
         # ceil(max_step_um * 1000) nm; without it 1 um/s * period
@@ -151,7 +152,8 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
                 param = 0
             src = 0 if k == "time" else (aux_index[t["source"]] if k in ("speed", "speed2")
                                          else sensors[t["source"]])
-            out += struct.pack("<BBiq", kinds.index(k), src, param, ft["coef_q"])
+            state = states.setdefault((src, param), len(states)) if k in ("lag", "rate") else 0
+            out += struct.pack("<BBBiq", kinds.index(k), src, state, param, ft["coef_q"])
     return out
 
 

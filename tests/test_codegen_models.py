@@ -2,10 +2,11 @@
 
 Parameters the box stores quantised (alpha, ref_c) come from contract.terms' make_* helpers, so
 they are exactly what a trained model.json holds. Together the models cover: 1-5 terms per
-axis, 1-3 axes, every term kind, large and tiny coefficients, negative intercepts, an
-all-negative channel range, a wide (-200..1300 degC) range, a model without channels, a
-sub-second sample period, a `time` term that saturates within a test run, and channels with
-and without a training range (one whose EXTRAP window is clipped to the valid range).
+axis, 1-3 axes, every term kind, filter states shared across axes, large and tiny
+coefficients, negative intercepts, an all-negative channel range, a wide (-200..1300 degC)
+range, a model without channels, a sub-second sample period, a `time` term that saturates
+within a test run, and channels with and without a training range (one whose EXTRAP window is
+clipped to the valid range).
 """
 
 from __future__ import annotations
@@ -113,8 +114,26 @@ def aux_and_time_only() -> dict:
     return m
 
 
+def shared_filters() -> dict:
+    """The box's lag pool: lags and rates of one sensor and time constant on every axis share
+    one filter state (3 distinct filters for 7 filter terms), and a fault on T02 freezes the
+    state that T02's terms share."""
+    p = 2.0
+    m = base(period_s=p, channels=[channel(0, "T01"), channel(1, "T02", -20.0, 120.0)])
+    pool = [make_lag("T01", 600.0, p), make_lag("T02", 600.0, p), make_lag("T01", 3600.0, p)]
+    coefs = (-0.8, 0.3, 2.1)
+    m["axes"]["dx_um"] = {"unit": "um", "intercept": 0.5, "terms": [
+        term(make_temp("T01"), 1.2), *(term(t, c) for t, c in zip(pool, coefs, strict=True))]}
+    m["axes"]["dy_um"] = {"unit": "um", "intercept": -1.5, "terms": [
+        term(make_rate("T01", 600.0, p), 3.3), term(pool[2], -0.45), term(pool[1], 0.7)]}
+    m["axes"]["dz_um"] = {"unit": "um", "intercept": 2.0, "terms": [
+        term(pool[1], -1.1), term(make_temp("T02"), 0.25)]}
+    return m
+
+
 MODELS = {
     "one_term": one_term,
+    "shared_filters": shared_filters,
     "all_kinds": all_kinds,
     "large_coefficients": large_coefficients,
     "tiny_coefficients": tiny_coefficients,

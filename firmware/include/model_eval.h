@@ -23,13 +23,13 @@
 #include <stdint.h>
 
 /* A generated model.h must carry the same number (nanopb style check in the header). */
-#define TCM_RUNTIME_FORMAT 3
+#define TCM_RUNTIME_FORMAT 4
 
 /* Capacity of the runtime (state is statically sized; codegen refuses bigger models). */
 #define TCM_MAX_CHANNELS 32u /* valid_mask is a uint32_t */
 #define TCM_MAX_AUX 8u
 #define TCM_MAX_AXES 32u   /* the returned axes mask is a uint32_t */
-#define TCM_MAX_STATES 32u /* one int64_t per lag/rate term */
+#define TCM_MAX_STATES 32u /* one int64_t per distinct (channel, a) filter */
 
 /* Term kinds (docs/fixed-point.md). */
 #define TCM_KIND_TEMP 0u
@@ -105,15 +105,16 @@ typedef struct {
 typedef struct {
     uint8_t kind;   /* TCM_KIND_* */
     uint8_t input;  /* channel index (temp/lag/rate/square) or aux index (speed/speed2) */
+    uint8_t state;  /* lag/rate: its filter state; terms with the same input and a share one */
     int32_t param;  /* lag/rate: a = alpha*2^30; square: ref code; time: time_max_samples */
     int64_t coef_q; /* nanometres per unit of x_j, times 2^shift */
 } tcm_term_t;
 
 /*
  * One output axis. Its terms are the next n_terms entries of tcm_model_t.terms (axes in
- * order, no gaps); a lag/rate term's filter state is its rank among the lag/rate terms of the
- * whole table. Both are derived, not stored, so every value the arithmetic reads is covered
- * by the CRC.
+ * order, no gaps), derived, not stored. A lag/rate term names its filter state: the lags and
+ * rates of one channel with one a (on any axis) share it, so it is updated once per sample
+ * however many terms read it. Every value the arithmetic reads is covered by the CRC.
  */
 typedef struct {
     uint8_t shift;       /* F: out_nm = rdiv(acc, F) */
@@ -128,7 +129,7 @@ typedef struct {
     uint32_t n_aux;
     uint32_t n_axes;
     uint32_t n_terms;  /* total over all axes */
-    uint32_t n_states; /* number of lag/rate terms */
+    uint32_t n_states; /* distinct filter states (lag/rate terms share them) */
     uint32_t period_ms;
     const tcm_channel_t *channels;
     const tcm_aux_t *aux; /* NULL when n_aux == 0 */

@@ -10,7 +10,8 @@
  *   temperature code T  int32, 1/128 degC (Q7), valid iff in [min_code, max_code], a
  *                       sub-range of the chip's 19-bit range [-2^18, 2^18-1].
  *   aux value n         int32, rpm, valid iff in [min, max].
- * Filter state (lag/rate terms), int64, unit 2^-16/128 degC (code in Q16):
+ * Filter state, int64, unit 2^-16/128 degC (code in Q16), one per distinct (channel, a): a
+ * lag/rate term names it (term->state); terms of one channel and a share it on every axis:
  *   cold start          s = T * 65536 (a multiplication: a negative T is never shifted).
  *   update              d = T*65536 - s;  s = s + rdiv(d * a, 30),  1 <= a <= 2^30.
  *                       |rdiv(d*a, 30)| <= |d| and has the sign of d, so s stays between its
@@ -109,6 +110,7 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
             const tcm_term_t *term = &m->terms[t];
             crc = crc_u8(crc, term->kind);
             crc = crc_u8(crc, term->input);
+            crc = crc_u8(crc, term->state);
             crc = crc_i32(crc, term->param);
             crc = crc_i64(crc, term->coef_q);
         }
@@ -131,16 +133,16 @@ static int is_temperature(uint8_t kind)
 static int is_aux(uint8_t kind) { return kind == TCM_KIND_SPEED || kind == TCM_KIND_SPEED2; }
 
 /* Feature x_j of one term (docs/fixed-point.md table); inputs already known valid. */
-static int64_t feature(const tcm_term_t *term, const tcm_state_t *st, uint32_t state_index,
+static int64_t feature(const tcm_term_t *term, const tcm_state_t *st,
                        const int32_t *temp_codes, const int32_t *aux)
 {
     switch (term->kind) {
     case TCM_KIND_TEMP:
         return temp_codes[term->input];
     case TCM_KIND_LAG:
-        return st->s[state_index];
+        return st->s[term->state];
     case TCM_KIND_RATE:
-        return (int64_t)temp_codes[term->input] * INT64_C(65536) - st->s[state_index];
+        return (int64_t)temp_codes[term->input] * INT64_C(65536) - st->s[term->state];
     case TCM_KIND_SPEED:
         return aux[term->input];
     case TCM_KIND_SPEED2:
@@ -175,53 +177,52 @@ uint32_t tcm_step(const tcm_model_t *m, tcm_state_t *st, const int32_t *temp_cod
         }
     }
 
-    /* 2. Filter states of valid channels: cold start, then one update (frozen if faulted).
-     * The walk uses the axes' CRC-covered term counts, not the uncovered n_terms. */
+    /* 2. Filter states of valid channels: cold start, then one update (frozen if faulted),
+     * each state once, at the first term (in table order) that reads it. The walk uses the
+     * axes' CRC-covered term counts, not the uncovered n_terms. */
     uint32_t n_terms = 0u;
     for (uint32_t a = 0; a < m->n_axes; ++a) {
         n_terms += m->axes[a].n_terms;
     }
-    uint32_t state_index = 0u;
-    for (uint32_t t = 0; t < n_terms && state_index < TCM_MAX_STATES; ++t) {
+    uint32_t updated = 0u;
+    for (uint32_t t = 0; t < n_terms; ++t) {
         const tcm_term_t *term = &m->terms[t];
-        if (!is_filter(term->kind)) {
+        if (!is_filter(term->kind) || term->state >= TCM_MAX_STATES) {
             continue;
         }
-        const uint32_t bit = UINT32_C(1) << state_index;
+        const uint32_t bit = UINT32_C(1) << term->state;
+        if ((updated & bit) != 0u) {
+            continue; /* shared with an earlier term: already updated this sample */
+        }
+        updated |= bit;
         if (bit_set(ch_ok, term->input)) {
             const int64_t target = (int64_t)temp_codes[term->input] * INT64_C(65536);
             if ((st->started & bit) == 0u) {
-                st->s[state_index] = target;
+                st->s[term->state] = target;
                 st->started |= bit;
             } else {
-                const int64_t d = target - st->s[state_index];
-                st->s[state_index] += tcm_rdiv(d * (int64_t)term->param, TCM_ALPHA_FRAC_BITS);
+                const int64_t d = target - st->s[term->state];
+                st->s[term->state] += tcm_rdiv(d * (int64_t)term->param, TCM_ALPHA_FRAC_BITS);
             }
         }
-        ++state_index;
     }
 
     /* 3. Axes whose inputs are all valid: int64 dot product, one rounding. */
     uint32_t axes_ok = 0u;
     uint32_t t = 0u;
-    state_index = 0u;
     for (uint32_t a = 0; a < m->n_axes && a < TCM_MAX_AXES; ++a) {
         const tcm_axis_t *ax = &m->axes[a];
         int64_t acc = ax->intercept_q;
         int valid = 1;
         for (uint32_t j = 0; j < ax->n_terms; ++j, ++t) {
             const tcm_term_t *term = &m->terms[t];
-            const uint32_t this_state = state_index;
-            if (is_filter(term->kind)) {
-                ++state_index;
-            }
             if ((is_temperature(term->kind) && !bit_set(ch_ok, term->input)) ||
                 (is_aux(term->kind) && !bit_set(aux_ok, term->input)) ||
-                (is_filter(term->kind) && this_state >= TCM_MAX_STATES)) {
+                (is_filter(term->kind) && term->state >= TCM_MAX_STATES)) {
                 valid = 0;
             }
             if (valid) {
-                acc += term->coef_q * feature(term, st, this_state, temp_codes, aux);
+                acc += term->coef_q * feature(term, st, temp_codes, aux);
             }
         }
         if (valid && ax->shift <= TCM_MAX_SHIFT) {
