@@ -15,7 +15,12 @@ from contract.terms import make_lag, make_temp
 from host.fitting import NO_REFERENCE, Reference, fit_ridge, fold_groups
 from host.io import Run
 from host.train import train_model
-from host.train.next_day import fold_training, nested_validation, ridge_basis
+from host.train.next_day import (
+    fold_training,
+    nested_validation,
+    ridge_basis,
+    shared_lag_budget,
+)
 
 PERIOD = 60.0
 
@@ -42,6 +47,24 @@ def test_ridge_matches_scikit_learn_at_a_given_penalty():
     ref = Ridge(alpha=0.1 * 300).fit((X - mu) / sd, y)  # per standardised column and sample
     np.testing.assert_allclose(fit.coef, ref.coef_ / sd, rtol=1e-9)
     assert fit.intercept == pytest.approx(ref.intercept_ - (mu / sd) @ ref.coef_, rel=1e-9)
+
+
+def test_ridge_penalises_columns_of_one_unit_alike():
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(300, 4)) * [1, 10, 0.1, 3] + 5
+    y = X @ [1, 0.2, -3, 0.5] + 2 + rng.normal(size=300)
+    shared = [True, True, True, False]  # three columns in kelvin, one in rpm
+    fit = fit_ridge(X, y, np.repeat([0, 1, 2], 100), alphas=(0.1,), shared=shared)
+    mu, sd = X.mean(0), X.std(0)
+    scale = sd.copy()
+    scale[:3] = np.sqrt(np.mean(sd[:3] ** 2))
+    ref = Ridge(alpha=0.1 * 300).fit((X - mu) / scale, y)
+    np.testing.assert_allclose(fit.coef, ref.coef_ / scale, rtol=1e-9)
+    # the narrow column (sd 0.1) is no longer cheap to weigh: it is shrunk far more
+    own = fit_ridge(X, y, np.repeat([0, 1, 2], 100), alphas=(0.1,))
+    assert abs(fit.coef[2]) < 0.5 * abs(own.coef[2])
+    with pytest.raises(ValueError, match="3 flags for 4 columns"):
+        fit_ridge(X, y, np.repeat([0, 1, 2], 100), shared=shared[:3])
 
 
 def test_fold_training_cuts_one_run_around_the_held_out_block():
@@ -89,10 +112,29 @@ def test_ridge_basis_spends_only_the_states_it_is_given():
     assert sum(t.kind == "lag" for t in full) == 4
     assert sum(t.kind == "lag" for t in ridge_basis(terms, [], PERIOD, 8 * 3600.0, 3)) == 2
     assert ridge_basis(terms, [], PERIOD, 8 * 3600.0, 1) == terms  # one state: no lag pair
-    # a sensor read on a free channel: its temperature, no lag (the states stay with T1, T2)
+    # a sensor read on a free channel: its temperature and its lags, as far as the states go
     also = ridge_basis(terms, [], PERIOD, 8 * 3600.0, 8, also=["T3", "T1"])
     assert also[:3] == [*terms, make_temp("T3")]
-    assert sum(t.kind == "lag" for t in also) == 4 and all(t.source != "T3" for t in also[3:])
+    assert also[3:] == [make_lag(s, tau, PERIOD) for tau in (900.0, 3600.0)
+                        for s in ("T1", "T2", "T3")]
+    assert ridge_basis(terms, [], PERIOD, 8 * 3600.0, 5, also=["T3"])[3:] == [
+        make_lag(s, 900.0, PERIOD) for s in ("T1", "T2", "T3")]
+    # a term's own lag is one of the pool's filters: it costs no second state
+    own = [make_temp("T1"), make_lag("T1", 900.0, PERIOD)]
+    assert sum(t.kind == "lag" for t in ridge_basis(own, [], PERIOD, 8 * 3600.0, 2)) == 2
+
+
+def test_the_lag_pool_is_paid_for_once_over_every_axis():
+    runs = [_run("a", 1)]  # 8 h: both time constants identified
+    read = [f"T{i}" for i in range(1, 9)]  # eight wired sensors, two time constants: 16 states
+    axes = [[make_temp("T1")], [make_temp("T2"), make_lag("T2", 900.0, PERIOD)],
+            [make_temp("T3"), make_lag("T3", 7200.0, PERIOD)]]
+    budget = shared_lag_budget(axes, read, runs, PERIOD)
+    assert budget == {0: 16, 1: 16, 2: 17}  # the pool, plus the one lag outside it
+    # an effect's own filters take room first: 20 distinct lags of T1 (one of them at 900 s,
+    # the pool's) leave room for the pool's first time constant only: 20 + 8 - 1
+    effects = [[make_lag("T1", 60.0 * (i + 1), PERIOD) for i in range(20)]]
+    assert shared_lag_budget(effects, read, runs, PERIOD) == {0: 27}
 
 
 def test_train_promises_a_nested_error_and_the_box_runs_either_family():

@@ -2,13 +2,21 @@
 
 Select-then-accept (paper 000's subset, then effects one at a time) is high-variance on data
 this small; a ridge over a fixed dynamic basis (the selected sensors, their first-order lags,
-the spindle speed) shrinks what the folds cannot pin down instead of dropping it. Columns are
-standardised once; the penalty ``alpha`` is per standardised column and per sample, so one
-grid serves every data size. The intercept is free (never penalised).
+the spindle speed) shrinks what the folds cannot pin down instead of dropping it. The penalty
+``alpha`` is per scaled column and per sample, so one grid serves every data size; the
+intercept is free (never penalised).
+
+Columns in one unit share one scale (``shared``: the temperatures, lags and rates, all in
+kelvin): the penalty then weighs every micrometre per kelvin alike. Scaled each by its own
+spread, a slow lag that barely moves in the training run was cheap to give a coefficient of
+tens of um/K, and it extrapolates on a day that heats differently; in kelvin the ridge was
+lower on every source on unseen runs (docs/next-day.md). Other columns (speed, squares) are
+scaled by their own spread.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,9 +47,25 @@ def _solve(M: np.ndarray, v: np.ndarray, penalty: float) -> np.ndarray:
         return np.linalg.lstsq(M + P, v, rcond=None)[0]
 
 
+def column_scale(X: np.ndarray, shared: Sequence[bool] | None = None) -> np.ndarray:
+    """Each column's scale: its own standard deviation, or for the ``shared`` columns (one
+    unit) the root mean square of theirs, so their coefficients are penalised alike."""
+    sd = X.std(axis=0) if X.shape[1] else np.zeros(0)
+    if shared is not None:
+        mask = np.asarray(shared, dtype=bool)
+        if mask.shape != sd.shape:
+            raise ValueError(f"shared: {mask.size} flags for {sd.size} columns")
+        if mask.any():
+            sd[mask] = np.sqrt(np.mean(sd[mask] ** 2))
+    sd[sd == 0] = 1.0
+    return sd
+
+
 def fit_ridge(X: np.ndarray, y: np.ndarray, groups: np.ndarray,
-              alphas: tuple[float, ...] = ALPHA_GRID) -> RidgeFit:
-    """Ridge of ``y`` on ``X`` with ``alpha`` minimising the out-of-fold RMSE over ``groups``.
+              alphas: tuple[float, ...] = ALPHA_GRID,
+              shared: Sequence[bool] | None = None) -> RidgeFit:
+    """Ridge of ``y`` on ``X`` with ``alpha`` minimising the out-of-fold RMSE over ``groups``;
+    the columns flagged in ``shared`` share one scale (column_scale).
 
     Ties go to the larger alpha (more shrinkage for the same held-out error).
     """
@@ -49,8 +73,7 @@ def fit_ridge(X: np.ndarray, y: np.ndarray, groups: np.ndarray,
     y = np.asarray(y, dtype=float)
     n, p = X.shape
     mean = X.mean(axis=0) if p else np.zeros(0)
-    sd = X.std(axis=0) if p else np.zeros(0)
-    sd[sd == 0] = 1.0
+    sd = column_scale(X, shared)
     D = np.empty((n, p + 1))
     D[:, 0] = 1.0
     if p:

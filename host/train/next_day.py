@@ -34,7 +34,16 @@ import numpy as np
 
 from contract.box import BOX_STATES
 from contract.errors import InputError
-from contract.terms import FILTER_KINDS, Term, make_lag, make_speed, make_temp, term_sensors
+from contract.terms import (
+    FILTER_KINDS,
+    KELVIN_KINDS,
+    Term,
+    filter_states,
+    make_lag,
+    make_speed,
+    make_temp,
+    term_sensors,
+)
 from host.effects import fixed_point_refusal, tau_grid
 from host.fitting import (
     Reference,
@@ -121,22 +130,25 @@ def channel_fill(runs: Sequence[Run], targets: Sequence[str], wired: Sequence[st
     return fill_free_channels(wired, rankings, max_channels)
 
 
+def pool_lags(sensors: Sequence[str], taus: Sequence[float], period_s: float) -> list[Term]:
+    """First-order lags of every sensor at each time constant, the fastest first."""
+    return [make_lag(s, tau, period_s) for tau in taus for s in sensors]
+
+
 def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
                 shortest_s: float, max_states: int, also: Sequence[str] = ()) -> list[Term]:
-    """The terms, the temperature of each sensor in ``also`` they do not read, lags of the
-    terms' own sensors (as many time constants as the states allow, fastest first) and the
-    speed of every aux input. The other sensors get no lags: with them the ridge lost more
-    often by over 1.5x on unseen runs (docs/next-day.md)."""
-    sensors = term_sensors(terms)
+    """The terms, the temperature of each sensor in ``also`` they do not read, lags of every
+    sensor read (as many time constants as ``max_states`` distinct filters allow, fastest
+    first) and the speed of every aux input."""
     out = reading(terms, also)
+    sensors = term_sensors(out)
     taus = tau_grid(period_s, shortest_s, LAG_TAUS_S)
-    free = max_states - sum(t.kind in FILTER_KINDS for t in out)
-    n_lags = min(len(taus), free // len(sensors)) if sensors else 0
-    for tau in taus[:max(n_lags, 0)]:
-        for s in sensors:
-            lag = make_lag(s, tau, period_s)
-            if lag not in out:
-                out.append(lag)
+    n_lags = max((k for k in range(len(taus) + 1)
+                  if filter_states(out + pool_lags(sensors, taus[:k], period_s)) <= max_states),
+                 default=0)
+    for lag in pool_lags(sensors, taus[:n_lags], period_s):
+        if lag not in out:
+            out.append(lag)
     for name in aux:
         speed = make_speed(name)
         if speed not in out:
@@ -146,8 +158,9 @@ def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
 
 def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], period_s: float,
                     n_blocks: int, reference: Reference):
+    """The ridge of one axis over ``terms``, its temperature-like terms penalised in kelvin."""
     st = stack(list(runs), list(terms), target, period_s, n_blocks, reference)
-    return fit_ridge(st.X, st.y, st.groups), st
+    return fit_ridge(st.X, st.y, st.groups, shared=[t.kind in KELVIN_KINDS for t in terms]), st
 
 
 def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *,
@@ -224,5 +237,18 @@ def check_fit(fit: str) -> None:
         raise InputError(f"--fit must be one of {', '.join(FITS)} (got {fit!r})")
 
 
-def states_per_axis(n_axes: int) -> int:
-    return BOX_STATES // max(n_axes, 1)
+def shared_lag_budget(axes_terms: Sequence[Sequence[Term]], read: Sequence[str],
+                      runs: Sequence[Run], period_s: float) -> dict[int, int]:
+    """Each axis's filter budget for its ridge (by position in ``axes_terms``): its own terms
+    plus the lags of the sensors ``read`` at as many time constants as the box's
+    ``BOX_STATES`` allow over all axes. The box shares one filter state between the terms of
+    one sensor and time constant on every axis (contract.terms.filter_states), so a lag pool
+    over the wired sensors costs its states once, however many axes read it."""
+    shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
+    taus = tau_grid(period_s, shortest, LAG_TAUS_S)
+    every = [t for terms in axes_terms for t in terms]
+    k = max((k for k in range(len(taus) + 1)
+             if filter_states(every + pool_lags(read, taus[:k], period_s)) <= BOX_STATES),
+            default=0)
+    pool = pool_lags(read, taus[:k], period_s)
+    return {i: filter_states([*terms, *pool]) for i, terms in enumerate(axes_terms)}

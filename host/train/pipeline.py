@@ -48,7 +48,7 @@ from host.train.next_day import (
     nested_validation,
     ridge_axis,
     ridge_axis_dict,
-    states_per_axis,
+    shared_lag_budget,
 )
 from host.train.ranges import add_training_ranges
 from host.train.training_data import TrainingData, TrainingError
@@ -133,18 +133,18 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
 
 def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
                          options: dict, period_s: float, n_blocks: int, reference: Reference,
-                         n_axes: int, fill: Sequence[str] = (), pool: Sequence[str] = (),
+                         max_states: int, fill: Sequence[str] = (), pool: Sequence[str] = (),
                          quiet: bool = True) -> dict:
     """Judge the families by nested validation and keep the one for the next day
     (host.train.next_day); the axis gains ``fit`` and the promised error with its spread.
 
     The ridge also reads the sensors ``fill`` (free channels); each nested fold fills its own
-    from ``pool`` when ``fill`` is not empty (the fold's ranking, not the final one)."""
+    from ``pool`` when ``fill`` is not empty (the fold's ranking, not the final one). Its basis
+    has at most ``max_states`` distinct filters (next_day.shared_lag_budget)."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
     baseline = axis.get("baseline")
     baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
                       else final_terms)
-    max_states = states_per_axis(n_axes)
     aux = list(options["aux"])
 
     def train_fold(sub: list[Run]) -> tuple[list[Term], list[Term], list[str]]:
@@ -432,12 +432,15 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
                                   period_s=data.period_s, n_blocks=data.n_blocks,
                                   reference=data.ref)
             ] if fill_channels and fit != "ols" else []
+    targets = list(axes)
+    final = [[Term.from_json(x) for x in axes[t]["terms"]] for t in targets]
+    budget = shared_lag_budget(final, read or wired, data.runs, data.period_s)
     return {target: fit_for_the_next_day(axes[target], data.runs, target, fit=fit,
                                          nested=nested, options=options,
                                          period_s=data.period_s, n_blocks=data.n_blocks,
-                                         reference=data.ref, n_axes=len(axes), fill=read,
+                                         reference=data.ref, max_states=budget[i], fill=read,
                                          pool=pool, quiet=quiet)
-            for target in progress(list(axes), "nested validation (the next day)",
-                                   quiet=quiet)}
+            for i, target in enumerate(progress(targets, "nested validation (the next day)",
+                                                quiet=quiet))}
 
 
