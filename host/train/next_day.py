@@ -12,15 +12,17 @@ select-then-accept is high-variance on data this small. So, per axis:
   accepted effects by least squares (paper 000's eq. 4 and the closed loop); ``baseline``, the
   same without the effects (an effect is kept only when its evidence also holds in this second
   validation design); ``ridge`` and ``ridge-baseline``, those terms plus first-order lags of
-  every selected sensor and the spindle speed, fitted by a ridge whose penalty is chosen out of
-  fold (host.fitting.ridge). ``auto`` (the default) keeps the family with the lowest nested
-  error; effects it gives up stay in the report, marked as not in the box's model.
+  every sensor read and the spindle speed, fitted by a ridge whose penalty is chosen out of
+  fold and weighs every um/K alike (host.fitting.ridge). ``auto`` keeps the family with the
+  lowest nested error; effects it gives up stay in the report, marked as not in the box's
+  model.
 
 The ridge reads every wired thermocouple: the sensors the axes selected plus, up to the
 channel budget, the best of the others by an L1 ranking (host.selection.screening), so the box's
-free inputs are not left unused. Its basis spends filter states: at most
-``contract.box.BOX_STATES`` over all axes, and its coefficients must keep codegen's fixed-point
-bound (host.effects.fixed_point_refusal); lags are given up, longest first, until both hold.
+free inputs are not left unused. Its lags spend filter states, shared on the box by every term
+of one sensor and time constant: at most ``contract.box.BOX_STATES`` distinct ones over all
+axes (shared_lag_budget), and its coefficients must keep codegen's fixed-point bound
+(host.effects.fixed_point_refusal); lags are given up, longest first, until both hold.
 """
 
 from __future__ import annotations
