@@ -181,6 +181,7 @@ class CaseResult:
     raw_um: float = math.nan  # scored error of predicting zero change
     peer_sensors: dict[str, int] = field(default_factory=dict)  # peer -> sensors it reads
     notes: dict[str, str] = field(default_factory=dict)
+    effects: dict[str, list[str]] = field(default_factory=dict)  # ours -> effects it kept
 
     @property
     def best_peer(self) -> tuple[str, float]:
@@ -439,6 +440,8 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
                         case.validation_um[column] = float(
                             axis["metrics"]["validation_rmse_um"])
                         case.n_terms[column] = len(axis["terms"])
+                        case.effects[column] = [e["name"] for e in axis.get("effects", [])
+                                                if not e.get("dropped_by_nested_validation")]
 
     folds, _ = fold_groups(train)
     X = np.vstack([peer_features(r, job.reference, False) for r in train])
@@ -499,7 +502,8 @@ def summarise(cases: list[CaseResult]) -> dict:
         d, b = c.rmse_um["default"], c.rmse_um["no effects"]
         if d > LOOP_TOLERANCE * b:
             out["loop_worse"].append({"source": c.source, "group": c.group, "test": c.test,
-                                      "target": c.target, "default_um": d, "no_effects_um": b})
+                                      "target": c.target, "default_um": d, "no_effects_um": b,
+                                      "effects": c.effects.get("default", [])})
     return out
 
 
@@ -551,7 +555,8 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
                  f"{100 * (LOOP_TOLERANCE - 1):.0f} % in {len(worse)} of {len(cases)} cases")
     for w in worse:
         lines.append(f"  {w['source']} {w['group']}: {w['test']} {w['target']}: "
-                     f"{w['no_effects_um']:.2f} -> {w['default_um']:.2f} um")
+                     f"{w['no_effects_um']:.2f} -> {w['default_um']:.2f} um; effects: "
+                     f"{', '.join(w['effects']) or 'none kept'}")
     lines.append("Calibration (default: test RMSE / the RMSE host train promised)")
     for source, s in summary["calibration"].items():
         lines.append(f"  {source:<8} within a factor 2 in {s['within factor 2']} of "
