@@ -46,6 +46,47 @@ def test_single_run_is_cut_into_contiguous_blocks():
     assert list(groups) == [0, 0, 0, 0, 1, 1, 1, 2, 2, 2]
 
 
+def _test_run(temps: np.ndarray, rpm: np.ndarray | None = None) -> Run:
+    n = len(temps)
+    t = np.arange(n) * 60.0
+    aux = ([], None) if rpm is None else (["spindle_rpm"], rpm[:, None])
+    return Run("r.csv", t, ["T1"], temps[:, None], ["d"], np.zeros((n, 1)), *aux)
+
+
+def test_blocks_of_one_run_are_cut_where_its_heat_cool_phases_change():
+    # 10 h at 1 min: spindle on for the first 6 h, off for the last 4 (heat, then cool)
+    n = 600
+    rpm = np.where(np.arange(n) < 360, 6000.0, 0.0)
+    temps = 20 + np.minimum(np.arange(n), 360) * 0.01
+
+    def cuts(run: Run) -> list[int]:
+        return (np.flatnonzero(np.diff(fold_groups([run], 3, phases=True)[0])) + 1).tolist()
+
+    # the equal split starts blocks at 200 and 400; the second cut moves to the spindle stop
+    # (40 samples away, within a quarter block), the first has no transition near it
+    assert cuts(_test_run(temps, rpm)) == [200, 360]
+    assert "cut at its heat/cool transitions" in fold_groups([_test_run(temps, rpm)], 3,
+                                                            phases=True)[1]
+    # without phases (the effect search, the fit's validation): the equal split
+    assert (np.flatnonzero(np.diff(fold_groups([_test_run(temps, rpm)], 3)[0])) + 1).tolist() \
+        == [200, 400]
+    # a speed step while the spindle runs is not a start or stop
+    stepped = np.where(np.arange(n) < 210, 6000.0, np.where(np.arange(n) < 360, 3000.0, 0.0))
+    assert cuts(_test_run(temps, stepped)) == [200, 360]
+    # no aux input: the mean temperature's turn (heating to cooling at 360) is the transition
+    rise_fall = 20 + 5 * np.sin(np.pi * np.arange(n) / 720)
+    got = cuts(_test_run(rise_fall))
+    assert got[0] == 200 and abs(got[1] - 360) <= 2
+    # sensor noise on a steady run is no phase: the equal split
+    noisy = 20 + 0.05 * np.random.default_rng(3).standard_normal(n)
+    assert cuts(_test_run(noisy)) == [200, 400]
+    # a transition farther than a quarter block from every cut leaves the equal split
+    late = np.where(np.arange(n) < 500, 6000.0, 0.0)
+    groups, scheme = fold_groups([_test_run(temps, late)], 3, phases=True)
+    assert (np.flatnonzero(np.diff(groups)) + 1).tolist() == [200, 400]
+    assert "heat/cool" not in scheme
+
+
 def test_several_runs_are_left_out_one_at_a_time():
     groups, scheme = fold_groups([_run(3), _run(2)])
     assert "leave-one-run-out" in scheme and list(groups) == [0, 0, 0, 1, 1]

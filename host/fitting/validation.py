@@ -7,7 +7,12 @@ filter states the box would have. Folds are given as a group label per stacked s
 - one run: the run is cut into ``n_blocks`` contiguous time blocks (default 3), each a group;
   a fold trains on the other blocks and tests on its own. Contiguous blocks keep the strong
   autocorrelation of thermal data from leaking between train and test the way a random split
-  would.
+  would. For the sensor selection (``phases=True``) the cuts follow the run's heat/cool
+  cycles: each moves to the nearest transition (the spindle starts or stops; without an aux
+  input, the mean temperature turns) within a quarter block of the equal split, so a block is
+  a whole phase of the test rather than a slice through one, as an unseen day is. The effect
+  search, the fit's validation, the ridge's penalty and the nested promise keep equal blocks:
+  on whole phases the effect rule missed 3 of 8 injected effects (docs/next-day.md section 6).
 The fits themselves (and their out-of-fold errors) are host.fitting.out_of_fold's.
 """
 
@@ -16,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import find_peaks
 
 from contract.errors import InputError
 from contract.terms import Term
@@ -24,6 +30,10 @@ from host.fitting.reference import NO_REFERENCE, Reference
 from host.io import Run
 
 DEFAULT_BLOCKS = 3
+SNAP_SHARE = 0.25  # a block's cut moves to a heat/cool transition at most this share of a block
+STEP_SHARE = 0.05  # an aux input above this share of its largest value is running
+TURN_SHARE = 0.25  # a turn of the mean temperature by this share of its range (not noise)
+TURN_MIN_K = 0.5  # and by at least this much: a thermocouple's noise is a tenth of it
 
 
 @dataclass
@@ -40,14 +50,62 @@ class Stacked:
         return int(np.unique(self.groups).size)
 
 
-def fold_groups(runs: list[Run], n_blocks: int = DEFAULT_BLOCKS) -> tuple[np.ndarray, str]:
-    """Group label per stacked sample and the scheme's description."""
+def heat_cool_transitions(run: Run) -> np.ndarray:
+    """Sample indices where a phase of the test begins: an aux input (the spindle) starts or
+    stops (crosses ``STEP_SHARE`` of its largest value), or, when none does, the smoothed mean
+    temperature turns between rising and falling by more than ``TURN_SHARE`` of its range and
+    ``TURN_MIN_K`` (a peak's prominence: sensor noise is not a phase)."""
+    n = run.n_samples
+    if run.aux is not None and run.aux.size and n > 1:
+        top = np.max(np.abs(run.aux), axis=0)
+        moving = np.ptp(run.aux, axis=0) > 0
+        if moving.any():
+            running = np.abs(run.aux[:, moving]) > STEP_SHARE * top[moving]
+            starts_stops = np.flatnonzero((running[1:] != running[:-1]).any(axis=1)) + 1
+            if starts_stops.size:
+                return starts_stops
+    w = max(1, n // 10)  # smoothing: a tenth of the run
+    if n < 4 * w or not run.temperatures.size:
+        return np.zeros(0, dtype=int)
+    mean = np.convolve(run.temperatures.mean(axis=1), np.ones(w) / w, mode="valid")
+    swing = max(TURN_SHARE * float(np.ptp(mean)), TURN_MIN_K)
+    turns = np.sort(np.concatenate([find_peaks(mean, prominence=swing)[0],
+                                    find_peaks(-mean, prominence=swing)[0]])) + w // 2
+    return turns
+
+
+def block_cuts(run: Run, n_blocks: int) -> tuple[list[int], bool]:
+    """The first sample of blocks 1..n_blocks-1: the equal split, each cut moved to the
+    nearest heat/cool transition within ``SNAP_SHARE`` of a block; and whether any moved."""
+    n = run.n_samples
+    equal = [-(-k * n // n_blocks) for k in range(1, n_blocks)]  # ceil(k n / n_blocks)
+    found = heat_cool_transitions(run)
+    reach = SNAP_SHARE * n / n_blocks
+    cuts = []
+    for c in equal:
+        near = found[np.abs(found - c) <= reach]
+        cuts.append(int(near[np.argmin(np.abs(near - c))]) if near.size else c)
+    bounds = [0, *cuts, n]
+    if any(b - a < 2 for a, b in zip(bounds, bounds[1:], strict=False)):
+        return equal, False  # two cuts on one transition: keep the equal split
+    return cuts, cuts != equal
+
+
+def fold_groups(runs: list[Run], n_blocks: int = DEFAULT_BLOCKS, *, phases: bool = False
+                ) -> tuple[np.ndarray, str]:
+    """Group label per stacked sample and the scheme's description; ``phases``: one run's
+    blocks are cut at its heat/cool transitions (block_cuts), else in equal parts."""
     if len(runs) >= 2:
         groups = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
         return groups, f"leave-one-run-out ({len(runs)} runs)"
     n = runs[0].n_samples
-    groups = np.minimum((np.arange(n) * n_blocks) // n, n_blocks - 1)
-    return groups, f"time-blocked ({n_blocks} contiguous blocks of one run)"
+    if not phases:
+        groups = np.minimum((np.arange(n) * n_blocks) // n, n_blocks - 1)
+        return groups, f"time-blocked ({n_blocks} contiguous blocks of one run)"
+    cuts, moved = block_cuts(runs[0], n_blocks)
+    groups = np.searchsorted(np.asarray(cuts), np.arange(runs[0].n_samples), side="right")
+    how = ", cut at its heat/cool transitions" if moved else ""
+    return groups, f"time-blocked ({n_blocks} contiguous blocks of one run{how})"
 
 
 def common_period(runs: list[Run], tolerance: float = 0.01) -> float:

@@ -67,7 +67,8 @@ class SelectionError(InputError):
 def fold_labels(run_ids: np.ndarray, n_blocks: int = DEFAULT_BLOCKS) -> np.ndarray:
     """Validation folds: one per run if there are several, else contiguous time blocks.
 
-    Same scheme as host.fitting.validation.fold_groups, for callers that only have arrays.
+    host.fitting.validation.fold_groups's scheme for callers that only have arrays: the equal
+    split, without moving the cuts to a run's heat/cool transitions (that needs the run).
     """
     run_ids = np.asarray(run_ids)
     if np.unique(run_ids).size >= 2:

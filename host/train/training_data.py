@@ -35,8 +35,9 @@ class TrainingData:
     X: np.ndarray
     ys: dict[str, np.ndarray]
     run_ids: np.ndarray
-    folds: np.ndarray
-    scheme: str
+    folds: np.ndarray  # the selection's folds (a single run's blocks follow its phases)
+    folds_scheme: str
+    scheme: str  # the validation of the fits (equal blocks of a single run)
     dead: set[int]  # sensors constant in every run (dead or stuck): they carry no signal
 
     @staticmethod
@@ -48,14 +49,15 @@ class TrainingData:
             raise TrainingError(f"{runs[0].path}: {n_min} samples is too few for {n_blocks} "
                                 "validation blocks")
         run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
-        folds, scheme = fold_groups(runs, n_blocks)
+        folds, folds_scheme = fold_groups(runs, n_blocks, phases=True)
+        scheme = fold_groups(runs, n_blocks)[1]
         # selection sees what the model will: the change since the start
         X = ref.apply(np.vstack([r.temperatures for r in runs]), run_ids)
         ys = {t: ref.apply(np.concatenate([r.target(t) for r in runs]), run_ids)
               for t in targets}
         dead = {i for i in range(X.shape[1]) if not np.ptp(X[:, i]) > 0}
         return TrainingData(runs, list(runs[0].sensor_names), period_s, ref, n_blocks, X, ys,
-                            run_ids, folds, scheme, dead)
+                            run_ids, folds, folds_scheme, scheme, dead)
 
     @property
     def pool(self) -> list[str]:
@@ -71,7 +73,7 @@ class TrainingData:
                                 self.period_s, n_groups=choose["groups"],
                                 max_sensors=choose["max_sensors"], method=choose["selection"],
                                 max_delay_s=choose["max_delay_s"], seed=choose["seed"],
-                                scheme=self.scheme)
+                                scheme=self.folds_scheme)
         pool_names = [self.names[i] for i in cols]
         return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
 
