@@ -177,6 +177,21 @@ def test_cli_train_json_shape_and_evaluate(runs, tmp_path, capsys):
                                         "reduction_pct"}
 
 
+def test_cli_train_prints_the_filter_states_the_axes_share(runs, tmp_path, capsys):
+    paths = [tmp_path / "a.csv", tmp_path / "b.csv"]
+    for run, p in zip(runs, paths, strict=True):
+        _write(run, p)
+    out = tmp_path / "ridge"
+    assert main(["train", "--no-nested", *map(str, paths), "--target", "dz_um", "--target",
+                 "dy_um", "--out", str(out), "--no-codegen"]) == 0
+    printed = capsys.readouterr().out
+    model = read_model(out / "model.json")
+    lags = [(t["source"], t["tau_s"]) for a in model["axes"].values() for t in a["terms"]
+            if t["kind"] in ("lag", "rate")]
+    assert len(lags) > len(set(lags))  # both axes read the pool: terms outnumber the states
+    assert f"filter states: {len(set(lags))} of 32 " in printed
+
+
 def test_cli_errors_are_clear(runs, tmp_path, capsys):
     p = tmp_path / "a.csv"
     _write(runs[0], p)

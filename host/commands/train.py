@@ -7,9 +7,10 @@ import argparse
 import json
 from pathlib import Path
 
-from contract.box import BOX_CHANNELS
+from contract.box import BOX_CHANNELS, BOX_STATES
 from contract.errors import InputError
 from contract.model_file import jsonable, write_model, write_text_atomic
+from contract.terms import FILTER_KINDS, Term, filter_states
 from contract.tilt import Tilt, unit_of
 from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
@@ -98,8 +99,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="ambient temperature column for the ambient effect (one of the "
                         "--sensors; default: a sensor named like *amb*, if any)")
     parser.add_argument("--fit", choices=FITS, default=DEFAULT_FIT,
-                        help="ridge (default): the selected terms and effects plus lags of the "
-                             "selected sensors and the speed, shrunk; ols: least squares on "
+                        help="ridge (default): the selected terms and effects plus the speed "
+                             "and lags of every sensor the box reads, shrunk (every um/K "
+                             "alike); ols: least squares on "
                              "the selected terms and effects (paper 000's eq. 4); auto: the "
                              "family with the lowest nested error (docs/next-day.md)")
     parser.add_argument("--no-fill-channels", action="store_true",
@@ -135,6 +137,10 @@ def print_table(doc: dict, model: dict) -> None:
                   f" folds {_fmt(min(folds))}..{_fmt(max(folds))} {u}), fit {a.get('fit')}"
                   + (f", free channels read: {','.join(a['free_channels_read'])}"
                      if a.get("free_channels_read") else ""))
+    filters = [Term.from_json(t) for a in model["axes"].values() for t in a["terms"]]
+    if any(t.kind in FILTER_KINDS for t in filters):
+        print(f"filter states: {filter_states(filters)} of {BOX_STATES} (the lags and rates of "
+              f"one sensor and time constant share one on every axis)")
     if "header" in doc:
         print(f"header: {doc['header']}")
 
