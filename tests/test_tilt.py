@@ -160,3 +160,21 @@ def test_figures_and_the_equation_speak_in_the_tilt_unit():
     assert plots.run_fit("day", "dz_um", t, t, {"m": t}).axes[0].get_ylabel() \
         == "displacement (µm)"
     assert term_unit(make_temp("T01"), out="µrad") == "µrad/K"
+
+
+def test_the_report_states_an_effects_evidence_in_the_axis_unit():
+    from host.analysis.report import effect_stages
+    from host.io import Run
+
+    t = np.arange(40) * 60.0
+    temp = 20 + t / 600.0
+    run = Run("day.csv", t, ["T01"], temp[:, None], ["tilt_y_urad", "dz_um"],
+              np.column_stack([temp, temp]))
+    term = {"kind": "temp", "source": "T01", "coef": 1.0}
+    effect = {"kind": "lag", "name": "lag(T01, tau=600s)", "rmse_before_um": 2.0,
+              "rmse_after_um": 1.0, "intercept": 0.0, "terms": [term]}
+    axis = {"baseline": {"intercept": 0.0, "terms": [term]}, "effects": [effect],
+            "terms": [term], "intercept": 0.0}
+    tilt = effect_stages(axis, "tilt_y_urad", run, 60.0)[1]["evidence"]
+    assert "2.00 → 1.00 µrad" in tilt and "µm" not in tilt
+    assert "2.00 → 1.00 µm" in effect_stages(axis, "dz_um", run, 60.0)[1]["evidence"]

@@ -26,7 +26,7 @@ import numpy as np
 from contract.errors import InputError
 from contract.model_file import channel_ranges, read_model
 from contract.terms import TEMPERATURE_KINDS, Term
-from contract.tilt import available_axes, model_tilts
+from contract.tilt import available_axes, model_tilts, unit_text
 from host.analysis import plots
 from host.analysis.evaluate import model_reference
 from host.analysis.metrology import coefficient_table, iso230_drift, wiring_rows
@@ -390,6 +390,7 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                                      sel.get("ec_fold_errors_um"))
             title = f"{axis_name}: evaluation criterion"
             errors = sel.get("ec_errors_um") or []
+            u = unit_text(axis_name)
             caption = ("EC<sub>i</sub> = (S<sub>i</sub>/S<sub>1</sub>)·(i/c) trades the error "
                        "of the best i-sensor model against its size. The circled point fixes "
                        "how many sensors the selection chose: "
@@ -399,14 +400,14 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                           "cap": f"the --max-sensors cap of {cap}: the out-of-fold error "
                                  f"S<sub>i</sub> is smallest at "
                                  f"{int(np.argmin(errors)) + 1 if errors else '?'} sensors "
-                                 f"({min(errors) if errors else math.nan:.3g} µm against "
-                                 f"{errors[cap - 1] if errors and cap else math.nan:.3g} µm at "
+                                 f"({min(errors) if errors else math.nan:.3g} {u} against "
+                                 f"{errors[cap - 1] if errors and cap else math.nan:.3g} {u} at "
                                  f"{cap}), beyond what the box allows per axis."}[rule])
             swaps = sel.get("refinement") or []
             if swaps:
                 caption += " Group refinement then swapped " + ", ".join(
                     f"{html.escape(w['removed'])} → {html.escape(w['added'])} "
-                    f"({w['error_before_um']:.3g} → {w['error_after_um']:.3g} µm)"
+                    f"({w['error_before_um']:.3g} → {w['error_after_um']:.3g} {u})"
                     for w in swaps) + "."
             dropped = [n for n in sel.get("sensors", []) if n not in box_sensors(axis)]
             if dropped:
@@ -760,12 +761,12 @@ def fold_stages(axis: dict) -> list[dict]:
     return rows
 
 
-def effect_evidence(effect: dict) -> str:
-    """The numbers that justified an effect, in one phrase."""
+def effect_evidence(effect: dict, unit: str = "µm") -> str:
+    """The numbers that justified an effect, in one phrase (errors in ``unit``)."""
     parts = []
     before, after = effect.get("rmse_before_um"), effect.get("rmse_after_um")
     if before is not None and after is not None:
-        parts.append(f"validation RMSE {before:.2f} → {after:.2f} µm")
+        parts.append(f"validation RMSE {before:.2f} → {after:.2f} {unit}")
     ev = effect.get("evidence") or {}
     if ev.get("improvement_pct") is not None:
         parts.append(f"{ev['improvement_pct']:.0f} % better")
@@ -801,7 +802,7 @@ def effect_stages(axis: dict, axis_name: str, run: Run, period: float,
             dropped = why is not None
             name = effect.get("name", effect.get("kind", "?"))
             stages.append({"label": f"+ {name}" + (f" (dropped: {why})" if dropped else ""),
-                           "name": name, "evidence": effect_evidence(effect),
+                           "name": name, "evidence": effect_evidence(effect, unit_text(axis_name)),
                            "dropped": dropped, "box": False,
                            "residual": measured - predict(effect["intercept"], effect["terms"],
                                                           run, period, reference)})
