@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import find_peaks
 
 from contract.errors import InputError
 from contract.terms import Term
@@ -64,6 +63,8 @@ def heat_cool_transitions(run: Run) -> np.ndarray:
             starts_stops = np.flatnonzero((running[1:] != running[:-1]).any(axis=1)) + 1
             if starts_stops.size:
                 return starts_stops
+    from scipy.signal import find_peaks  # imported here: scipy.signal costs ~1 s at CLI start
+
     w = max(1, n // 10)  # smoothing: a tenth of the run
     if n < 4 * w or not run.temperatures.size:
         return np.zeros(0, dtype=int)
