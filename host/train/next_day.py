@@ -137,6 +137,15 @@ def pool_lags(sensors: Sequence[str], taus: Sequence[float], period_s: float) ->
     return [make_lag(s, tau, period_s) for tau in taus for s in sensors]
 
 
+def pool_depth(terms: Sequence[Term], sensors: Sequence[str], taus: Sequence[float],
+               period_s: float, max_states: int) -> int:
+    """How many of ``taus`` (fastest first) the lags of ``sensors`` may use beside ``terms``
+    within ``max_states`` distinct filters (contract.terms.filter_states)."""
+    return max((k for k in range(len(taus) + 1)
+                if filter_states([*terms, *pool_lags(sensors, taus[:k], period_s)])
+                <= max_states), default=0)
+
+
 def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
                 shortest_s: float, max_states: int, also: Sequence[str] = ()) -> list[Term]:
     """The terms, the temperature of each sensor in ``also`` they do not read, lags of every
@@ -145,9 +154,7 @@ def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
     out = reading(terms, also)
     sensors = term_sensors(out)
     taus = tau_grid(period_s, shortest_s, LAG_TAUS_S)
-    n_lags = max((k for k in range(len(taus) + 1)
-                  if filter_states(out + pool_lags(sensors, taus[:k], period_s)) <= max_states),
-                 default=0)
+    n_lags = pool_depth(out, sensors, taus, period_s, max_states)
     for lag in pool_lags(sensors, taus[:n_lags], period_s):
         if lag not in out:
             out.append(lag)
@@ -216,8 +223,12 @@ def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: 
     states and fixed-point bound (None when not even the terms and temperatures alone fit:
     then the box keeps the least-squares model)."""
     shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
+    tried: list[Term] | None = None
     for states in range(max_states, -1, -1):
         basis = ridge_basis(terms, aux, period_s, shortest, states, also)
+        if basis == tried:
+            continue  # one state fewer, the same lags: the same fit, refused already
+        tried = basis
         fit, st = fit_ridge_terms(runs, target, basis, period_s, n_blocks, reference)
         if fixed_point_refusal(basis, fit.coef) is None:
             return basis, fit, st
@@ -249,8 +260,5 @@ def shared_lag_budget(axes_terms: Sequence[Sequence[Term]], read: Sequence[str],
     shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
     taus = tau_grid(period_s, shortest, LAG_TAUS_S)
     every = [t for terms in axes_terms for t in terms]
-    k = max((k for k in range(len(taus) + 1)
-             if filter_states(every + pool_lags(read, taus[:k], period_s)) <= BOX_STATES),
-            default=0)
-    pool = pool_lags(read, taus[:k], period_s)
+    pool = pool_lags(read, taus[:pool_depth(every, read, taus, period_s, BOX_STATES)], period_s)
     return {i: filter_states([*terms, *pool]) for i, terms in enumerate(axes_terms)}
