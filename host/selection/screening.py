@@ -60,7 +60,7 @@ def fill_free_channels(wired: Sequence[str], rankings: Sequence[Sequence[str]],
     """The sensors to add to ``wired`` until ``max_channels``: each axis's ranking in turn
     gives its best sensor not yet wired (so every axis gets its share of the free inputs)."""
     chosen = list(wired)
-    queues = [[s for s in r] for r in rankings]
+    queues = [list(r) for r in rankings]
     while len(chosen) < max_channels and any(queues):
         for q in queues:
             while q and q[0] in chosen:
