@@ -252,10 +252,11 @@ def score_candidates(cache: FeatureCache, y: np.ndarray, groups: np.ndarray,
                      ) -> tuple[Scored, np.ndarray, list[Scored]]:
     """The current model's out-of-fold score and residual, and every candidate's score,
     sorted best (lowest validation RMSE) first."""
-    terms: list[Term] = list(current)
-    for cand in candidates:
-        terms += [t for t in cand.add if t not in terms]
-    index = {t: i for i, t in enumerate(terms)}
+    # every term once, in first-seen order; a dict, since `in` on a list made this quadratic
+    index: dict[Term, int] = {}
+    for t in [*current, *(t for cand in candidates for t in cand.add)]:
+        index.setdefault(t, len(index))
+    terms = list(index)
     gram = GramScorer(cache.matrix(terms), y, groups)
     base = [index[t] for t in current]
     ref = gram.score(base, [])
