@@ -95,6 +95,125 @@ def _unexplained_message(structure: dict, n_added: int, best: dict | None,
             f"(needs >= {rule.min_gain:.0%} and every fold that exercises it better)")
 
 
+@dataclass
+class _Space:
+    """What one axis's search works on: the (thinned) target and its folds, the candidates'
+    features, the inputs a family may use and the channel budget it must keep."""
+
+    sensors: list[str]
+    aux_names: list[str]
+    ambient: str | None
+    period_s: float
+    taus: list[float]
+    scheme: str
+    floor: float  # the gauge's noise (full rate)
+    y: np.ndarray
+    groups: np.ndarray
+    run_ids: np.ndarray
+    cache: FeatureCache
+    refs: dict
+    how: Reselection
+    allowed_new: int
+    baseline_sources: set[str]
+    channels_in_use: set[str]
+
+    def fits_budget(self, c: Candidate, terms: list[Term]) -> bool:
+        """The channels the box wires grow by at most ``allowed_new`` (a re-selection that
+        gives up a sensor nobody else reads frees its channel)."""
+        wired = set(term_sensors(c.apply(terms))) | self.channels_in_use
+        return len(wired) - len(self.baseline_sources) <= self.allowed_new
+
+    def candidates(self, terms: list[Term], kinds: set[str]) -> list[Candidate]:
+        """Every family that applies to ``terms``, with the input families re-selected, that
+        keeps the channel budget."""
+        cands = [c for c in generate_candidates(terms, self.sensors, self.aux_names,
+                                                self.ambient, self.period_s, self.taus,
+                                                self.refs) if c.kind in kinds]
+        cands += reselected_candidates(cands, self.cache, self.y, self.groups, self.run_ids,
+                                       terms, self.sensors, self.ambient, self.period_s,
+                                       self.scheme, self.how, self.allowed_new,
+                                       self.baseline_sources)
+        return [c for c in cands if self.fits_budget(c, terms)]
+
+
+@dataclass
+class _Outcome:
+    """Where the loop stopped: the terms, what it added, and its last scores."""
+
+    terms: list[Term]
+    added: list[dict]
+    steps: list[dict]
+    n_tested: int
+    last_best: dict | None
+    max_reached: bool
+    baseline_score: Scored
+    ref: Scored
+    residual: np.ndarray
+
+
+def _space(runs: list[Run], target: str, baseline: Sequence[Term], period_s: float, *,
+           ambient: str | None, aux: Sequence[str] | None, n_blocks: int,
+           taus: Iterable[float], selection: Mapping | None, max_sensors: int,
+           allowed_new: int, channels_in_use: Iterable[str], reference: Reference) -> _Space:
+    sensors = list(runs[0].sensor_names)
+    aux_names = _checked_aux(runs[0], aux)
+    ambient = find_ambient(sensors, ambient)
+    shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
+    stride = search_stride(runs)
+    groups_full, scheme = fold_groups(runs, n_blocks)
+    y_full = np.concatenate([reference.apply(r.target(target)) for r in runs])
+    run_ids = np.concatenate([np.full(r.n_samples, i) for i, r in enumerate(runs)])
+    in_use = set(channels_in_use)
+    return _Space(
+        sensors=sensors, aux_names=aux_names, ambient=ambient, period_s=period_s,
+        taus=tau_grid(period_s, shortest, taus), scheme=scheme,
+        floor=noise_floor(y_full, groups_full), y=every_nth(runs, stride, y_full),
+        groups=every_nth(runs, stride, groups_full), run_ids=every_nth(runs, stride, run_ids),
+        cache=FeatureCache(runs, period_s, stride, reference),
+        refs={s: start_reference(runs, s) for s in sensors},
+        how=Reselection.from_trace(selection, max_sensors), allowed_new=allowed_new,
+        baseline_sources=set(term_sensors(baseline)) | in_use, channels_in_use=in_use)
+
+
+def _loop(space: _Space, baseline: Sequence[Term], kinds: set[str], rule: Rule,
+          max_effects: int, max_error_um: float) -> _Outcome:
+    """Steps 1-5: score every candidate on the current residual, add the first the box can
+    run that passes the rule, refit, repeat."""
+    terms = list(baseline)
+    added: list[dict] = []
+    steps: list[dict] = []
+    n_tested = 0
+    last_best: dict | None = None
+    baseline_score: Scored | None = None
+    while True:
+        ref, residual, scored = score_candidates(space.cache, space.y, space.groups, terms,
+                                                 space.candidates(terms, kinds))
+        if baseline_score is None:
+            baseline_score = ref
+        if len(added) >= max_effects:
+            return _Outcome(terms, added, steps, n_tested, last_best, True, baseline_score,
+                            ref, residual)
+        if not residual_structure(residual, space.y, space.groups, space.floor)["above_noise"]:
+            break  # the residual is at the gauge's noise: no effect to look for
+        n_tested += len(scored)
+        chosen = _first_the_box_runs(scored, ref, rule, terms, space.cache, space.y,
+                                     max_error_um)
+        top = [candidate_row(s, ref) for s in scored[:TOP_RECORDED]]
+        refused = [candidate_row(s, ref) for s in scored[TOP_RECORDED:] if s.codegen]
+        steps.append({"validation_rmse_um": rounded(ref.validation_rmse_um, 4),
+                      "candidates": len(scored), "best": top + refused,
+                      "added": None if chosen is None else chosen.candidate.feature})
+        last_best = top[0] if top else None
+        if chosen is None:
+            break
+        assert chosen.candidate is not None
+        terms = chosen.candidate.apply(terms)
+        fit = fit_linear(space.cache.matrix(terms), space.y)
+        added.append(_added_entry(chosen, ref, terms, fit.coef, fit.intercept))
+    return _Outcome(terms, added, steps, n_tested, last_best, False, baseline_score, ref,
+                    residual)
+
+
 def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], period_s: float,
                    *, ambient: str | None = None, aux: Sequence[str] | None = None,
                    max_effects: int = MAX_EFFECTS, n_blocks: int = DEFAULT_BLOCKS,
@@ -117,99 +236,40 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
     if not runs:
         raise EffectsError("no runs")
     kinds = _checked_kinds(kinds)
-    sensors = list(runs[0].sensor_names)
-    aux_names = _checked_aux(runs[0], aux)
-    ambient = find_ambient(sensors, ambient)
-    shortest = min(r.time_s[-1] - r.time_s[0] for r in runs)
-    taus = tau_grid(period_s, shortest, taus)
-    stride = search_stride(runs)
-    groups_full, scheme = fold_groups(runs, n_blocks)
-    y_full = np.concatenate([reference.apply(r.target(target)) for r in runs])
-    floor = noise_floor(y_full, groups_full)
-    groups, y = every_nth(runs, stride, groups_full), every_nth(runs, stride, y_full)
-    cache = FeatureCache(runs, period_s, stride, reference)
-    refs = {s: start_reference(runs, s) for s in sensors}
-
-    run_ids = every_nth(runs, stride, np.concatenate([np.full(r.n_samples, i)
-                                                      for i, r in enumerate(runs)]))
-    how = Reselection.from_trace(selection, max_sensors)
-    allowed_new = max_effects if max_new_sensors is None else int(max_new_sensors)
-    baseline_sources = set(term_sensors(baseline)) | set(channels_in_use)
-
-    def fits_budget(c: Candidate) -> bool:
-        """The channels the box wires grow by at most ``allowed_new`` (a re-selection that
-        gives up a sensor nobody else reads frees its channel)."""
-        wired = set(term_sensors(c.apply(terms))) | set(channels_in_use)
-        return len(wired) - len(baseline_sources) <= allowed_new
-
-    terms = list(baseline)
-    base_fit = fit_linear(cache.matrix(terms), y)
-    added: list[dict] = []
-    steps: list[dict] = []
-    n_tested = 0
-    last_best: dict | None = None
-    max_reached = False
-    baseline_score: Scored | None = None
-    residual = np.zeros_like(y)
-    while True:
-        cands = [c for c in generate_candidates(terms, sensors, aux_names, ambient, period_s,
-                                                taus, refs) if c.kind in kinds]
-        cands += reselected_candidates(cands, cache, y, groups, run_ids, terms, sensors,
-                                       ambient, period_s, scheme, how, allowed_new,
-                                       baseline_sources)
-        cands = [c for c in cands if fits_budget(c)]
-        ref, residual, scored = score_candidates(cache, y, groups, terms, cands)
-        if baseline_score is None:
-            baseline_score = ref
-        if len(added) >= max_effects:
-            max_reached = True
-            break
-        if not residual_structure(residual, y, groups, floor)["above_noise"]:
-            break  # the residual is at the gauge's noise: no effect to look for
-        n_tested += len(scored)
-        chosen = _first_the_box_runs(scored, ref, rule, terms, cache, y, max_error_um)
-        top = [candidate_row(s, ref) for s in scored[:TOP_RECORDED]]
-        refused = [candidate_row(s, ref) for s in scored[TOP_RECORDED:] if s.codegen]
-        steps.append({"validation_rmse_um": rounded(ref.validation_rmse_um, 4),
-                      "candidates": len(scored), "best": top + refused,
-                      "added": None if chosen is None else chosen.candidate.feature})
-        last_best = top[0] if top else None
-        if chosen is None:
-            break
-        assert chosen.candidate is not None
-        terms = chosen.candidate.apply(terms)
-        fit = fit_linear(cache.matrix(terms), y)
-        added.append(_added_entry(chosen, ref, terms, fit.coef, fit.intercept))
-
-    assert baseline_score is not None
-    final = fit_linear(cache.matrix(terms), y)
-    structure = residual_structure(residual, y, groups, floor)
+    space = _space(runs, target, baseline, period_s, ambient=ambient, aux=aux,
+                   n_blocks=n_blocks, taus=taus, selection=selection, max_sensors=max_sensors,
+                   allowed_new=max_effects if max_new_sensors is None else int(max_new_sensors),
+                   channels_in_use=channels_in_use, reference=reference)
+    base_fit = fit_linear(space.cache.matrix(list(baseline)), space.y)
+    out = _loop(space, baseline, kinds, rule, max_effects, max_error_um)
+    final = fit_linear(space.cache.matrix(out.terms), space.y)
+    structure = residual_structure(out.residual, space.y, space.groups, space.floor)
     unexplained = None
     if structure["structured"]:
         unexplained = {k: structure[k] for k in ("lag1_autocorr", "white_noise_limit",
                                                   "residual_rmse_um", "noise_floor_um")}
-        unexplained["message"] = _unexplained_message(structure, len(added), last_best,
-                                                      max_reached, rule)
+        unexplained["message"] = _unexplained_message(structure, len(out.added),
+                                                      out.last_best, out.max_reached, rule)
     report = {
-        "baseline_validation_rmse_um": rounded(baseline_score.validation_rmse_um, 6),
-        "validation_rmse_um": rounded(ref.validation_rmse_um, 6),
-        "effects": added,
+        "baseline_validation_rmse_um": rounded(out.baseline_score.validation_rmse_um, 6),
+        "validation_rmse_um": rounded(out.ref.validation_rmse_um, 6),
+        "effects": out.added,
         "unexplained": unexplained,
         "baseline": {"intercept": float(base_fit.intercept),
                      "terms": _terms_json(baseline, base_fit.coef)},
         "effects_search": {
             "rule": _rule_text(rule, max_effects, max_error_um),
-            "validation": scheme,
+            "validation": space.scheme,
             "kinds": [k for k in EFFECT_KINDS if k in kinds],
-            "ambient": ambient,
-            "aux": aux_names,
-            "tau_grid_s": taus,
-            "candidates_tested": n_tested,
+            "ambient": space.ambient,
+            "aux": space.aux_names,
+            "tau_grid_s": space.taus,
+            "candidates_tested": out.n_tested,
             "residual": structure,
-            "steps": steps,
+            "steps": out.steps,
         },
     }
-    return EffectsResult(terms, final.coef, float(final.intercept), report)
+    return EffectsResult(out.terms, final.coef, float(final.intercept), report)
 
 
 def _checked_kinds(kinds: Iterable[str]) -> set[str]:
