@@ -330,6 +330,230 @@ def summary_rows(model: dict) -> list[dict]:
     return rows
 
 
+@dataclass
+class _Inputs:
+    """What every figure of one report reads: the model, the referenced runs, and the
+    per-run error table the figures fill in for the summary."""
+
+    model: dict
+    runs: list[Run]
+    ref: Reference
+    period: float
+    peer_models: dict
+    matrix: ProtocolMatrix | None
+    ranges: dict | None
+    limit: float | None
+    run_table: dict[str, dict] = field(default_factory=dict)
+
+
+# A figure: (matplotlib figure, title, caption HTML, file name), or None when it has nothing
+# to show for this axis and run.
+Drawn = tuple[object, str, str, str] | None
+
+
+def _figure_jobs(inp: _Inputs) -> list[tuple[str, str | None, Run | None]]:
+    """Every figure the report draws, in page order: (kind, axis, run)."""
+    model, runs = inp.model, inp.runs
+    jobs: list[tuple[str, str | None, Run | None]] = []
+    for axis_name, axis in model["axes"].items():
+        if axis.get("selection"):
+            jobs.append(("selection", axis_name, None))
+            if axis["selection"].get("ec_curve"):
+                jobs.append(("ec", axis_name, None))
+    for run in runs:
+        for axis_name in run.target_names:
+            jobs.append(("runs", axis_name, run))
+            if model["axes"][axis_name].get("effects"):
+                jobs.append(("effects", axis_name, run))
+                if run is runs[0] and fold_stages(model["axes"][axis_name]):
+                    jobs.append(("folds", axis_name, None))
+            jobs.append(("hysteresis", axis_name, run))
+    if inp.matrix is not None:
+        jobs.append(("protocols", None, None))
+    if inp.ranges:
+        jobs += [("window", None, run) for run in runs]
+    return jobs
+
+
+def _fig_selection(inp: _Inputs, axis_name: str, axis: dict, run: Run | None) -> Drawn:
+    fig_obj, title, caption = _selection_figure(axis_name, axis, inp.limit)
+    return fig_obj, title, caption, f"selection_{_slug(axis_name)}.png"
+
+
+def _fig_ec(inp: _Inputs, axis_name: str, axis: dict, run: Run | None) -> Drawn:
+    sel = axis["selection"]
+    rule = count_rule(sel, inp.model)
+    cap = int(inp.model.get("training", {}).get("max_sensors") or 0) or None
+    fig_obj = plots.ec_curve(axis_name, sel["ec_curve"], int(sel.get("chosen_count", 0)),
+                             sel.get("ec_subsets"), sel.get("ec_errors_um"), rule, cap,
+                             sel.get("ec_fold_errors_um"))
+    errors = sel.get("ec_errors_um") or []
+    u = unit_text(axis_name)
+    caption = ("EC<sub>i</sub> = (S<sub>i</sub>/S<sub>1</sub>)·(i/c) trades the error "
+               "of the best i-sensor model against its size. The circled point fixes "
+               "how many sensors the selection chose: "
+               + {"ec": "the smallest EC (paper 000).",
+                  "min": "the smallest out-of-fold error S<sub>i</sub> (an error on data "
+                         "the fit did not see already rises when a model is too big).",
+                  "cap": f"the --max-sensors cap of {cap}: the out-of-fold error "
+                         f"S<sub>i</sub> is smallest at "
+                         f"{int(np.argmin(errors)) + 1 if errors else '?'} sensors "
+                         f"({min(errors) if errors else math.nan:.3g} {u} against "
+                         f"{errors[cap - 1] if errors and cap else math.nan:.3g} {u} at "
+                         f"{cap}), beyond what the box allows per axis."}[rule])
+    swaps = sel.get("refinement") or []
+    if swaps:
+        caption += " Group refinement then swapped " + ", ".join(
+            f"{html.escape(w['removed'])} → {html.escape(w['added'])} "
+            f"({w['error_before_um']:.3g} → {w['error_after_um']:.3g} {u})"
+            for w in swaps) + "."
+    dropped = [n for n in sel.get("sensors", []) if n not in box_sensors(axis)]
+    if dropped:
+        caption += (" The channel budget later dropped "
+                    + html.escape(", ".join(dropped)) + ": the box reads "
+                    + html.escape(", ".join(box_sensors(axis))) + ".")
+    return (fig_obj, f"{axis_name}: evaluation criterion", caption,
+            f"ec_{_slug(axis_name)}.png")
+
+
+def _fig_run(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
+    """The run against every model's prediction; fills the run's row of the error table."""
+    measured = run.target(axis_name)
+    preds = {"our model": predict(axis["intercept"], axis["terms"], run, inp.period, inp.ref)}
+    drift = {"measured": iso230_drift(run.time_s, measured),
+             "compensated": iso230_drift(run.time_s, measured - preds["our model"])}
+    for peer_name, per_run in inp.peer_models.items():
+        if (run.path, axis_name) in per_run:
+            preds[peer_name] = per_run[(run.path, axis_name)]
+    metrics = axis.get("metrics", {})
+    promised = metrics.get("promised_rmse_um")
+    fig_obj = plots.run_fit(run.name, axis_name, run.time_s, measured, preds,
+                            None if promised is None else
+                            (float(promised), metrics.get("promised_fold_rmse_um") or []))
+    entry = inp.run_table.setdefault(run.name, {})
+    entry[axis_name] = {
+        "raw_rms_um": plots.rms(measured),
+        "residual_rms_um": {k: plots.rms(measured - v) for k, v in preds.items()},
+        "in_training": _in_training(inp.model, run),
+        "drift": drift,
+    }
+    caption = ("Top: the measured displacement and what each model predicts from what "
+               "the box measures. Bottom: what is left (RMS in the legend)"
+               + ("; the shaded band is ± the error host train promised for an "
+                  "unseen day (nested validation), dotted its worst fold."
+                  if promised is not None else ".")
+               + (" This run was used for training." if entry[axis_name]["in_training"]
+                  else " The model never saw this run."))
+    return (fig_obj, f"{run.name}, {axis_name}", caption,
+            f"run_{_slug(run.name)}_{_slug(axis_name)}.png")
+
+
+def _fig_window(inp: _Inputs, axis_name: str | None, axis: dict | None, run: Run) -> Drawn:
+    assert inp.ranges is not None
+    used = {n: r for n, r in inp.ranges.items()
+            if n in run.sensor_names or n in run.aux_names}
+    fig_obj = plots.training_window(
+        run.name, run.time_s, {n: run.column(n) for n in used},
+        {n: (r["min"], r["max"]) for n, r in used.items()}, TOLERANCE_SHARE)
+    caption = ("Each input the model reads, scaled so that 0 and 1 are the lowest and "
+               "highest value it had in training. Inside the green band the model "
+               "interpolates; beyond the dashed lines (5 % of the range further) it "
+               "extrapolates (for a thermocouple the box raises EXTRAP there)."
+               + (" The model never saw this run." if not _in_training(inp.model, run)
+                  else " This run was used for training, so it stays inside."))
+    return (fig_obj, f"{run.name}: inputs against their training range", caption,
+            f"window_{_slug(run.name)}.png")
+
+
+def _fig_effects(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
+    """The residual before and after each effect the loop added (after the run's figure,
+    whose row of the error table it extends)."""
+    stages = effect_stages(axis, axis_name, run, inp.period, inp.ref)
+    if len(stages) < 2:
+        return None
+    fig_obj = plots.residual_steps(run.name, axis_name, run.time_s,
+                                   [(s["label"], s["residual"]) for s in stages],
+                                   dropped=[s["dropped"] for s in stages])
+    inp.run_table[run.name][axis_name]["stages_rms_um"] = [
+        {"stage": s["label"], "rms_um": plots.rms(s["residual"]),
+         "dropped": s["dropped"], "box": s["box"]} for s in stages]
+    kept = [s for s in stages[1:] if not s["dropped"] and s.get("name") is not None]
+    gone = [s for s in stages if s["dropped"]]
+    caption = ("Residual of the temperature-only baseline and after each effect the "
+               "close-the-loop step added (RMS on this run in the legend). Why each was "
+               "added: " + "; ".join(f"<b>{html.escape(s['name'])}</b>: "
+                                     f"{html.escape(s['evidence'])}" for s in kept)
+               + ".")
+    if gone:
+        caption += (" Dashed grey: " + ", ".join(
+            f"<b>{html.escape(s['name'])}</b> ({html.escape(s['evidence'])})"
+            for s in gone) + ", added by the search but dropped because the box had no "
+            "channel left for its sensor: it is not in the box's model, and the last "
+            "curve is what the box runs.")
+    unexplained = axis.get("unexplained") or {}
+    if unexplained.get("message"):
+        caption += (" Still unexplained"
+                    + (" (said of the model before the channel budget)"
+                       if axis.get("channel_budget_after_effects") else "")
+                    + ": " + html.escape(str(unexplained["message"])))
+    return (fig_obj, f"{run.name}, {axis_name}: effects added to close the loop", caption,
+            f"effects_{_slug(run.name)}_{_slug(axis_name)}.png")
+
+
+def _fig_folds(inp: _Inputs, axis_name: str, axis: dict, run: Run | None) -> Drawn:
+    rows = fold_stages(axis)
+    fig_obj = plots.fold_errors(axis_name, [r["stage"] for r in rows],
+                                [r["rmse_um"] for r in rows], [r["folds_um"] for r in rows],
+                                [r["dropped"] for r in rows])
+    caption = ("The validation RMSE of the baseline and after each effect, with error "
+               "bars from the best to the worst validation fold and every fold as a "
+               "dot (from the effect search's own record). A gain smaller than the "
+               "spread between folds would be noise; the search only keeps effects that "
+               "improve every fold that exercises them. Grey: dropped by the channel "
+               "budget, not in the box's model.")
+    return (fig_obj, f"{axis_name}: validation error per stage, across the folds", caption,
+            f"folds_{_slug(axis_name)}.png")
+
+
+def _fig_hysteresis(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
+    sensor = most_important_sensor(axis, run, inp.period)
+    if sensor is None:
+        return None
+    measured = run.target(axis_name)
+    residual = measured - predict(axis["intercept"], axis["terms"], run, inp.period, inp.ref)
+    fig_obj = plots.hysteresis(run.name, axis_name, sensor, run.column(sensor),
+                               measured, residual, inp.period)
+    caption = (f"{sensor} contributes most to the {axis_name} prediction on this run. "
+               "Heating (red) and cooling (blue) follow different paths before "
+               "compensation; after it the loop should collapse towards zero.")
+    return (fig_obj, f"{run.name}, {axis_name} against {sensor}", caption,
+            f"hysteresis_{_slug(run.name)}_{_slug(axis_name)}.png")
+
+
+def _fig_protocols(inp: _Inputs, axis_name: str | None, axis: dict | None,
+                   run: Run | None) -> Drawn:
+    matrix = inp.matrix
+    assert matrix is not None
+    fig_obj = plots.protocol_matrix(matrix.train, matrix.test, matrix.values,
+                                    matrix.metric, matrix.spread)
+    caption = ("Each cell: a model trained on the row's protocol, judged on the "
+               "column's. A row that stays low everywhere is the protocol to run.")
+    if matrix.spread is not None:
+        caption += (" ± is the standard deviation over the repeats (other simulated "
+                    "days): a lead smaller than it is noise.")
+    if matrix.verdict and matrix.verdict.get("reason"):
+        caption += (" Verdict: " + ("winner " + html.escape(matrix.verdict["winner"])
+                                    + ": " if matrix.verdict.get("winner") else
+                                    "no winner: ")
+                    + html.escape(str(matrix.verdict["reason"])) + ".")
+    return fig_obj, "Protocol comparison", caption, "protocols.png"
+
+
+FIGURES = {"selection": _fig_selection, "ec": _fig_ec, "runs": _fig_run,
+           "window": _fig_window, "effects": _fig_effects, "folds": _fig_folds,
+           "hysteresis": _fig_hysteresis, "protocols": _fig_protocols}
+
+
 def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: str | Path,
                  protocols: str | Path | None = None, peers: bool = True,
                  fill_gaps: int = 0, quiet: bool = False,
@@ -347,218 +571,54 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
             for run in load_report_runs(model, list(run_paths), fill_gaps, fmt)]
     matrix = load_protocols(protocols) if protocols else None
     hil_results = [load_hil(p) for p in hil or []]
-    period = float(model["sample_period_s"])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     report = Report(out)
-    peer_models = peer_predictions(model, runs) if peers else {}
-
-    jobs: list[tuple] = []
-    for axis_name, axis in model["axes"].items():
-        if axis.get("selection"):
-            jobs.append(("selection", axis_name, None))
-            if axis["selection"].get("ec_curve"):
-                jobs.append(("ec", axis_name, None))
-    for run in runs:
-        for axis_name in run.target_names:
-            jobs.append(("runs", axis_name, run))
-            if model["axes"][axis_name].get("effects"):
-                jobs.append(("effects", axis_name, run))
-                if run is runs[0] and fold_stages(model["axes"][axis_name]):
-                    jobs.append(("folds", axis_name, None))
-            jobs.append(("hysteresis", axis_name, run))
-    if matrix is not None:
-        jobs.append(("protocols", None, None))
-    ranges = training_ranges(model)
-    if ranges:
-        jobs += [("window", None, run) for run in runs]
-
-    limit = delay_limit_s(model)
-    run_table: dict[str, dict] = {}
-    for kind, axis_name, run in progress(jobs, "report figures", quiet=quiet):
+    inp = _Inputs(model, runs, ref, float(model["sample_period_s"]),
+                  peer_predictions(model, runs) if peers else {}, matrix,
+                  training_ranges(model), delay_limit_s(model))
+    for kind, axis_name, run in progress(_figure_jobs(inp), "report figures", quiet=quiet):
         axis = model["axes"][axis_name] if axis_name else None
-        fig_obj = None
-        if kind == "selection":
-            fig_obj, title, caption = _selection_figure(axis_name, axis, limit)
-            file = f"selection_{_slug(axis_name)}.png"
-        elif kind == "ec":
-            sel = axis["selection"]
-            rule = count_rule(sel, model)
-            cap = int(model.get("training", {}).get("max_sensors") or 0) or None
-            fig_obj = plots.ec_curve(axis_name, sel["ec_curve"], int(sel.get("chosen_count", 0)),
-                                     sel.get("ec_subsets"), sel.get("ec_errors_um"), rule, cap,
-                                     sel.get("ec_fold_errors_um"))
-            title = f"{axis_name}: evaluation criterion"
-            errors = sel.get("ec_errors_um") or []
-            u = unit_text(axis_name)
-            caption = ("EC<sub>i</sub> = (S<sub>i</sub>/S<sub>1</sub>)·(i/c) trades the error "
-                       "of the best i-sensor model against its size. The circled point fixes "
-                       "how many sensors the selection chose: "
-                       + {"ec": "the smallest EC (paper 000).",
-                          "min": "the smallest out-of-fold error S<sub>i</sub> (an error on data "
-                                 "the fit did not see already rises when a model is too big).",
-                          "cap": f"the --max-sensors cap of {cap}: the out-of-fold error "
-                                 f"S<sub>i</sub> is smallest at "
-                                 f"{int(np.argmin(errors)) + 1 if errors else '?'} sensors "
-                                 f"({min(errors) if errors else math.nan:.3g} {u} against "
-                                 f"{errors[cap - 1] if errors and cap else math.nan:.3g} {u} at "
-                                 f"{cap}), beyond what the box allows per axis."}[rule])
-            swaps = sel.get("refinement") or []
-            if swaps:
-                caption += " Group refinement then swapped " + ", ".join(
-                    f"{html.escape(w['removed'])} → {html.escape(w['added'])} "
-                    f"({w['error_before_um']:.3g} → {w['error_after_um']:.3g} {u})"
-                    for w in swaps) + "."
-            dropped = [n for n in sel.get("sensors", []) if n not in box_sensors(axis)]
-            if dropped:
-                caption += (" The channel budget later dropped "
-                            + html.escape(", ".join(dropped)) + ": the box reads "
-                            + html.escape(", ".join(box_sensors(axis))) + ".")
-            file = f"ec_{_slug(axis_name)}.png"
-        elif kind == "runs":
-            measured = run.target(axis_name)
-            preds = {"our model": predict(axis["intercept"], axis["terms"], run, period, ref)}
-            drift = {"measured": iso230_drift(run.time_s, measured),
-                     "compensated": iso230_drift(run.time_s, measured - preds["our model"])}
-            for peer_name, per_run in peer_models.items():
-                if (run.path, axis_name) in per_run:
-                    preds[peer_name] = per_run[(run.path, axis_name)]
-            metrics = axis.get("metrics", {})
-            promised = metrics.get("promised_rmse_um")
-            fig_obj = plots.run_fit(run.name, axis_name, run.time_s, measured, preds,
-                                    None if promised is None else
-                                    (float(promised), metrics.get("promised_fold_rmse_um") or []))
-            entry = run_table.setdefault(run.name, {})
-            entry[axis_name] = {
-                "raw_rms_um": plots.rms(measured),
-                "residual_rms_um": {k: plots.rms(measured - v) for k, v in preds.items()},
-                "in_training": _in_training(model, run),
-                "drift": drift,
-            }
-            title = f"{run.name}, {axis_name}"
-            caption = ("Top: the measured displacement and what each model predicts from what "
-                       "the box measures. Bottom: what is left (RMS in the legend)"
-                       + ("; the shaded band is ± the error host train promised for an "
-                          "unseen day (nested validation), dotted its worst fold."
-                          if promised is not None else ".")
-                       + (" This run was used for training." if entry[axis_name]["in_training"]
-                          else " The model never saw this run."))
-            file = f"run_{_slug(run.name)}_{_slug(axis_name)}.png"
-        elif kind == "window":
-            assert ranges is not None
-            used = {n: r for n, r in ranges.items()
-                    if n in run.sensor_names or n in run.aux_names}
-            fig_obj = plots.training_window(
-                run.name, run.time_s, {n: run.column(n) for n in used},
-                {n: (r["min"], r["max"]) for n, r in used.items()}, TOLERANCE_SHARE)
-            title = f"{run.name}: inputs against their training range"
-            caption = ("Each input the model reads, scaled so that 0 and 1 are the lowest and "
-                       "highest value it had in training. Inside the green band the model "
-                       "interpolates; beyond the dashed lines (5 % of the range further) it "
-                       "extrapolates (for a thermocouple the box raises EXTRAP there)."
-                       + (" The model never saw this run." if not _in_training(model, run)
-                          else " This run was used for training, so it stays inside."))
-            file = f"window_{_slug(run.name)}.png"
-        elif kind == "effects":
-            stages = effect_stages(axis, axis_name, run, period, ref)
-            if len(stages) < 2:
-                continue
-            fig_obj = plots.residual_steps(run.name, axis_name, run.time_s,
-                                           [(s["label"], s["residual"]) for s in stages],
-                                           dropped=[s["dropped"] for s in stages])
-            run_table[run.name][axis_name]["stages_rms_um"] = [
-                {"stage": s["label"], "rms_um": plots.rms(s["residual"]),
-                 "dropped": s["dropped"], "box": s["box"]} for s in stages]
-            title = f"{run.name}, {axis_name}: effects added to close the loop"
-            kept = [s for s in stages[1:] if not s["dropped"] and s.get("name") is not None]
-            gone = [s for s in stages if s["dropped"]]
-            caption = ("Residual of the temperature-only baseline and after each effect the "
-                       "close-the-loop step added (RMS on this run in the legend). Why each was "
-                       "added: " + "; ".join(f"<b>{html.escape(s['name'])}</b>: "
-                                             f"{html.escape(s['evidence'])}" for s in kept)
-                       + ".")
-            if gone:
-                caption += (" Dashed grey: " + ", ".join(
-                    f"<b>{html.escape(s['name'])}</b> ({html.escape(s['evidence'])})"
-                    for s in gone) + ", added by the search but dropped because the box had no "
-                    "channel left for its sensor: it is not in the box's model, and the last "
-                    "curve is what the box runs.")
-            unexplained = axis.get("unexplained") or {}
-            if unexplained.get("message"):
-                caption += (" Still unexplained"
-                            + (" (said of the model before the channel budget)"
-                               if axis.get("channel_budget_after_effects") else "")
-                            + ": " + html.escape(str(unexplained["message"])))
-            file = f"effects_{_slug(run.name)}_{_slug(axis_name)}.png"
-        elif kind == "folds":
-            rows = fold_stages(axis)
-            fig_obj = plots.fold_errors(axis_name, [r["stage"] for r in rows],
-                                        [r["rmse_um"] for r in rows], [r["folds_um"] for r in rows],
-                                        [r["dropped"] for r in rows])
-            title = f"{axis_name}: validation error per stage, across the folds"
-            caption = ("The validation RMSE of the baseline and after each effect, with error "
-                       "bars from the best to the worst validation fold and every fold as a "
-                       "dot (from the effect search's own record). A gain smaller than the "
-                       "spread between folds would be noise; the search only keeps effects that "
-                       "improve every fold that exercises them. Grey: dropped by the channel "
-                       "budget, not in the box's model.")
-            file = f"folds_{_slug(axis_name)}.png"
-        elif kind == "hysteresis":
-            sensor = most_important_sensor(axis, run, period)
-            if sensor is None:
-                continue
-            measured = run.target(axis_name)
-            residual = measured - predict(axis["intercept"], axis["terms"], run, period, ref)
-            fig_obj = plots.hysteresis(run.name, axis_name, sensor, run.column(sensor),
-                                       measured, residual, period)
-            title = f"{run.name}, {axis_name} against {sensor}"
-            caption = (f"{sensor} contributes most to the {axis_name} prediction on this run. "
-                       "Heating (red) and cooling (blue) follow different paths before "
-                       "compensation; after it the loop should collapse towards zero.")
-            file = f"hysteresis_{_slug(run.name)}_{_slug(axis_name)}.png"
-        else:  # protocols
-            fig_obj = plots.protocol_matrix(matrix.train, matrix.test, matrix.values,
-                                            matrix.metric, matrix.spread)
-            title = "Protocol comparison"
-            caption = ("Each cell: a model trained on the row's protocol, judged on the "
-                       "column's. A row that stays low everywhere is the protocol to run.")
-            if matrix.spread is not None:
-                caption += (" ± is the standard deviation over the repeats (other simulated "
-                            "days): a lead smaller than it is noise.")
-            if matrix.verdict and matrix.verdict.get("reason"):
-                caption += (" Verdict: " + ("winner " + html.escape(matrix.verdict["winner"])
-                                            + ": " if matrix.verdict.get("winner") else
-                                            "no winner: ")
-                            + html.escape(str(matrix.verdict["reason"])) + ".")
-            file = "protocols.png"
+        drawn = FIGURES[kind](inp, axis_name, axis, run)
+        if drawn is None:
+            continue
+        fig_obj, title, caption, file = drawn
         _save(fig_obj, out / file)
         report.figures.append(Figure(kind, kind, title, caption, file,
                                      selection_groups(axis) if kind == "selection" else None))
-
-    report.summary = {
-        "model": str(model_path),
-        "model_hash": _model_hash(model),
-        "axes": summary_rows(model),
-        "runs": run_table,
-        "outside_training": {run.name: outside_training(model, run) for run in runs},
-        "figures": [f.file for f in report.figures],
-    }
-    if hil_results:
-        report.summary["hil"] = hil_results
-    train_runs = training_runs(model)
-    units = input_units(model)
-    report.summary["coefficients"] = [
-        coefficient_table(name, axis, train_runs, period, units, ref)
-        for name, axis in model["axes"].items()] if train_runs else []
-    report.summary["wiring"] = wiring_rows(model, where)
-    report.summary["locations_given"] = bool(where)
+    report.summary = _summary(model_path, inp, report, hil_results, where)
     _write_wiring_csv(out / "wiring.csv", report.summary["wiring"])
-    if matrix is not None:
-        report.summary["protocols"] = {"train": matrix.train, "test": matrix.test,
-                                       "values": matrix.values.tolist(), "metric": matrix.metric}
     _write_atomic(out / "summary.json", json.dumps(report.summary, indent=2, default=_json_num))
     _write_atomic(report.index, render_html(model, report))
     return report
+
+
+def _summary(model_path: str | Path, inp: _Inputs, report: Report, hil_results: list[dict],
+             where: dict[str, str]) -> dict:
+    """summary.json: the axes, the error table, the coefficients and the wiring sheet."""
+    model = inp.model
+    summary: dict = {
+        "model": str(model_path),
+        "model_hash": _model_hash(model),
+        "axes": summary_rows(model),
+        "runs": inp.run_table,
+        "outside_training": {run.name: outside_training(model, run) for run in inp.runs},
+        "figures": [f.file for f in report.figures],
+    }
+    if hil_results:
+        summary["hil"] = hil_results
+    train_runs = training_runs(model)
+    units = input_units(model)
+    summary["coefficients"] = [
+        coefficient_table(name, axis, train_runs, inp.period, units, inp.ref)
+        for name, axis in model["axes"].items()] if train_runs else []
+    summary["wiring"] = wiring_rows(model, where)
+    summary["locations_given"] = bool(where)
+    if inp.matrix is not None:
+        summary["protocols"] = {"train": inp.matrix.train, "test": inp.matrix.test,
+                                "values": inp.matrix.values.tolist(),
+                                "metric": inp.matrix.metric}
+    return summary
 
 
 def load_locations(path: str | Path) -> dict[str, str]:
