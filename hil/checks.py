@@ -277,6 +277,137 @@ def float_predictions(model: dict, feed: Feed, codes: np.ndarray, rows: slice) -
     return np.column_stack(out) if out else np.empty((rows.stop - rows.start, 0))
 
 
+@dataclass
+class _Received:
+    """Per fed sample, what the box's line said (the arrays a ReplayReport keeps)."""
+
+    out_nm: np.ndarray  # (n, axes) corrections; 0 where no line arrived
+    status: np.ndarray  # (n,) status word; -1 where no line arrived
+    seq: np.ndarray  # (n,) seq of the sample's line; -1 where none
+    session: np.ndarray  # (n,) session (power-up) of the sample's line; -1 where none
+    got: np.ndarray  # (n,) a line arrived
+
+    @staticmethod
+    def empty(n: int, n_axes: int) -> _Received:
+        return _Received(np.zeros((n, n_axes), dtype=np.int64), np.full(n, -1, dtype=np.int64),
+                         np.full(n, -1, dtype=np.int64), np.full(n, -1, dtype=np.int64),
+                         np.zeros(n, dtype=bool))
+
+
+def _session_health(rep: ReplayReport, s_index: int, session: Session) -> None:
+    """The session ran to its end, or was cut on purpose (a power cut)."""
+    if session.error:
+        rep.problems_fatal = True
+        rep.note(f"session {s_index} (from sample {session.first_sample}): {session.error}")
+    elif not session.power_cut and session.exit_code != 0:
+        rep.problems_fatal = True
+        rep.note(f"session {s_index} (from sample {session.first_sample}): the firmware "
+                 f"exited with code {session.exit_code} (crash or feed error)")
+
+
+def _zero_replies(rep: ReplayReport, s_index: int, session: Session,
+                  zero_at: Sequence[int]) -> None:
+    """Each ZERO sent in this session was answered with the sample before it."""
+    zs = [z for z in zero_at if session.first_sample <= z < session.first_sample +
+          max(session.n_fed, 1)]
+    acks = [decode(a).value for a in session.zero_acks]
+    want_acks = [max(z - session.first_sample - 1, 0) for z in zs]
+    if acks != want_acks:
+        rep.status_mismatches += 1
+        rep.note(f"session {s_index}: ZERO replies name samples {acks}, expected "
+                 f"{want_acks} (the latest sample before each ZERO)")
+
+
+def _check_lines(rep: ReplayReport, s_index: int, session: Session, lines: SessionLines,
+                 exp: Expected, axes: Sequence[str], rx: _Received) -> None:
+    """1. Every sample line against the twin, bit for bit: corrections, status and the
+    temperature codes the box says it read; the first line of each seq counts."""
+    n_axes = len(axes)
+    seen: set[int] = set()
+    for line in lines.samples:
+        if line.seq >= session.n_fed or line.seq in seen:
+            continue
+        seen.add(line.seq)
+        i = session.first_sample + line.seq
+        j = line.seq
+        rx.got[i] = True
+        rx.status[i] = line.status
+        rx.seq[i], rx.session[i] = line.seq, s_index
+        want_out = exp.out_nm[j]
+        if len(line.corrections_nm) != want_out.shape[0]:
+            rep.mismatches += 1
+            rep.note(f"sample {i}: {len(line.corrections_nm)} corrections, expected "
+                     f"{want_out.shape[0]}")
+        else:
+            diff = np.abs(np.asarray(line.corrections_nm, dtype=np.int64) - want_out)
+            if n_axes and want_out.shape[0] == n_axes:
+                rx.out_nm[i] = line.corrections_nm
+            if diff.any():
+                rep.mismatches += 1
+                rep.max_abs_diff_nm = max(rep.max_abs_diff_nm, int(diff.max()))
+                for a, d in enumerate(diff):
+                    if d and a < n_axes:
+                        ax = rep.axes[axes[a]]
+                        ax.mismatches += 1
+                        ax.max_abs_diff_nm = max(ax.max_abs_diff_nm, int(d))
+                rep.note(f"sample {i}: corrections {list(line.corrections_nm)} nm, twin "
+                         f"{want_out.tolist()} nm")
+        if line.status != int(exp.status[j]):
+            rep.status_mismatches += 1
+            rep.note(f"sample {i}: status {line.status:04X} ({status_text(line.status)}), "
+                     f"expected {int(exp.status[j]):04X} ({status_text(int(exp.status[j]))})")
+        if list(line.temp_codes) != exp.codes[j].tolist():
+            rep.code_mismatches += 1
+            rep.note(f"sample {i}: temperature codes {list(line.temp_codes)}, fed "
+                     f"{exp.codes[j].tolist()}")
+
+
+def _float_differences(session: Session, exp: Expected, model: dict, feed: Feed,
+                       codes_fed: np.ndarray, rx: _Received) -> tuple[np.ndarray, int] | None:
+    """2. The float model against the box, per axis (largest |difference| in um, samples
+    compared), where the box outputs the model's value directly and no fault has touched
+    the filter states yet in this session; None when no sample qualifies."""
+    n_axes = len(feed.axes)
+    if not (n_axes and exp.out_nm.shape[1] == n_axes and session.n_fed):
+        return None
+    rows = slice(session.first_sample, session.first_sample + session.n_fed)
+    local = np.arange(session.n_fed)
+    clean = np.cumprod(exp.computed.all(axis=1)).astype(bool)
+    direct = clean & ((exp.status & (HOLD | SLEW | CLAMP | NO_DATA | MODEL_BAD)) == 0)
+    direct &= rx.got[rows]
+    if not direct.any():
+        return None
+    # the float model on what the box's model got (the guard's held codes), and the box's
+    # output with its ZERO reference added back
+    float_codes = codes_fed.copy()
+    if exp.model_codes is not None:
+        float_codes[rows] = exp.model_codes
+    pred = float_predictions(model, feed, float_codes, rows)
+    ref = exp.ref_nm if exp.ref_nm is not None else np.zeros_like(exp.out_nm)
+    d = np.abs((rx.out_nm[rows][local[direct]] + ref[local[direct]]) / 1000.0
+               - pred[local[direct]])
+    return d.max(axis=0), int(direct.sum())
+
+
+def _residuals(rep: ReplayReport, feed: Feed, rx: _Received, zeroed: bool) -> None:
+    """3. What the box's corrections leave of the measured drift, per axis. When the box
+    zeroes (at power-up, or by ZERO) its output is already the change since then; otherwise
+    it is referenced here like the measurement."""
+    if not rx.got.any():
+        return
+    for a, name in enumerate(feed.axes):
+        if name not in feed.measured:
+            continue
+        ax = rep.axes[name]
+        meas = feed.measured[name][rx.got]
+        box = rx.out_nm[rx.got, a] / 1000.0
+        comp = meas - (box if zeroed else feed.reference.apply(box))
+        ax.raw_rms_um = float(np.sqrt(np.mean(meas ** 2)))
+        ax.raw_peak_um = float(np.max(np.abs(meas)))
+        ax.compensated_rms_um = float(np.sqrt(np.mean(comp ** 2)))
+        ax.compensated_peak_um = float(np.max(np.abs(comp)))
+
+
 def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
           bounds_um: dict[str, float], judging: Judging | None = None,
           zero_at: Sequence[int] = (), box_zeroes: bool = False) -> ReplayReport:
@@ -289,131 +420,50 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
     n = capture.n_samples
     n_axes = len(feed.axes)
     rep = ReplayReport(samples=n, sessions=len(capture.sessions), judging=judging)
-    fw_seq = np.full(n, -1, dtype=np.int64)
-    fw_session = np.full(n, -1, dtype=np.int64)
     rep.axes = {a: AxisReport(a, bound_um=bounds_um.get(a)) for a in feed.axes}
-    fw_out = np.zeros((n, n_axes), dtype=np.int64)
-    fw_status = np.full(n, -1, dtype=np.int64)
-    got = np.zeros(n, dtype=bool)
+    rx = _Received.empty(n, n_axes)
     codes_fed = np.asarray(capture.codes_fed, dtype=np.int64)
     float_diff = np.zeros(n_axes)
-    float_count = np.zeros(n_axes, dtype=np.int64)
+    float_count = 0
 
     for s_index, (session, exp) in enumerate(zip(capture.sessions, expected, strict=True)):
-        if session.error:
-            rep.problems_fatal = True
-            rep.note(f"session {s_index} (from sample {session.first_sample}): {session.error}")
-        elif not session.power_cut and session.exit_code != 0:
-            rep.problems_fatal = True
-            rep.note(f"session {s_index} (from sample {session.first_sample}): the firmware "
-                     f"exited with code {session.exit_code} (crash or feed error)")
+        _session_health(rep, s_index, session)
         lines = decode_session(session)
         rep.bad_lines += len(lines.bad)
         for b in lines.bad:
             rep.note(f"session {s_index}: undecodable line: {b}")
         rep.errors += [e.reason for e in lines.errors]
-        zs = [z for z in zero_at if session.first_sample <= z < session.first_sample +
-              max(session.n_fed, 1)]
-        acks = [decode(a).value for a in session.zero_acks]
-        want_acks = [max(z - session.first_sample - 1, 0) for z in zs]
-        if acks != want_acks:
-            rep.status_mismatches += 1
-            rep.note(f"session {s_index}: ZERO replies name samples {acks}, expected "
-                     f"{want_acks} (the latest sample before each ZERO)")
-        seqs = [s.seq for s in lines.samples]
-        lost, dup, reord = sequence_problems(seqs, session.n_fed)
+        _zero_replies(rep, s_index, session, zero_at)
+        lost, dup, reord = sequence_problems([s.seq for s in lines.samples], session.n_fed)
         rep.lost += lost
         rep.duplicated += dup
         rep.reordered += reord
         if lost or dup or reord:
             rep.note(f"session {s_index}: {lost} lost, {dup} duplicated, {reord} reordered "
                      f"sample lines")
-        seen: set[int] = set()
-        for line in lines.samples:
-            if line.seq >= session.n_fed or line.seq in seen:
-                continue
-            seen.add(line.seq)
-            i = session.first_sample + line.seq
-            j = line.seq
-            got[i] = True
-            fw_status[i] = line.status
-            fw_seq[i], fw_session[i] = line.seq, s_index
-            want_out = exp.out_nm[j]
-            if len(line.corrections_nm) != want_out.shape[0]:
-                rep.mismatches += 1
-                rep.note(f"sample {i}: {len(line.corrections_nm)} corrections, expected "
-                         f"{want_out.shape[0]}")
-            else:
-                diff = np.abs(np.asarray(line.corrections_nm, dtype=np.int64) - want_out)
-                if n_axes and want_out.shape[0] == n_axes:
-                    fw_out[i] = line.corrections_nm
-                if diff.any():
-                    rep.mismatches += 1
-                    rep.max_abs_diff_nm = max(rep.max_abs_diff_nm, int(diff.max()))
-                    for a, d in enumerate(diff):
-                        if d and a < n_axes:
-                            ax = rep.axes[feed.axes[a]]
-                            ax.mismatches += 1
-                            ax.max_abs_diff_nm = max(ax.max_abs_diff_nm, int(d))
-                    rep.note(f"sample {i}: corrections {list(line.corrections_nm)} nm, twin "
-                             f"{want_out.tolist()} nm")
-            if line.status != int(exp.status[j]):
-                rep.status_mismatches += 1
-                rep.note(f"sample {i}: status {line.status:04X} ({status_text(line.status)}), "
-                         f"expected {int(exp.status[j]):04X} ({status_text(int(exp.status[j]))})")
-            if list(line.temp_codes) != exp.codes[j].tolist():
-                rep.code_mismatches += 1
-                rep.note(f"sample {i}: temperature codes {list(line.temp_codes)}, fed "
-                         f"{exp.codes[j].tolist()}")
-        # 2. float model, where the box outputs the model's value directly and no fault has
-        # touched the filter states yet in this session.
-        if n_axes and exp.out_nm.shape[1] == n_axes and session.n_fed:
-            stop = session.first_sample + session.n_fed
-            rows = slice(session.first_sample, stop)
-            local = np.arange(session.n_fed)
-            clean = np.cumprod(exp.computed.all(axis=1)).astype(bool)
-            direct = clean & ((exp.status & (HOLD | SLEW | CLAMP | NO_DATA | MODEL_BAD)) == 0)
-            direct &= got[rows]
-            if direct.any():
-                # the float model on what the box's model got (the guard's held codes), and
-                # the box's output with its ZERO reference added back
-                float_codes = codes_fed.copy()
-                if exp.model_codes is not None:
-                    float_codes[rows] = exp.model_codes
-                pred = float_predictions(model, feed, float_codes, rows)
-                ref = exp.ref_nm if exp.ref_nm is not None else np.zeros_like(exp.out_nm)
-                d = np.abs((fw_out[rows][local[direct]] + ref[local[direct]]) / 1000.0
-                           - pred[local[direct]])
-                float_diff = np.maximum(float_diff, d.max(axis=0))
-                float_count += int(direct.sum())
+        _check_lines(rep, s_index, session, lines, exp, feed.axes, rx)
+        found = _float_differences(session, exp, model, feed, codes_fed, rx)
+        if found is not None:
+            float_diff = np.maximum(float_diff, found[0])
+            float_count += found[1]
 
     never_fed = n - sum(s.n_fed for s in capture.sessions)
     if never_fed > 0:  # the replay stopped early: those samples got no line either
         rep.lost += never_fed
         rep.note(f"{never_fed} samples were never fed (the replay stopped early)")
-    rep.received = int(got.sum())
-    rep.fw_out_nm, rep.fw_status = fw_out, fw_status
-    rep.fw_seq, rep.fw_session = fw_seq, fw_session
+    rep.received = int(rx.got.sum())
+    rep.fw_out_nm, rep.fw_status = rx.out_nm, rx.status
+    rep.fw_seq, rep.fw_session = rx.seq, rx.session
     for reason in rep.judgement_reasons():
         rep.note(reason)
     for a, name in enumerate(feed.axes):
         ax = rep.axes[name]
-        if float_count[a]:
-            ax.float_max_diff_um, ax.float_samples = float(float_diff[a]), int(float_count[a])
+        if float_count:
+            ax.float_max_diff_um, ax.float_samples = float(float_diff[a]), float_count
             if ax.bound_um is not None and ax.float_max_diff_um > ax.bound_um + 1e-9:
                 rep.note(f"axis {name}: float model differs by {ax.float_max_diff_um:.6g} um, "
                          f"bound {ax.bound_um:.6g} um")
-        if name in feed.measured and got.any():
-            meas = feed.measured[name][got]
-            # the box's output is the change since its start when it zeroes at power-up (a
-            # ``start`` model's header); otherwise it is referenced here like the measurement
-            box = fw_out[got, a] / 1000.0
-            zeroed = box_zeroes or bool(zero_at)
-            comp = meas - (box if zeroed else feed.reference.apply(box))
-            ax.raw_rms_um = float(np.sqrt(np.mean(meas ** 2)))
-            ax.raw_peak_um = float(np.max(np.abs(meas)))
-            ax.compensated_rms_um = float(np.sqrt(np.mean(comp ** 2)))
-            ax.compensated_peak_um = float(np.max(np.abs(comp)))
+    _residuals(rep, feed, rx, box_zeroes or bool(zero_at))
     return rep
 
 
