@@ -225,82 +225,115 @@ def launch(ini: Path, stage_dir: Path, user: str | None,
 
 
 # --- judging -------------------------------------------------------------------------------
-def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Result:
-    """Compare LinuxCNC's offsets with the box's lines; the summary and the problems found."""
-    problems: list[str] = []
-    records = [r for r in raw.get("records", []) if "box" in r]
-    base = raw.get("base_pos_mm", {})
-    letters = [letter for letter, _ in AXES]
+@dataclass
+class _Records:
+    """The session's sample records, by sample and by phase, with the box's correction and
+    LinuxCNC's offset of each in nm."""
 
-    def want_nm(rec: dict, i: int) -> float:
+    records: list[dict]
+    base: dict  # each axis's joint position before the session (mm)
+    nm_per_count: float
+    letters: list[str] = field(default_factory=lambda: [letter for letter, _ in AXES])
+    idx: dict[int, dict] = field(init=False)
+    by_phase: dict[str, list[dict]] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.idx = {r["sample"]: r for r in self.records}
+        self.by_phase = {}
+        for r in self.records:
+            self.by_phase.setdefault(r["phase"], []).append(r)
+
+    def want_nm(self, rec: dict, i: int) -> float:
         return SIGN * rec["box"]["corr_nm"][i] if rec["box"]["corr_nm"] else float("nan")
 
+    def offset_diff_nm(self, rec: dict) -> float:
+        """|LinuxCNC's external offset - the box's correction|, the worst axis."""
+        return max(abs(rec["eoffset_mm"][a] * 1e6 - self.want_nm(rec, i))
+                   for i, a in enumerate(self.letters))
+
+    def joint_diff_nm(self, rec: dict) -> float:
+        """|the joint's commanded move since the start - the box's correction|, worst axis."""
+        return max(abs((rec["pos_cmd_mm"][a] - self.base[a]) * 1e6 - self.want_nm(rec, i))
+                   for i, a in enumerate(self.letters))
+
+    def moved_nm(self, rs: list[dict], ref: dict) -> float:
+        return max((abs(r["eoffset_mm"][a] - ref["eoffset_mm"][a]) * 1e6
+                    for r in rs for a in self.letters), default=0.0)
+
+
+def _tracking(rec: _Records, problems: list[str]) -> tuple[int, float, float]:
+    """On every healthy sample, the offset and the joint follow the box within a count:
+    (samples tracked, worst offset difference, worst joint difference) in nm."""
     max_off = max_joint = 0.0
     tracked = 0
-    for r in records:
+    for r in rec.records:
         healthy = (not r["box"]["status"] & HOLD_BITS and not r["holding"]
                    and not r["walking"] and not r["box"]["corrupted"]
                    and r["phase"] not in ("machine_off", "disabled"))
         if not healthy:
             continue
         tracked += 1
-        for i, a in enumerate(letters):
-            d = abs(r["eoffset_mm"][a] * 1e6 - want_nm(r, i))
-            j = abs((r["pos_cmd_mm"][a] - base[a]) * 1e6 - want_nm(r, i))
-            max_off, max_joint = max(max_off, d), max(max_joint, j)
+        max_off = max(max_off, rec.offset_diff_nm(r))
+        max_joint = max(max_joint, rec.joint_diff_nm(r))
     if tracked == 0:
         problems.append("no sample was tracked (every one held or walking)")
-    if max_off > nm_per_count:
+    if max_off > rec.nm_per_count:
         problems.append(f"LinuxCNC's external offset differs from the box's correction by "
-                        f"{max_off:.3f} nm (> 1 count = {nm_per_count:g} nm)")
-    if max_joint > nm_per_count:
+                        f"{max_off:.3f} nm (> 1 count = {rec.nm_per_count:g} nm)")
+    if max_joint > rec.nm_per_count:
         problems.append(f"the joints' commanded positions moved by the correction ± "
                         f"{max_joint:.3f} nm (> 1 count)")
+    return tracked, max_off, max_joint
 
-    holds: list[dict] = []
-    by_phase: dict[str, list[dict]] = {}
-    for r in records:
-        by_phase.setdefault(r["phase"], []).append(r)
-    idx = {r["sample"]: r for r in records}
 
-    def moved_nm(rs: list[dict], ref: dict) -> float:
-        return max((abs(r["eoffset_mm"][a] - ref["eoffset_mm"][a]) * 1e6
-                    for r in rs for a in letters), default=0.0)
+def _open_thermocouple(rec: _Records, step_nm: float, problems: list[str]) -> list[dict]:
+    """Held on every sample of the fault, then walked back no faster than the step limit."""
+    opened = rec.by_phase.get("open", [])
+    if not opened:
+        return []
+    letters = rec.letters
+    before = rec.idx.get(opened[0]["sample"] - 1)
+    boxheld = sum(1 for r in opened if r["box"]["status"] & (1 << 1))
+    moved = rec.moved_nm(opened, before) if before else float("nan")
+    ok = before is not None and moved <= MOVED_NM and all(r["holding"] for r in opened) \
+        and boxheld == len(opened)
+    after = [rec.idx[k] for k in range(opened[-1]["sample"], opened[-1]["sample"] + 20)
+             if k in rec.idx]
+    steps = [abs(b["eoffset_mm"][a] - p["eoffset_mm"][a]) * 1e6
+             for p, b in zip(after[:-1], after[1:], strict=True) for a in letters]
+    walk_ok = max(steps, default=0.0) <= step_nm + rec.nm_per_count
+    if not ok:
+        problems.append(f"open thermocouple: offsets moved {moved:g} nm or were not held "
+                        f"on every sample ({boxheld}/{len(opened)} HOLD from the box)")
+    if not walk_ok:
+        problems.append(f"after the open thermocouple an offset stepped "
+                        f"{max(steps):g} nm in one sample (limit {step_nm:g})")
+    return [{"fault": "open thermocouple", "samples": len(opened),
+             "box_status": "OPEN|HOLD" if boxheld else "-", "held": ok,
+             "moved_nm": moved, "walk_back_ok": walk_ok}]
 
-    opened = by_phase.get("open", [])
-    if opened:
-        before = idx.get(opened[0]["sample"] - 1)
-        boxheld = sum(1 for r in opened if r["box"]["status"] & (1 << 1))
-        moved = moved_nm(opened, before) if before else float("nan")
-        ok = before is not None and moved <= MOVED_NM and all(r["holding"] for r in opened) \
-            and boxheld == len(opened)
-        after = [idx[k] for k in range(opened[-1]["sample"], opened[-1]["sample"] + 20)
-                 if k in idx]
-        steps = [abs(b["eoffset_mm"][a] - p["eoffset_mm"][a]) * 1e6
-                 for p, b in zip(after[:-1], after[1:], strict=True) for a in letters]
-        walk_ok = max(steps, default=0.0) <= step_nm + nm_per_count
-        holds.append({"fault": "open thermocouple", "samples": len(opened),
-                      "box_status": "OPEN|HOLD" if boxheld else "-", "held": ok,
-                      "moved_nm": moved, "walk_back_ok": walk_ok})
-        if not ok:
-            problems.append(f"open thermocouple: offsets moved {moved:g} nm or were not held "
-                            f"on every sample ({boxheld}/{len(opened)} HOLD from the box)")
-        if not walk_ok:
-            problems.append(f"after the open thermocouple an offset stepped "
-                            f"{max(steps):g} nm in one sample (limit {step_nm:g})")
-    pauses = [r for r in raw.get("records", []) if r.get("phase") == "stale_pause"]
-    for p in pauses:
+
+def _stale_pauses(raw: dict, rec: _Records, problems: list[str]) -> list[dict]:
+    """A silent box: the driver flags stale and holds, and nothing moves."""
+    holds = []
+    for p in [r for r in raw.get("records", []) if r.get("phase") == "stale_pause"]:
         b, d = p["before"], p["during"]
-        moved = max(abs(d["eoffset_mm"][a] - b["eoffset_mm"][a]) * 1e6 for a in letters)
+        moved = max(abs(d["eoffset_mm"][a] - b["eoffset_mm"][a]) * 1e6 for a in rec.letters)
         ok = bool(d["stale"]) and bool(d["holding"]) and moved <= MOVED_NM and not b["stale"]
         holds.append({"fault": "stale stream", "samples": 0, "box_status": "(silent)",
                       "held": ok, "moved_nm": moved, "age_s": d["age-s"]})
         if not ok:
             problems.append(f"stale stream: stale={d['stale']} holding={d['holding']} "
                             f"moved {moved:g} nm (age {d['age-s']:.3f} s)")
-    for r in by_phase.get("bad_line", []):
-        prev = idx.get(r["sample"] - 1)
-        moved = moved_nm([r], prev) if prev else float("nan")
+    return holds
+
+
+def _corrupted_lines(rec: _Records, problems: list[str]) -> list[dict]:
+    """A line with a bad CRC is refused (counted) and moves nothing."""
+    holds = []
+    for r in rec.by_phase.get("bad_line", []):
+        prev = rec.idx.get(r["sample"] - 1)
+        moved = rec.moved_nm([r], prev) if prev else float("nan")
         refused = prev is not None and r["bad-lines"] == prev["bad-lines"] + 1
         ok = r["box"]["corrupted"] and refused and moved <= MOVED_NM
         holds.append({"fault": "corrupted line (CRC)", "samples": 1, "box_status": "-",
@@ -308,47 +341,76 @@ def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Re
         if not ok:
             problems.append(f"corrupted line at sample {r['sample']}: refused={refused}, "
                             f"offsets moved {moved:g} nm")
+    return holds
+
+
+def _machine_off_on(rec: _Records, problems: list[str]) -> tuple[list[dict], dict]:
+    """After machine off/on the offset and the joint are back on the box's correction."""
+    holds: list[dict] = []
     resync: dict = {}
-    for r in by_phase.get("machine_on", []):
-        d_off = max(abs(r["eoffset_mm"][a] * 1e6 - want_nm(r, i))
-                    for i, a in enumerate(letters))
-        d_joint = max(abs((r["pos_cmd_mm"][a] - base[a]) * 1e6 - want_nm(r, i))
-                      for i, a in enumerate(letters))
+    for r in rec.by_phase.get("machine_on", []):
+        d_off, d_joint = rec.offset_diff_nm(r), rec.joint_diff_nm(r)
         resync = {"sample": r["sample"], "offset_diff_nm": d_off, "joint_diff_nm": d_joint,
-                  "ok": d_off <= nm_per_count and d_joint <= nm_per_count}
-        holds.append({"fault": "machine off/on", "samples": len(by_phase.get("machine_off",
-                      [])), "box_status": "-", "held": resync["ok"], "moved_nm": d_off})
+                  "ok": d_off <= rec.nm_per_count and d_joint <= rec.nm_per_count}
+        holds.append({"fault": "machine off/on",
+                      "samples": len(rec.by_phase.get("machine_off", [])), "box_status": "-",
+                      "held": resync["ok"], "moved_nm": d_off})
         if not resync["ok"]:
             problems.append(f"after machine off/on the offset is {d_off:g} nm and the joint "
                             f"{d_joint:g} nm away from the box's correction")
-    disabled = by_phase.get("disabled", [])
-    if disabled:
-        off = max(abs(r["eoffset_mm"][a]) * 1e6 for r in disabled
-                  for a in letters)
-        back = [r for r in by_phase.get("enabled", [])]
-        d_back = max((abs(r["eoffset_mm"][a] * 1e6 - want_nm(r, i)) for r in back
-                      for i, a in enumerate(letters)), default=float("inf"))
-        ok = off <= nm_per_count and d_back <= nm_per_count
-        holds.append({"fault": "enable off/on", "samples": len(disabled),
-                      "box_status": "-", "held": ok, "moved_nm": d_back})
-        if not ok:
-            problems.append(f"enable off/on: offset {off:g} nm while disabled (want 0), "
-                            f"{d_back:g} nm from the box's value after enable")
+    return holds, resync
+
+
+def _enable_off_on(rec: _Records, problems: list[str]) -> list[dict]:
+    """Disabled, the offset is 0; enabled again, it is the box's correction."""
+    disabled = rec.by_phase.get("disabled", [])
+    if not disabled:
+        return []
+    off = max(abs(r["eoffset_mm"][a]) * 1e6 for r in disabled for a in rec.letters)
+    d_back = max((rec.offset_diff_nm(r) for r in rec.by_phase.get("enabled", [])),
+                 default=float("inf"))
+    ok = off <= rec.nm_per_count and d_back <= rec.nm_per_count
+    if not ok:
+        problems.append(f"enable off/on: offset {off:g} nm while disabled (want 0), "
+                        f"{d_back:g} nm from the box's value after enable")
+    return [{"fault": "enable off/on", "samples": len(disabled),
+             "box_status": "-", "held": ok, "moved_nm": d_back}]
+
+
+def _zero(raw: dict, rec: _Records, problems: list[str]) -> dict:
+    """After ZERO the box sends 0 and LinuxCNC's offset and joint are back at their start."""
     zero: dict = {"done": False, "ok": False}
     sent = [r for r in raw.get("records", []) if r.get("phase") == "zero_sent"]
-    for r in by_phase.get("zero", []):
+    for r in rec.by_phase.get("zero", []):
         box_zero = all(c == 0 for c in r["box"]["corr_nm"])
-        off = max(abs(r["eoffset_mm"][a]) * 1e6 for a in letters)
-        joint = max(abs(r["pos_cmd_mm"][a] - base[a]) * 1e6 for a in letters)
+        off = max(abs(r["eoffset_mm"][a]) * 1e6 for a in rec.letters)
+        joint = max(abs(r["pos_cmd_mm"][a] - rec.base[a]) * 1e6 for a in rec.letters)
         zero = {"done": True, "sample": r["sample"], "reply": sent[0]["reply"] if sent else "",
                 "box_zero": box_zero, "offset_nm": off, "joint_nm": joint,
                 "referenced": bool(r["box"]["status"] & (1 << 11)),
-                "ok": box_zero and off <= nm_per_count and joint <= nm_per_count}
+                "ok": box_zero and off <= rec.nm_per_count and joint <= rec.nm_per_count}
         if not zero["ok"]:
             problems.append(f"ZERO: box output {r['box']['corr_nm']}, LinuxCNC offset "
                             f"{off:g} nm, joint {joint:g} nm from its start")
+    return zero
+
+
+def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Result:
+    """Compare LinuxCNC's offsets with the box's lines; the summary and the problems found."""
+    problems: list[str] = []
+    rec = _Records([r for r in raw.get("records", []) if "box" in r],
+                   raw.get("base_pos_mm", {}), nm_per_count)
+    tracked, max_off, max_joint = _tracking(rec, problems)
+    holds = _open_thermocouple(rec, step_nm, problems)
+    holds += _stale_pauses(raw, rec, problems)
+    holds += _corrupted_lines(rec, problems)
+    resync_holds, resync = _machine_off_on(rec, problems)
+    holds += resync_holds
+    holds += _enable_off_on(rec, problems)
+    zero = _zero(raw, rec, problems)
     if not raw.get("ok"):
         problems.insert(0, f"the LinuxCNC session did not complete: {raw.get('error')}")
+    records = rec.records
     summary = {"samples": len(records), "tracked_samples": tracked,
                "max_abs_diff_nm": max_off, "max_abs_diff_counts": max_off / nm_per_count,
                "max_abs_joint_diff_nm": max_joint, "holds": holds, "resync": resync,
