@@ -9,6 +9,7 @@ from host.fitting import (
     fit_linear,
     fold_groups,
     out_of_fold_predictions,
+    penalty_groups,
     validation_rmse,
     variance_inflation,
 )
@@ -90,6 +91,25 @@ def test_blocks_of_one_run_are_cut_where_its_heat_cool_phases_change():
 def test_several_runs_are_left_out_one_at_a_time():
     groups, scheme = fold_groups([_run(3), _run(2)])
     assert "leave-one-run-out" in scheme and list(groups) == [0, 0, 0, 1, 1]
+
+
+def test_the_penalty_of_two_days_is_chosen_on_each_days_blocks():
+    # two runs: leave-one-run-out would fit each fold on one day, so each run's thirds are folds
+    groups, scheme = penalty_groups([_run(6), _run(3)], n_blocks=3)
+    assert list(groups) == [0, 0, 1, 1, 2, 2, 3, 4, 5]
+    assert "each of the 2 runs" in scheme
+
+
+def test_the_penalty_keeps_leave_one_run_out_otherwise():
+    three = [_run(2), _run(2), _run(2)]
+    assert list(penalty_groups(three)[0]) == list(fold_groups(three)[0]) == [0, 0, 1, 1, 2, 2]
+    one = [_run(9)]
+    assert list(penalty_groups(one)[0]) == list(fold_groups(one)[0])
+    # two pieces of one run (a nested fold around a held-out block) are one day, not two
+    whole = _run(12)
+    pieces = [whole.slice(0, 4), whole.slice(8, 12)]
+    assert all(p.piece for p in pieces) and not whole.piece and whole.slice(0, 4).every(2).piece
+    assert list(penalty_groups(pieces)[0]) == [0, 0, 0, 0, 1, 1, 1, 1]
 
 
 def test_out_of_fold_prediction_never_sees_its_own_group():

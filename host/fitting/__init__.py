@@ -21,6 +21,7 @@ from host.fitting.validation import (
     DEFAULT_BLOCKS,
     common_period,
     fold_groups,
+    penalty_groups,
     run_labels,
     stack,
 )
@@ -41,6 +42,7 @@ __all__ = [
     "first_order_lag",
     "fit_linear",
     "fold_groups",
+    "penalty_groups",
     "out_of_fold_predictions",
     "r_squared",
     "rmse",

@@ -109,6 +109,20 @@ def fold_groups(runs: list[Run], n_blocks: int = DEFAULT_BLOCKS, *, phases: bool
     return groups, f"time-blocked ({n_blocks} contiguous blocks of one run{how})"
 
 
+def penalty_groups(runs: list[Run], n_blocks: int = DEFAULT_BLOCKS) -> tuple[np.ndarray, str]:
+    """The folds a ridge's penalty is chosen on, and their description: fold_groups's, except
+    for exactly two days (two runs, not two pieces of one run). There each fold of
+    leave-one-run-out fits on one day alone, so the folds are each run's ``n_blocks`` equal
+    blocks instead (measured in docs/next-day.md section 8; with three runs or more
+    leave-one-run-out did better)."""
+    if len(runs) != 2 or any(r.piece for r in runs):
+        return fold_groups(runs, n_blocks)
+    groups = np.concatenate([i * n_blocks + np.minimum((np.arange(r.n_samples) * n_blocks)
+                                                       // r.n_samples, n_blocks - 1)
+                             for i, r in enumerate(runs)])
+    return groups, f"time-blocked ({n_blocks} contiguous blocks of each of the 2 runs)"
+
+
 def common_period(runs: list[Run], tolerance: float = 0.01) -> float:
     """The sample period all runs share (dynamic terms assume one fixed period)."""
     periods = [r.period_s for r in runs]

@@ -65,6 +65,7 @@ class Run:
     aux_names: list[str] = field(default_factory=list)
     aux: np.ndarray | None = None  # (n_samples, n_aux)
     filled_cells: int = 0
+    piece: bool = False  # cut out of one run for validation (slice): the same day as the rest
 
     @property
     def n_samples(self) -> int:
@@ -109,14 +110,14 @@ class Run:
         return Run(self.path + f"[::{step}]", self.time_s[::step], list(self.sensor_names),
                    self.temperatures[::step], list(self.target_names),
                    self.displacements[::step], list(self.aux_names),
-                   None if self.aux is None else self.aux[::step])
+                   None if self.aux is None else self.aux[::step], piece=self.piece)
 
     def slice(self, start: int, stop: int) -> Run:
         """A contiguous part of the run (for time-blocked validation)."""
         return Run(self.path + f"[{start}:{stop}]", self.time_s[start:stop],
                    list(self.sensor_names), self.temperatures[start:stop], list(self.target_names),
                    self.displacements[start:stop], list(self.aux_names),
-                   None if self.aux is None else self.aux[start:stop])
+                   None if self.aux is None else self.aux[start:stop], piece=True)
 
 
 DELIMITERS = {",": "comma", ";": "semicolon", "\t": "tab"}

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -53,6 +53,7 @@ from host.fitting import (
     fit_linear,
     fit_ridge,
     fold_groups,
+    penalty_groups,
     rmse,
     stack,
 )
@@ -167,8 +168,11 @@ def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
 
 def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], period_s: float,
                     n_blocks: int, reference: Reference):
-    """The ridge of one axis over ``terms``, its temperature-like terms penalised in kelvin."""
+    """The ridge of one axis over ``terms``, its temperature-like terms penalised in kelvin
+    and its penalty chosen on host.fitting.penalty_groups (the stack carries those folds)."""
     st = stack(list(runs), list(terms), target, period_s, n_blocks, reference)
+    groups, scheme = penalty_groups(list(runs), n_blocks)
+    st = replace(st, groups=groups, scheme=scheme)
     return fit_ridge(st.X, st.y, st.groups, shared=[t.kind in KELVIN_KINDS for t in terms]), st
 
 
