@@ -20,6 +20,7 @@ from host.train.next_day import (
     nested_validation,
     ridge_basis,
     shared_lag_budget,
+    thinned,
 )
 
 PERIOD = 60.0
@@ -103,6 +104,41 @@ def test_nested_validation_is_refit_without_each_run_and_predicts_it():
     assert all(len(v) == 3 for v in res.fold_rmse_um.values())
     assert res.rms("baseline") == pytest.approx(
         np.sqrt(np.mean(np.square(res.fold_rmse_um["baseline"]))))
+
+
+def test_long_runs_are_judged_on_every_kth_sample():
+    runs = [_run("a", 1), _run("b", 2), _run("c", 3)]  # 3 x 480 samples
+    same, period = thinned(runs, PERIOD, max_rows=1440)
+    assert period == PERIOD and [r.n_samples for r in same] == [480] * 3
+    thin, period = thinned(runs, PERIOD, max_rows=1000)  # ceil(1440 / 1000) = 2
+    assert period == 2 * PERIOD and [r.n_samples for r in thin] == [240] * 3
+    assert [r.period_s for r in thin] == [2 * PERIOD] * 3
+    np.testing.assert_array_equal(thin[1].temperatures, runs[1].temperatures[::2])
+
+
+def test_nested_folds_of_long_runs_train_on_the_thinned_runs(monkeypatch):
+    import host.train.next_day as next_day
+
+    monkeypatch.setattr(next_day, "NESTED_MAX_ROWS", 1000)
+    runs = [_run("a", 1), _run("b", 2), _run("c", 3)]
+    terms = [make_temp("T1"), make_temp("T2")]
+    seen = []
+
+    def train_fold(sub):
+        seen.append([(r.n_samples, r.period_s) for r in sub])
+        return terms, terms, []
+
+    res = nested_validation(runs, "dz_um", train_fold, aux=[], period_s=PERIOD, n_blocks=3,
+                            reference=NO_REFERENCE, max_states=0)
+    assert seen == [[(240, 2 * PERIOD)] * 2] * 3
+    # the held-out run is scored on the same samples: least squares on every 2nd sample
+    tr = [r.every(2) for r in runs[1:]]
+    A = np.column_stack([np.ones(480), np.vstack([r.temperatures[:, :2] for r in tr])])
+    beta = np.linalg.lstsq(A, np.concatenate([r.target("dz_um") for r in tr]), rcond=None)[0]
+    held = runs[0].every(2)
+    pred = beta[0] + held.temperatures[:, :2] @ beta[1:]
+    expect = np.sqrt(np.mean((held.target("dz_um") - pred) ** 2))
+    assert res.fold_rmse_um["baseline"][0] == pytest.approx(expect, rel=1e-6)
 
 
 def test_ridge_basis_spends_only_the_states_it_is_given():

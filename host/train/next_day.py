@@ -67,6 +67,7 @@ DEFAULT_FIT = "ridge"  # measured best on unseen runs of every source (docs/next
 LAG_TAUS_S = (900.0, 3600.0)  # a fast and a slow part of the structure behind each sensor
 MIN_FOLD_SAMPLES = 8  # a training piece shorter than this is left out of a nested fold
 NESTED_WORKERS = 2  # threads the nested folds train on (the 2-core target of issue 13)
+NESTED_MAX_ROWS = 20_000  # beyond this the nested folds train on every k-th sample
 
 # the pipeline on a fold's training data: one axis's final terms, its baseline (no effects)
 # and the sensors the ridge reads besides the terms' own (the free channels filled)
@@ -176,13 +177,28 @@ def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], per
     return fit_ridge(st.X, st.y, st.groups, shared=[t.kind in KELVIN_KINDS for t in terms]), st
 
 
+def thinned(runs: Sequence[Run], period_s: float, max_rows: int = NESTED_MAX_ROWS
+            ) -> tuple[list[Run], float]:
+    """Every k-th sample of the runs (and their period), with k the smallest that leaves at
+    most ``max_rows`` in all; the runs themselves when they are that short already."""
+    step = -(-sum(r.n_samples for r in runs) // max_rows)
+    if step <= 1:
+        return list(runs), period_s
+    return [r.every(step) for r in runs], period_s * step
+
+
 def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *,
                       aux: Sequence[str], period_s: float, n_blocks: int,
                       reference: Reference, max_states: int,
                       quiet: bool = True, workers: int = NESTED_WORKERS) -> NestedResult:
     """Each family's held-out error with the whole pipeline refitted without each fold
     (a progress bar over the folds: each is a whole training). The folds are independent and
-    train on ``workers`` threads (numpy and scipy release the GIL for the heavy parts)."""
+    train on ``workers`` threads (numpy and scipy release the GIL for the heavy parts).
+
+    Runs of more than ``NESTED_MAX_ROWS`` samples in all are judged on every k-th sample
+    (thinned): thermal signals change over minutes, and the folds are most of the time a
+    24-h run at 1 s takes to train."""
+    runs, period_s = thinned(runs, period_s, NESTED_MAX_ROWS)
     groups, scheme = fold_groups(list(runs), n_blocks)
 
     def fold_errors(fold: int) -> dict[str, float] | None:

@@ -25,6 +25,7 @@ from host.effects import search_effects, sensor_reference
 from host.fitting import (
     NO_REFERENCE,
     Reference,
+    common_period,
     fit_linear,
     stack,
     validation_rmse,
@@ -152,7 +153,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         final = [Term.from_json(x) for x in spec["terms"]]
         base = spec.get("baseline")
         extra = channel_fill(sub, [target], term_sensors(final), pool,
-                             max_channels=options["max_channels"], period_s=period_s,
+                             max_channels=options["max_channels"],
+                             period_s=common_period(sub),  # a long run's folds are thinned
                              n_blocks=n_blocks, reference=reference) if fill else []
         return final, ([Term.from_json(x) for x in base["terms"]] if base else final), extra
 
