@@ -134,9 +134,11 @@ def print_training(demo: Demo, doc: dict, model: dict) -> None:
         dropped = [e.get("name", "?") for e in spec.get("effects", [])
                    if dropped_reason(e)]
         line = (f"    {axis}: sensors {', '.join(row['sensors'])}; validation RMSE "
-                f"{fmt_um(row['validation_rmse_um'])} of {fmt_um(row['raw_rms_um'])} raw")
+                f"{fmt_um(row['validation_rmse_um'])} of {fmt_um(row['raw_rms_um'])} raw"
+                f" ({row.get('fit') or 'ols'})")
         if effects:
-            line += f" (before effects {fmt_um(base)}; added {', '.join(effects)})"
+            line += (f"; effects {fmt_um(base)} -> {fmt_um(row.get('effects_validation_rmse_um'))}"
+                     f" in least squares, added {', '.join(effects)}")
         gone = [s for s in spec.get("selection", {}).get("sensors", [])
                 if s not in row["sensors"]]
         if dropped:

@@ -320,6 +320,9 @@ def summary_rows(model: dict) -> list[dict]:
             "input_quantisation_um": (fixed.get(name) or {}).get("input_quantisation_um"),
             "validation_rmse_um": val, "raw_rms_um": raw, "reduction_pct": reduction,
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
+            # the effect search's own figure after its effects (least squares, its folds)
+            "effects_validation_rmse_um": axis.get("validation_rmse_um"),
+            "fit": (axis.get("fit") or {}).get("family"),
             "effects": [e.get("name", "?") for e in axis.get("effects", [])
                         if not dropped_reason(e)],
             "effects_dropped": [e.get("name", "?") for e in axis.get("effects", [])

@@ -150,15 +150,17 @@ def print_effects(doc: dict) -> None:
     channel budget dropped afterwards is listed as dropped (the box does not run it)."""
     for name, a in doc["axes"].items():
         u = unit_of(name)
-        before, after = a.get("baseline_validation_rmse_um"), a.get("validation_rmse_um")
+        before = a.get("baseline_validation_rmse_um")
+        searched, after = a.get("effects_validation_rmse_um"), a.get("validation_rmse_um")
         effects = a.get("effects") or []
         kept = [e for e in effects if not dropped_reason(e)]
         if kept:
-            verb = "lower" if after is not None and before is not None and after <= before \
-                else "change"
-            print(f"{name}: effects {verb} the validation RMSE {_fmt(before)} -> {_fmt(after)} {u}"
-                  " (the box's model: its own validation, which does not see the next day; "
-                  "the promise below does)")
+            verb = "lowered" if searched is not None and before is not None \
+                and searched <= before else "changed"
+            print(f"{name}: the effect search {verb} the validation RMSE {_fmt(before)} -> "
+                  f"{_fmt(searched)} {u} (least squares on the selected terms); the box's "
+                  f"model ({a.get('fit') or 'ols'}) validates at {_fmt(after)} {u} on its own "
+                  "folds, which do not see the next day: the promise below does")
         elif effects:
             print(f"{name}: no effect survived the channel budget (validation RMSE "
                   f"{_fmt(after)} {u})")

@@ -41,6 +41,9 @@ def summary(model: dict, model_path: str) -> dict:
             "free_channels_read": free_channels(axis),
             # the loop: before/after the effects, what was added and what is still unexplained
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
+            # the search's own figure after its effects (least squares on its folds); the box's
+            # model (validation_rmse_um above) may be another family, fitted on other folds
+            "effects_validation_rmse_um": axis.get("validation_rmse_um"),
             "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
                                                "rmse_after_um", "dropped_for_channels",
                                                "dropped_by_nested_validation")}
