@@ -128,6 +128,10 @@ def print_table(doc: dict, model: dict) -> None:
               f"{_fmt(a['r2'], 4):>7} {_fmt(a['condition_number']):>7}")
     if any(unit_of(name) != "um" for name in doc["axes"]):
         print("(errors of a tilt axis, *_urad, are in urad)")
+    own = sorted({a["validation"] for a in doc["axes"].values() if a.get("validation")}
+                 - {model["training"]["validation"]})
+    if own:  # the ridge chooses its penalty on folds of its own (two runs: each run's blocks)
+        print(f"(valid um of the box's model: {'; '.join(own)})")
     print_effects(doc)
     for name, a in doc["axes"].items():
         folds = a.get("promised_fold_rmse_um") or []
