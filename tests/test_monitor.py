@@ -475,7 +475,9 @@ def test_after_a_reconnect_an_unidentified_device_shows_nothing_until_its_info(t
     first = WirePty()
     link.symlink_to(first.path)
     out = io.StringIO()
-    monitor = Monitor(str(link), duration=4.0, out=out, ansi=False, retry_s=0.05,
+    # it stops at the second sample it shows; the duration only bounds a broken run (a fixed
+    # 4 s window was too short when the machine was loaded)
+    monitor = Monitor(str(link), count=2, duration=30.0, out=out, ansi=False, retry_s=0.05,
                       identify=lambda port: None)  # a pty: cannot say what it is
     thread, result = run_in_thread(monitor)
     first.wait_for(b"INFO\r\n")
@@ -496,7 +498,8 @@ def test_after_a_reconnect_an_unidentified_device_shows_nothing_until_its_info(t
     # then it does answer, with another model: announced, and from now on shown
     other = wire("I,fw-9,fedcba9876543210,OK,1000,dx_um;dz_um,0:T05:K;1:T12:K")
     second.send(other + sample(5, 0, [7, 8], [3, 4]))
-    thread.join(10)
+    thread.join(35)
+    assert not thread.is_alive() and result["code"] == 0
     text = out.getvalue()
     assert "cannot identify itself" in text
     assert "+999.000um" not in text
