@@ -149,7 +149,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     aux = list(options["aux"])
 
     def train_fold(sub: list[Run]) -> tuple[list[Term], list[Term], list[str]]:
-        spec = train_model(sub, [target], **options, fit="ols", nested=False)["axes"][target]
+        spec = train_model(sub, [target], **options, fit="ols", nested=False,
+                           fill_first=bool(fill))["axes"][target]
         final = [Term.from_json(x) for x in spec["terms"]]
         base = spec.get("baseline")
         extra = channel_fill(sub, [target], term_sensors(final), pool,
@@ -252,7 +253,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 tc_type: str = DEFAULT_TC_TYPE, max_channels: int = BOX_CHANNELS,
                 reference: str = DEFAULT_REFERENCE, fit: str = DEFAULT_FIT, nested: bool = True,
                 fill_channels: bool = True, tilts: Sequence[Tilt] = (),
-                quiet: bool = True) -> dict:
+                fill_first: bool | None = None, quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
@@ -263,7 +264,9 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     channels (host.train.next_day.channel_fill). ``tilts``: targets that are tilt axes (µrad)
     computed from two gap probes of each run (contract/tilt.py); each must be a target.
     ``max_channels`` is the box's thermocouple budget shared by all axes
-    (see fit_channel_budget).
+    (see fit_channel_budget). ``fill_first``: the free channels are filled before the effects
+    are searched, which may then only use wired sensors (default: when the ridge reads them,
+    i.e. ``fill_channels`` and a fit other than ``ols``; see _free_channel_fill).
     """
     targets = list(targets)
     aux = list(aux or [])
@@ -275,8 +278,12 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
                   max_delay_s=max_delay_s, seed=seed)
     selected = _selected_within_budget(data, targets, max_channels, choose, quiet)
+    if fill_first is None:
+        fill_first = fill_channels and fit != "ols"
+    fill = _free_channel_fill(data, selected, max_channels) if fill_first else []
     axes = _axes_with_effects(data, selected, effects=effects, ambient=ambient,
-                              max_sensors=max_sensors, max_channels=max_channels, quiet=quiet)
+                              max_sensors=max_sensors, max_channels=max_channels, fill=fill,
+                              quiet=quiet)
     _budget_after_effects(data, axes, max_channels)
     if nested or fit == "ridge":
         options = dict(sensors=list(data.names), aux=aux, max_sensors=max_sensors,
@@ -370,10 +377,24 @@ def _selected_within_budget(data: TrainingData, targets: list[str], max_channels
     return selected
 
 
+def _free_channel_fill(data: TrainingData, selected: dict[str, tuple[list[Term], dict]],
+                       max_channels: int) -> list[str]:
+    """The sensors the box's free channels get (the axes' L1 rankings, next_day.channel_fill),
+    settled before the effects are searched. An effect that took a free channel changed what
+    every axis's ridge reads: axes without an effect of their own got worse on unseen runs
+    (docs/next-day.md section 9)."""
+    wired = [n for n in data.names if n in channels_of({t: terms for t, (terms, _)
+                                                        in selected.items()})]
+    return channel_fill(data.runs, list(selected), wired, data.pool, max_channels=max_channels,
+                        period_s=data.period_s, n_blocks=data.n_blocks, reference=data.ref)
+
+
 def _axes_with_effects(data: TrainingData, selected: dict[str, tuple[list[Term], dict]], *,
                        effects: bool, ambient: str | None, max_sensors: int,
-                       max_channels: int, quiet: bool) -> dict[str, dict]:
-    """Each axis fitted on its selection, then the loop: the effects its residual shows."""
+                       max_channels: int, fill: Sequence[str] = (),
+                       quiet: bool) -> dict[str, dict]:
+    """Each axis fitted on its selection, then the loop: the effects its residual shows.
+    The sensors of ``fill`` are wired already: an effect may use them, not their channels."""
     axes: dict[str, dict] = {}
     for target in progress(list(selected), "fitting axes and effects", quiet=quiet):
         terms, trace = selected[target]
@@ -388,6 +409,7 @@ def _axes_with_effects(data: TrainingData, selected: dict[str, tuple[list[Term],
         others = channels_of({k: [Term.from_json(t) for t in a["terms"]]
                               for k, a in axes.items()})
         others |= channels_of({k: t for k, (t, _) in selected.items() if k not in axes})
+        others |= set(fill)
         free = max(0, max_channels - len(others | channels_of({target: terms})))
         if effects:
             axis = axis_with_effects(axis, runs=data.runs, target=target,
@@ -430,6 +452,8 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
     wired = [n for n in data.names if n in channels_of(
         {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})]
     pool = data.pool
+    # with fill_first this is the fill the effects were kept out of (plus any channel an
+    # input family's re-selection gave up)
     read = [*wired, *channel_fill(data.runs, list(axes), wired, pool, max_channels=max_channels,
                                   period_s=data.period_s, n_blocks=data.n_blocks,
                                   reference=data.ref)
