@@ -13,7 +13,7 @@ from host.selection.correlation import (
     pearson_r,
     thermal_parameters,
 )
-from host.selection.screening import fill_free_channels, l1_ranking
+from host.selection.screening import fill_free_channels, joint_l1_ranking, l1_ranking
 from host.selection.selector import (
     DEFAULT_BLOCKS,
     DEFAULT_GROUPS,
@@ -37,6 +37,7 @@ __all__ = [
     "default_max_lag",
     "ec_reduction",
     "fill_free_channels",
+    "joint_l1_ranking",
     "l1_ranking",
     "fold_labels",
     "group_refinement",

@@ -55,6 +55,43 @@ def l1_ranking(runs: Sequence[Run], target: str, sensors: Sequence[str], *, peri
     return [sensors[i] for i in np.argsort(-weight, kind="stable")]
 
 
+def joint_l1_ranking(runs: Sequence[Run], targets: Sequence[str], sensors: Sequence[str], *,
+                     period_s: float, taus: Sequence[float], n_blocks: int,
+                     reference: Reference = NO_REFERENCE) -> list[str]:
+    """``sensors`` ordered by the weight one multi-task lasso (every target at once, each in
+    its own unit, not standardised: the channels go where the drift is) gives each sensor's
+    temperature and lags, largest first. Used when the axes share the box's channels
+    (host.train.channel_budget); measured in docs/next-day.md section 9."""
+    from sklearn.linear_model import MultiTaskLassoCV  # imported here, as in l1_ranking
+    from sklearn.model_selection import PredefinedSplit
+
+    sensors = list(sensors)
+    if len(sensors) <= 1:
+        return sensors
+    step = max(1, sum(r.n_samples for r in runs) // MAX_ROWS)
+    runs = [r.every(step) for r in runs]
+    period_s *= step
+    terms = [make_temp(s) for s in sensors]
+    terms += [make_lag(s, tau, period_s) for tau in taus if tau > period_s for s in sensors]
+    stacks = [stack(list(runs), terms, t, period_s, n_blocks, reference) for t in targets]
+    X, groups = stacks[0].X, stacks[0].groups
+    Y = np.column_stack([st.y for st in stacks])
+    if np.unique(groups).size < 2:
+        return sensors
+    sd = X.std(axis=0)
+    sd[sd == 0] = 1.0
+    Z = (X - X.mean(axis=0)) / sd
+    Yc = Y - Y.mean(axis=0)
+    top = float(np.max(np.sqrt(((Z.T @ Yc) ** 2).sum(axis=1)))) / len(Yc)
+    if not top > 0:
+        return sensors
+    alphas = top * np.logspace(0, -3, N_ALPHAS)
+    lasso = MultiTaskLassoCV(alphas=alphas, cv=PredefinedSplit(groups), max_iter=3000,
+                             tol=1e-3).fit(Z, Yc)
+    weight = np.sqrt((lasso.coef_ ** 2).sum(axis=0)).reshape(-1, len(sensors)).sum(axis=0)
+    return [sensors[i] for i in np.argsort(-weight, kind="stable")]
+
+
 def fill_free_channels(wired: Sequence[str], rankings: Sequence[Sequence[str]],
                        max_channels: int) -> list[str]:
     """The sensors to add to ``wired`` until ``max_channels``: each axis's ranking in turn

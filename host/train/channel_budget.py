@@ -1,7 +1,8 @@
 """The box's thermocouple budget: all axes together may use at most ``max_channels`` sensors.
 
-When the axes' own choices exceed it, training either drops the cheapest sensors or re-selects
-every axis from a shared pool, whichever raises the out-of-fold error least.
+When the axes' own choices exceed it, every axis is selected again from a shared pool: the
+sensors a multi-task lasso over all axes weighs most. ``drop_to_budget`` is the last resort
+after the effects (host.train.pipeline).
 """
 
 from __future__ import annotations
@@ -50,48 +51,35 @@ def drop_to_budget(current: Mapping[str, list[Term]], vrmse: Callable[[str, list
 
 
 def fit_channel_budget(selected: Selected, max_channels: int,
-                        vrmse: Callable[[str, list[Term]], float],
+                        rank: Callable[[list[str]], list[str]],
                         reselect: Callable[[list[str]], Selected],
                         ) -> tuple[Selected, dict | None]:
     """Make all axes' selected sensors together fit the box's thermocouple channels.
 
     Returns the per-axis selection that fits and a note for the trace (None when the axes'
-    own choices already fit). Two ways are tried and the one whose out-of-fold (validation)
-    RMSE rises least, summed over axes relative to each axis's unconstrained error, is kept:
-    - ``drop``: drop_to_budget;
-    - ``shared-pool``: keep the ``max_channels`` sensors most axes chose (ties: larger |r|)
-      and run each axis's selection again on that pool only (lets an axis substitute).
+    own choices already fit). The ``max_channels`` sensors of the axes' selections that
+    ``rank`` puts first form a shared pool, and each axis's selection runs again on that pool
+    only (an axis may substitute). ``rank`` is a multi-task lasso over all axes at once
+    (host.selection.joint_l1_ranking). Before, the budget either dropped the sensors whose
+    loss raised least squares' out-of-fold error least, or pooled the sensors most axes
+    chose; the pool by the joint lasso was lower on unseen runs of every source
+    (docs/next-day.md section 9).
     """
     terms_of = {t: terms for t, (terms, _) in selected.items()}
     union = channels_of(terms_of)
     if len(union) <= max_channels:
         return selected, None
-    base = {t: vrmse(t, terms) for t, terms in terms_of.items()}
-    current, dropped = drop_to_budget(terms_of, vrmse, max_channels)
-    by_drop = {t: (current[t], trace) for t, (_, trace) in selected.items()}
-
-    def rank(name: str) -> tuple[int, float]:
-        votes = sum(any(t.source == name for t in terms) for terms, _ in selected.values())
-        corr = max(abs(trace["correlations"].get(name, 0.0)) for _, trace in selected.values())
-        return votes, corr
-
-    pool = sorted(union, key=rank, reverse=True)[:max_channels]
-    by_pool = reselect(pool)
-
-    def cost_of(sel: Selected) -> float:
-        return sum(vrmse(t, terms) / max(base[t], 1e-12) - 1.0 for t, (terms, _) in sel.items())
-
-    costs = {"drop": cost_of(by_drop), "shared-pool": cost_of(by_pool)}
-    strategy = min(costs, key=costs.get)
-    note = {"max_channels": max_channels, "strategy": strategy,
-            "dropped": dropped, "pool": pool,
-            "relative_validation_cost": {k: round(v, 4) for k, v in costs.items()}}
-    chosen = by_drop if strategy == "drop" else by_pool
-    if strategy == "shared-pool":  # the pool's traces show only its sensors: keep the rest
-        note["outside_pool"] = {
-            t: {k: {n: v for n, v in trace[k].items() if n not in pool}
-                for k in ("correlations", "delays_s")}
-            for t, (_, trace) in selected.items()}
+    pool = rank(sorted(union))[:max_channels]
+    chosen = reselect(pool)
+    note = {"max_channels": max_channels, "strategy": "shared-pool",
+            "ranking": "multi-task lasso over all axes (temperatures and lags, each axis in "
+                       "its own unit)",
+            "dropped": sorted(union - set(pool)), "pool": pool,
+            # the pool's traces show only its sensors: keep the rest
+            "outside_pool": {
+                t: {k: {n: v for n, v in trace[k].items() if n not in pool}
+                    for k in ("correlations", "delays_s")}
+                for t, (_, trace) in selected.items()}}
     if len(channels_of({t: terms for t, (terms, _) in chosen.items()})) > max_channels:
-        raise AssertionError("channel budget not met")  # both strategies guarantee it
+        raise AssertionError("channel budget not met")  # the pool guarantees it
     return chosen, note

@@ -38,6 +38,7 @@ from host.selection import (
     DEFAULT_GROUPS,
     DEFAULT_MAX_SENSORS,
     METHODS,
+    joint_l1_ranking,
 )
 from host.train.axis_fit import axis_dict
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
@@ -46,6 +47,7 @@ from host.train.next_day import (
     FAMILIES,
     channel_fill,
     check_fit,
+    lag_taus,
     nested_validation,
     ridge_axis,
     ridge_axis_dict,
@@ -368,8 +370,13 @@ def _selected_within_budget(data: TrainingData, targets: list[str], max_channels
     """Every axis's selection, then the box's channel budget over all of them."""
     selected = {t: data.select(t, **choose)
                 for t in progress(targets, "selecting sensors", quiet=quiet)}
+    def rank(sensors: list[str]) -> list[str]:
+        return joint_l1_ranking(data.runs, targets, [n for n in data.pool if n in sensors],
+                                period_s=data.period_s, taus=lag_taus(data.runs, data.period_s),
+                                n_blocks=data.n_blocks, reference=data.ref)
+
     selected, budget = fit_channel_budget(
-        selected, max_channels, data.vrmse,
+        selected, max_channels, rank,
         reselect=lambda pool: {t: data.select(t, pool, **choose) for t in targets})
     for _terms, trace in selected.values():
         if budget:  # the axes together wanted more channels than the box has
