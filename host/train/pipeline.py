@@ -151,8 +151,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     aux = list(options["aux"])
 
     def train_fold(sub: list[Run]) -> tuple[list[Term], list[Term], list[str]]:
-        spec = train_model(sub, [target], **options, fit="ols", nested=False,
-                           fill_first=bool(fill))["axes"][target]
+        spec = train_model(sub, [target], **options, fit="ols", nested=False)["axes"][target]
         final = [Term.from_json(x) for x in spec["terms"]]
         base = spec.get("baseline")
         extra = channel_fill(sub, [target], term_sensors(final), pool,
@@ -267,8 +266,9 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     computed from two gap probes of each run (contract/tilt.py); each must be a target.
     ``max_channels`` is the box's thermocouple budget shared by all axes
     (see fit_channel_budget). ``fill_first``: the free channels are filled before the effects
-    are searched, which may then only use wired sensors (default: when the ridge reads them,
-    i.e. ``fill_channels`` and a fit other than ``ols``; see _free_channel_fill).
+    are searched, which may then only use wired sensors (default: with several axes when the
+    ridge reads them, i.e. ``fill_channels`` and a fit other than ``ols``; one axis's effects
+    keep the first claim on them; see _free_channel_fill).
     """
     targets = list(targets)
     aux = list(aux or [])
@@ -280,8 +280,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
                   max_delay_s=max_delay_s, seed=seed)
     selected = _selected_within_budget(data, targets, max_channels, choose, quiet)
-    if fill_first is None:
-        fill_first = fill_channels and fit != "ols"
+    if fill_first is None:  # the harm it prevents is between axes (_free_channel_fill)
+        fill_first = fill_channels and fit != "ols" and len(targets) > 1
     fill = _free_channel_fill(data, selected, max_channels) if fill_first else []
     axes = _axes_with_effects(data, selected, effects=effects, ambient=ambient,
                               max_sensors=max_sensors, max_channels=max_channels, fill=fill,
@@ -291,7 +291,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         options = dict(sensors=list(data.names), aux=aux, max_sensors=max_sensors,
                        groups=groups, effects=effects, ambient=ambient, selection=selection,
                        max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
-                       max_channels=max_channels, reference=reference)
+                       max_channels=max_channels, reference=reference,
+                       fill_first=fill_first)  # a fold of one axis fills as this model did
         axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
                                       fill_channels=fill_channels, max_channels=max_channels,
                                       quiet=quiet)
@@ -389,7 +390,8 @@ def _free_channel_fill(data: TrainingData, selected: dict[str, tuple[list[Term],
     """The sensors the box's free channels get (the axes' L1 rankings, next_day.channel_fill),
     settled before the effects are searched. An effect that took a free channel changed what
     every axis's ridge reads: axes without an effect of their own got worse on unseen runs
-    (docs/next-day.md section 9)."""
+    (docs/next-day.md section 9). With one axis there is no other axis to harm, and its effects
+    (the shop-air family above all) keep the first claim on the free channels."""
     wired = [n for n in data.names if n in channels_of({t: terms for t, (terms, _)
                                                         in selected.items()})]
     return channel_fill(data.runs, list(selected), wired, data.pool, max_channels=max_channels,
