@@ -15,11 +15,38 @@ from collections.abc import Sequence
 import numpy as np
 
 from contract.terms import make_lag, make_temp
-from host.fitting import NO_REFERENCE, Reference, stack
+from host.fitting import NO_REFERENCE, Reference, run_labels, stack
 from host.io import Run
 
 MAX_ROWS = 4000  # beyond this the ranking works on every k-th sample: thermal data is smooth
 N_ALPHAS = 30  # penalties on the lasso path, from the one that keeps nothing down 1000x
+
+
+def _screening_design(runs: Sequence[Run], targets: Sequence[str], sensors: Sequence[str], *,
+                      period_s: float, taus: Sequence[float], n_blocks: int,
+                      reference: Reference) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Standardised temperatures and lags of ``sensors`` (every k-th sample beyond
+    ``MAX_ROWS``: a screening, not the model), the referenced targets (one column each) and
+    the folds. The design is built once, whatever the number of targets."""
+    step = max(1, sum(r.n_samples for r in runs) // MAX_ROWS)
+    runs = [r.every(step) for r in runs]  # the lags too
+    period_s *= step
+    terms = [make_temp(s) for s in sensors]
+    terms += [make_lag(s, tau, period_s) for tau in taus if tau > period_s for s in sensors]
+    st = stack(runs, terms, targets[0], period_s, n_blocks, reference)
+    per_run = run_labels(runs)
+    Y = np.column_stack([st.y] + [reference.apply(np.concatenate([r.target(t) for r in runs]),
+                                                  per_run) for t in targets[1:]])
+    sd = st.X.std(axis=0)
+    sd[sd == 0] = 1.0
+    return (st.X - st.X.mean(axis=0)) / sd, Y, st.groups
+
+
+def _by_weight(sensors: list[str], coef: np.ndarray) -> list[str]:
+    """Sensors by the summed |weight| of their features (columns: every sensor's temperature,
+    then each lag of every sensor), largest first; ties keep the given order."""
+    weight = np.abs(coef).reshape(-1, len(sensors)).sum(axis=0)
+    return [sensors[i] for i in np.argsort(-weight, kind="stable")]
 
 
 def l1_ranking(runs: Sequence[Run], target: str, sensors: Sequence[str], *, period_s: float,
@@ -33,26 +60,18 @@ def l1_ranking(runs: Sequence[Run], target: str, sensors: Sequence[str], *, peri
     sensors = list(sensors)
     if len(sensors) <= 1:
         return sensors
-    step = max(1, sum(r.n_samples for r in runs) // MAX_ROWS)
-    runs = [r.every(step) for r in runs]  # the lags too: a screening, not the model
-    period_s *= step
-    terms = [make_temp(s) for s in sensors]
-    terms += [make_lag(s, tau, period_s) for tau in taus if tau > period_s for s in sensors]
-    st = stack(list(runs), terms, target, period_s, n_blocks, reference)
-    X, y, groups = st.X, st.y, st.groups
+    Z, Y, groups = _screening_design(runs, [target], sensors, period_s=period_s, taus=taus,
+                                     n_blocks=n_blocks, reference=reference)
+    y = Y[:, 0]
     if np.unique(groups).size < 2:
         return sensors
-    sd = X.std(axis=0)
-    sd[sd == 0] = 1.0
-    Z = (X - X.mean(axis=0)) / sd
     top = float(np.max(np.abs(Z.T @ (y - y.mean())))) / len(y)  # every weight 0 from here
     if not top > 0:
         return sensors
     alphas = top * np.logspace(0, -3, N_ALPHAS)
     lasso = LassoCV(alphas=alphas, cv=PredefinedSplit(groups), max_iter=5000,
                     tol=1e-3).fit(Z, y)
-    weight = np.abs(lasso.coef_).reshape(-1, len(sensors)).sum(axis=0)
-    return [sensors[i] for i in np.argsort(-weight, kind="stable")]
+    return _by_weight(sensors, lasso.coef_)
 
 
 def joint_l1_ranking(runs: Sequence[Run], targets: Sequence[str], sensors: Sequence[str], *,
@@ -68,19 +87,10 @@ def joint_l1_ranking(runs: Sequence[Run], targets: Sequence[str], sensors: Seque
     sensors = list(sensors)
     if len(sensors) <= 1:
         return sensors
-    step = max(1, sum(r.n_samples for r in runs) // MAX_ROWS)
-    runs = [r.every(step) for r in runs]
-    period_s *= step
-    terms = [make_temp(s) for s in sensors]
-    terms += [make_lag(s, tau, period_s) for tau in taus if tau > period_s for s in sensors]
-    stacks = [stack(list(runs), terms, t, period_s, n_blocks, reference) for t in targets]
-    X, groups = stacks[0].X, stacks[0].groups
-    Y = np.column_stack([st.y for st in stacks])
+    Z, Y, groups = _screening_design(runs, targets, sensors, period_s=period_s, taus=taus,
+                                     n_blocks=n_blocks, reference=reference)
     if np.unique(groups).size < 2:
         return sensors
-    sd = X.std(axis=0)
-    sd[sd == 0] = 1.0
-    Z = (X - X.mean(axis=0)) / sd
     Yc = Y - Y.mean(axis=0)
     top = float(np.max(np.sqrt(((Z.T @ Yc) ** 2).sum(axis=1)))) / len(Yc)
     if not top > 0:
@@ -88,8 +98,8 @@ def joint_l1_ranking(runs: Sequence[Run], targets: Sequence[str], sensors: Seque
     alphas = top * np.logspace(0, -3, N_ALPHAS)
     lasso = MultiTaskLassoCV(alphas=alphas, cv=PredefinedSplit(groups), max_iter=3000,
                              tol=1e-3).fit(Z, Yc)
-    weight = np.sqrt((lasso.coef_ ** 2).sum(axis=0)).reshape(-1, len(sensors)).sum(axis=0)
-    return [sensors[i] for i in np.argsort(-weight, kind="stable")]
+    # a feature's weight is the norm of its coefficients over the targets
+    return _by_weight(sensors, np.sqrt((lasso.coef_ ** 2).sum(axis=0)))
 
 
 def fill_free_channels(wired: Sequence[str], rankings: Sequence[Sequence[str]],
