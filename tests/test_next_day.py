@@ -11,14 +11,16 @@ from sklearn.linear_model import Ridge
 
 import codegen
 from contract.box import BOX_STATES
-from contract.terms import make_lag, make_temp
+from contract.terms import make_lag, make_rate, make_speed, make_temp
 from host.fitting import NO_REFERENCE, Reference, fit_ridge, fold_groups
 from host.io import Run
 from host.train import train_model
 from host.train.next_day import (
+    FoldTerms,
     fold_training,
     nested_validation,
     ridge_basis,
+    ridge_start,
     shared_lag_budget,
     thinned,
 )
@@ -87,7 +89,7 @@ def test_nested_validation_is_refit_without_each_run_and_predicts_it():
     def train_fold(sub):
         seen.append([r.path for r in sub])
         # with an "effect", the baseline, and no free channel read
-        return terms + [make_lag("T1", 1800.0, PERIOD)], terms, []
+        return FoldTerms(terms + [make_lag("T1", 1800.0, PERIOD)], terms, terms, [])
 
     res = nested_validation(runs, "dz_um", train_fold, aux=[], period_s=PERIOD, n_blocks=3,
                             reference=NO_REFERENCE, max_states=0)
@@ -126,7 +128,7 @@ def test_nested_folds_of_long_runs_train_on_the_thinned_runs(monkeypatch):
 
     def train_fold(sub):
         seen.append([(r.n_samples, r.period_s) for r in sub])
-        return terms, terms, []
+        return FoldTerms(terms, terms, terms, [])
 
     res = nested_validation(runs, "dz_um", train_fold, aux=[], period_s=PERIOD, n_blocks=3,
                             reference=NO_REFERENCE, max_states=0)
@@ -198,3 +200,21 @@ def test_a_dead_sensor_is_never_selected():
     model = train_model(runs, ["dz_um"], effects=False, groups=3, max_sensors=2, fit="ols",
                         nested=False)
     assert "T1" not in {t.get("source") for t in model["axes"]["dz_um"]["terms"]}
+
+
+def test_the_ridge_starts_without_the_filters_of_lag_and_rate_effects():
+    slow = make_lag("T3", 7200.0, PERIOD)
+    rate = make_rate("T2", 1800.0, PERIOD)
+    speed = make_speed("spindle_rpm")
+    terms = [make_temp("T1"), slow, rate, speed]
+    effects = [{"kind": "lag", "added": [slow.to_json()]},
+               {"kind": "rate", "added": [rate.to_json()]},
+               {"kind": "speed", "added": [speed.to_json()]}]
+    # the filters go, their sensors stay read (as temperatures), the speed effect stays
+    assert ridge_start(terms, effects) == [make_temp("T1"), speed, make_temp("T3"),
+                                           make_temp("T2")]
+    assert ridge_start(terms, effects[2:]) == terms
+    # a lag of a sensor the terms already read costs nothing more than that sensor
+    own = make_lag("T1", 900.0, PERIOD)
+    assert ridge_start([make_temp("T1"), own], [{"kind": "lag", "added": [own.to_json()]}]
+                       ) == [make_temp("T1")]

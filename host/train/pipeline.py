@@ -45,12 +45,15 @@ from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_b
 from host.train.next_day import (
     DEFAULT_FIT,
     FAMILIES,
+    LAG_FAMILY_KINDS,
+    FoldTerms,
     channel_fill,
     check_fit,
     lag_taus,
     nested_validation,
     ridge_axis,
     ridge_axis_dict,
+    ridge_start,
     shared_lag_budget,
 )
 from host.train.ranges import add_training_ranges
@@ -150,7 +153,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                       else final_terms)
     aux = list(options["aux"])
 
-    def train_fold(sub: list[Run]) -> tuple[list[Term], list[Term], list[str]]:
+    def train_fold(sub: list[Run]) -> FoldTerms:
         spec = train_model(sub, [target], **options, fit="ols", nested=False)["axes"][target]
         final = [Term.from_json(x) for x in spec["terms"]]
         base = spec.get("baseline")
@@ -158,7 +161,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                              max_channels=options["max_channels"],
                              period_s=common_period(sub),  # a long run's folds are thinned
                              n_blocks=n_blocks, reference=reference) if fill else []
-        return final, ([Term.from_json(x) for x in base["terms"]] if base else final), extra
+        return FoldTerms(final, [Term.from_json(x) for x in base["terms"]] if base else final,
+                         ridge_start(final, spec.get("effects", [])), extra)
 
     result = None
     if nested:
@@ -180,7 +184,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                                     "fold predicted it better without the effects")
     alpha, extra = None, []
     if shrunk:
-        terms = final_terms if with_effects else baseline_terms
+        terms = (ridge_start(final_terms, axis.get("effects", [])) if with_effects
+                 else baseline_terms)
         found = None
         for also in ([fill, ()] if fill else [()]):  # the free channels go first if need be
             found = found or ridge_axis(runs, target, terms, aux=aux, period_s=period_s,
@@ -193,6 +198,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
             extra = [s for s in term_sensors(basis) if s not in term_sensors(terms)]
             axis = {**axis, **ridge_axis_dict(basis, ridge, st)}
             alpha = float(ridge.alpha)
+            if with_effects:
+                _mark_lags_in_basis(axis, basis)
     axis["fit"] = {"family": family, "requested": fit, "alpha": alpha,
                    "free_channels_read": extra,
                    "rule": ("the family with the lowest nested error: least squares on the "
@@ -204,6 +211,17 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         axis["metrics"]["promised_rmse_um"] = result.rms(family)
         axis["metrics"]["promised_fold_rmse_um"] = result.fold_rmse_um[family]
     return axis
+
+
+def _mark_lags_in_basis(axis: dict, basis: Sequence[Term]) -> None:
+    """Flag the lag and rate effects whose filter the ridge left to its own lags of the
+    effect's sensor (next_day.ridge_start), with the lags that stand for it."""
+    for effect in axis.get("effects", []):
+        if effect.get("kind") not in LAG_FAMILY_KINDS:
+            continue
+        sensors = term_sensors([Term.from_json(t) for t in effect.get("added", [])])
+        effect["in_ridge_lags"] = [t.name for t in basis
+                                   if t.kind == "lag" and t.source in sensors]
 
 
 def _channels(axes: Mapping[str, dict], sensor_order: list[str], overrides: Mapping[str, int],
@@ -468,8 +486,9 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
                                   reference=data.ref)
             ] if fill_channels and fit != "ols" else []
     targets = list(axes)
-    final = [[Term.from_json(x) for x in axes[t]["terms"]] for t in targets]
-    budget = shared_lag_budget(final, read or wired, data.runs, data.period_s)
+    starts = [ridge_start([Term.from_json(x) for x in axes[t]["terms"]],
+                          axes[t].get("effects", [])) for t in targets]
+    budget = shared_lag_budget(starts, read or wired, data.runs, data.period_s)
     return {target: fit_for_the_next_day(axes[target], data.runs, target, fit=fit,
                                          nested=nested, options=options,
                                          period_s=data.period_s, n_blocks=data.n_blocks,
