@@ -221,3 +221,32 @@ def test_diagnose_accuses_no_healthy_sensor(scenario, effect):
                           "--json"))
     assert doc["faulty"] == []
     assert set(doc["axes"]) == set(s.model["axes"])
+
+
+def test_the_ridge_leaves_slow_lag_effects_to_its_own_lags(scenario, tmp_path):
+    """The default fit, a ridge over lags of every sensor it reads, keeps a lag or rate
+    effect's own filter only when it is faster than the ridge's fastest lag; a slower one is
+    named, its sensor read, and the ridge's lags of that sensor stand for it."""
+    s = scenario("lag")
+    out = tmp_path / "ridge"
+    host("train", "--no-nested", str(s.train_csv), *TARGETS, "--reference", "none",
+         "--no-codegen", "--out", str(out))
+    model = json.loads((out / "model.json").read_text())
+    slow = 0
+    for spec in model["axes"].values():
+        assert spec["fit"]["family"] == "ridge"
+        terms = [Term.from_json(t) for t in spec["terms"]]
+        for effect in spec["effects"]:
+            if effect["kind"] not in ("lag", "rate"):
+                continue
+            own = [Term.from_json(t) for t in effect["added"] if t["kind"] in ("lag", "rate")]
+            taus = {t.params["tau_s"] for t in own}
+            if min(taus) >= 900.0 and not all(t in terms for t in own):
+                slow += 1
+                lags = [t.name for t in terms if t.kind == "lag"
+                        and t.source in {o.source for o in own}]
+                assert lags and effect["in_ridge_lags"] == lags
+                assert {o.source for o in own} <= {t.source for t in terms}
+            else:
+                assert "in_ridge_lags" not in effect and all(t in terms for t in own)
+    assert slow >= 1  # the search names at least one lag slower than 900 s on this run

@@ -218,3 +218,7 @@ def test_the_ridge_starts_without_the_filters_of_lag_and_rate_effects():
     own = make_lag("T1", 900.0, PERIOD)
     assert ridge_start([make_temp("T1"), own], [{"kind": "lag", "added": [own.to_json()]}]
                        ) == [make_temp("T1")]
+    # a lag faster than the ridge's fastest is not a blend of its lags: it stays
+    fast = make_lag("T3", 300.0, PERIOD)
+    assert ridge_start([make_temp("T1"), fast], [{"kind": "lag", "added": [fast.to_json()]}]
+                       ) == [make_temp("T1"), fast]

@@ -40,6 +40,7 @@ from host.train import (
     dropped_reason,
     input_units,
     outside_training,
+    ridge_lags_note,
     training_ranges,
 )
 
@@ -98,7 +99,10 @@ def effect_label(effect: dict) -> str:
     """An effect's name, marked when the channel budget took it out of the box's model."""
     name = str(effect.get("name", effect.get("kind", "?")))
     why = dropped_reason(effect)
-    return f"{name} (dropped: {why})" if why else name
+    if why:
+        return f"{name} (dropped: {why})"
+    lags = ridge_lags_note(effect)
+    return f"{name} ({lags})" if lags else name
 
 
 def most_important_sensor(axis: dict, run: Run, period_s: float) -> str | None:

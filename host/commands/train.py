@@ -16,7 +16,7 @@ from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
 from host.io import load_runs
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
-from host.train import DEFAULT_FIT, FITS, dropped_reason, summary, train_model
+from host.train import DEFAULT_FIT, FITS, dropped_reason, ridge_lags_note, summary, train_model
 
 NAME = "train"
 HELP = "select sensors (paper 000), fit and validate the thermal model; write model.json"
@@ -175,7 +175,8 @@ def print_effects(doc: dict) -> None:
             print(f"  {mark} {e['kind']:<9} {e['feature']}: {_fmt(e.get('rmse_before_um'))} -> "
                   f"{_fmt(e.get('rmse_after_um'))} {u}, {ev.get('folds_improved', '?')} folds "
                   f"better, residual correlation {_fmt(ev.get('residual_corr'), 2)}"
-                  + (f"  DROPPED: {why}, not in the box's model" if why else ""))
+                  + (f"  DROPPED: {why}, not in the box's model" if why else "")
+                  + (f"  ({ridge_lags_note(e)})" if ridge_lags_note(e) else ""))
         after = a.get("channel_budget_after_effects")
         if after:
             print(f"  {name}: the box's {after['max_channels']} channels, shared by all axes, "

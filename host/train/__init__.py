@@ -12,11 +12,18 @@ from host.train.ranges import (
     outside_training,
     training_ranges,
 )
-from host.train.summary import axis_sensors, box_model_note, dropped_reason, summary
+from host.train.summary import (
+    axis_sensors,
+    box_model_note,
+    dropped_reason,
+    ridge_lags_note,
+    summary,
+)
 
 __all__ = [
     "box_model_note",
     "dropped_reason",
+    "ridge_lags_note",
     "DEFAULT_FIT",
     "FITS",
     "DEFAULT_REFERENCE",

@@ -92,17 +92,23 @@ class FoldTerms:
 TrainFold = Callable[[list[Run]], FoldTerms]
 
 
+def lag_family_filters(effects: Sequence[dict]) -> list[Term]:
+    """The lags and rates that lag and rate effects added, in the effects' order."""
+    return [Term.from_json(t) for e in effects if e.get("kind") in LAG_FAMILY_KINDS
+            for t in e.get("added", []) if t["kind"] in FILTER_KINDS]
+
+
 def ridge_start(terms: Sequence[Term], effects: Sequence[dict]) -> list[Term]:
     """The terms the ridge starts from: ``terms`` without the filters that lag and rate
-    effects added, each such effect's sensor still read.
+    effects added with a time constant the ridge's own lags cover (at least its fastest,
+    LAG_TAUS_S[0]), each such effect's sensor still read.
 
-    The ridge's basis has lags of every sensor it reads (LAG_TAUS_S), which model the same
-    thermal lag. On top of them, the effect's own filter was neutral to harmful on unseen
-    runs: of 142 bench cases, the model with lag and rate effects was worse than the one
-    without by more than 5 % in 10, and better in 7 (docs/next-day.md section 10). The
-    effect stays named in the report, with its evidence."""
-    added = [Term.from_json(t) for e in effects if e.get("kind") in LAG_FAMILY_KINDS
-             for t in e.get("added", [])]
+    The ridge's basis has lags of every sensor it reads, so a slower thermal lag is a blend
+    of what it has already; a faster one is not. Beside those lags, the effect's own slower
+    filter was neutral to harmful on unseen runs: of 142 bench cases the model was worse than
+    without its effects by more than 5 % in 10, each with a lag or rate of 1,200 s or slower
+    (docs/next-day.md section 10). The effect stays named in the report, with its evidence."""
+    added = [t for t in lag_family_filters(effects) if t.params["tau_s"] >= LAG_TAUS_S[0]]
     kept = [t for t in terms if t not in added]
     return reading(kept, [s for s in term_sensors(added) if s in term_sensors(terms)])
 

@@ -45,10 +45,10 @@ from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_b
 from host.train.next_day import (
     DEFAULT_FIT,
     FAMILIES,
-    LAG_FAMILY_KINDS,
     FoldTerms,
     channel_fill,
     check_fit,
+    lag_family_filters,
     lag_taus,
     nested_validation,
     ridge_axis,
@@ -217,9 +217,10 @@ def _mark_lags_in_basis(axis: dict, basis: Sequence[Term]) -> None:
     """Flag the lag and rate effects whose filter the ridge left to its own lags of the
     effect's sensor (next_day.ridge_start), with the lags that stand for it."""
     for effect in axis.get("effects", []):
-        if effect.get("kind") not in LAG_FAMILY_KINDS:
-            continue
-        sensors = term_sensors([Term.from_json(t) for t in effect.get("added", [])])
+        own = lag_family_filters([effect])
+        if all(t in basis for t in own):
+            continue  # no effect of the lag family, or the box runs its own filter
+        sensors = term_sensors(own)
         effect["in_ridge_lags"] = [t.name for t in basis
                                    if t.kind == "lag" and t.source in sensors]
 

@@ -46,7 +46,8 @@ def summary(model: dict, model_path: str) -> dict:
             "effects_validation_rmse_um": axis.get("validation_rmse_um"),
             "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
                                                "rmse_after_um", "dropped_for_channels",
-                                               "dropped_by_nested_validation")}
+                                               "dropped_by_nested_validation",
+                                               "in_ridge_lags")}
                         for e in axis.get("effects", [])],
             "unexplained": axis.get("unexplained"),
             # what the channel budget took away after the effects (None: nothing)
@@ -64,6 +65,17 @@ def dropped_reason(effect: dict) -> str | None:
     return None
 
 
+def ridge_lags_note(effect: dict) -> str | None:
+    """How the box's ridge models a lag or rate effect (None: it runs the effect's own terms):
+    with its own lags of the effect's sensor (host.train.next_day.ridge_start)."""
+    lags = effect.get("in_ridge_lags")
+    if lags is None:
+        return None
+    if not lags:
+        return "the box's ridge reads its sensor; no lag of it fits the box's filter states"
+    return "the box's ridge models it with " + ", ".join(lags)
+
+
 def box_model_note(axis: dict) -> str | None:
     """How the box's model differs from the last accepted effect's (None: it is that model)."""
     notes = []
@@ -75,5 +87,7 @@ def box_model_note(axis: dict) -> str | None:
     if (axis.get("fit") or {}).get("family", "ols").startswith("ridge"):
         extra = free_channels(axis)
         notes.append("a ridge over the terms plus lags and speed"
-                     + (f", reading {', '.join(extra)} on free channels" if extra else ""))
+                     + (f", reading {', '.join(extra)} on free channels" if extra else "")
+                     + (", its lags standing for the lag effects"
+                        if any(ridge_lags_note(e) for e in axis.get("effects", [])) else ""))
     return "; ".join(notes) or None
