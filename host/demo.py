@@ -28,7 +28,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from host.train import dropped_reason
+from host.train import dropped_reason, ridge_lags_note
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = Path("examples")
@@ -129,8 +129,9 @@ def print_training(demo: Demo, doc: dict, model: dict) -> None:
     for axis, row in doc["axes"].items():
         spec = model["axes"][axis]
         base = spec.get("baseline_validation_rmse_um")
-        effects = [e.get("name", "?") for e in spec.get("effects", [])
-                   if not dropped_reason(e)]
+        effects = [e.get("name", "?") + (" (box: its sensor's ridge lags)"
+                                         if ridge_lags_note(e) else "")
+                   for e in spec.get("effects", []) if not dropped_reason(e)]
         dropped = [e.get("name", "?") for e in spec.get("effects", [])
                    if dropped_reason(e)]
         line = (f"    {axis}: sensors {', '.join(row['sensors'])}; validation RMSE "
