@@ -5,6 +5,8 @@ Expectations are recomputed here with numpy and scikit-learn, never read back fr
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from sklearn.linear_model import Ridge
@@ -211,14 +213,16 @@ def test_the_ridge_starts_without_the_filters_of_lag_and_rate_effects():
                {"kind": "rate", "added": [rate.to_json()]},
                {"kind": "speed", "added": [speed.to_json()]}]
     # the filters go, their sensors stay read (as temperatures), the speed effect stays
-    assert ridge_start(terms, effects) == [make_temp("T1"), speed, make_temp("T3"),
+    assert ridge_start(terms, effects, 900.0) == [make_temp("T1"), speed, make_temp("T3"),
                                            make_temp("T2")]
-    assert ridge_start(terms, effects[2:]) == terms
+    assert ridge_start(terms, effects[2:], 900.0) == terms
     # a lag of a sensor the terms already read costs nothing more than that sensor
     own = make_lag("T1", 900.0, PERIOD)
-    assert ridge_start([make_temp("T1"), own], [{"kind": "lag", "added": [own.to_json()]}]
-                       ) == [make_temp("T1")]
+    assert ridge_start([make_temp("T1"), own], [{"kind": "lag", "added": [own.to_json()]}],
+                       900.0) == [make_temp("T1")]
     # a lag faster than the ridge's fastest is not a blend of its lags: it stays
     fast = make_lag("T3", 300.0, PERIOD)
-    assert ridge_start([make_temp("T1"), fast], [{"kind": "lag", "added": [fast.to_json()]}]
-                       ) == [make_temp("T1"), fast]
+    assert ridge_start([make_temp("T1"), fast], [{"kind": "lag", "added": [fast.to_json()]}],
+                       900.0) == [make_temp("T1"), fast]
+    # a ridge without lags (runs too short for them) leaves every effect its own filter
+    assert ridge_start(terms, effects, math.inf) == terms

@@ -98,17 +98,24 @@ def lag_family_filters(effects: Sequence[dict]) -> list[Term]:
             for t in e.get("added", []) if t["kind"] in FILTER_KINDS]
 
 
-def ridge_start(terms: Sequence[Term], effects: Sequence[dict]) -> list[Term]:
+def fastest_lag_s(runs: Sequence[Run], period_s: float) -> float:
+    """The ridge's fastest lag time constant on these runs (inf: its basis has no lags)."""
+    taus = lag_taus(runs, period_s)
+    return min(taus) if taus else math.inf
+
+
+def ridge_start(terms: Sequence[Term], effects: Sequence[dict], fastest_s: float
+                ) -> list[Term]:
     """The terms the ridge starts from: ``terms`` without the filters that lag and rate
     effects added with a time constant the ridge's own lags cover (at least its fastest,
-    LAG_TAUS_S[0]), each such effect's sensor still read.
+    ``fastest_s``: fastest_lag_s), each such effect's sensor still read.
 
     The ridge's basis has lags of every sensor it reads, so a slower thermal lag is a blend
     of what it has already; a faster one is not. Beside those lags, the effect's own slower
     filter was neutral to harmful on unseen runs: of 142 bench cases the model was worse than
     without its effects by more than 5 % in 10, each with a lag or rate of 1,200 s or slower
     (docs/next-day.md section 10). The effect stays named in the report, with its evidence."""
-    added = [t for t in lag_family_filters(effects) if t.params["tau_s"] >= LAG_TAUS_S[0]]
+    added = [t for t in lag_family_filters(effects) if t.params["tau_s"] >= fastest_s]
     kept = [t for t in terms if t not in added]
     return reading(kept, [s for s in term_sensors(added) if s in term_sensors(terms)])
 

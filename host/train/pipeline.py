@@ -48,6 +48,7 @@ from host.train.next_day import (
     FoldTerms,
     channel_fill,
     check_fit,
+    fastest_lag_s,
     lag_family_filters,
     lag_taus,
     nested_validation,
@@ -162,7 +163,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                              period_s=common_period(sub),  # a long run's folds are thinned
                              n_blocks=n_blocks, reference=reference) if fill else []
         return FoldTerms(final, [Term.from_json(x) for x in base["terms"]] if base else final,
-                         ridge_start(final, spec.get("effects", [])), extra)
+                         ridge_start(final, spec.get("effects", []),
+                                     fastest_lag_s(sub, common_period(sub))), extra)
 
     result = None
     if nested:
@@ -184,7 +186,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                                     "fold predicted it better without the effects")
     alpha, extra = None, []
     if shrunk:
-        terms = (ridge_start(final_terms, axis.get("effects", [])) if with_effects
+        terms = (ridge_start(final_terms, axis.get("effects", []),
+                             fastest_lag_s(runs, period_s)) if with_effects
                  else baseline_terms)
         found = None
         for also in ([fill, ()] if fill else [()]):  # the free channels go first if need be
@@ -487,8 +490,9 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
                                   reference=data.ref)
             ] if fill_channels and fit != "ols" else []
     targets = list(axes)
+    fastest = fastest_lag_s(data.runs, data.period_s)
     starts = [ridge_start([Term.from_json(x) for x in axes[t]["terms"]],
-                          axes[t].get("effects", [])) for t in targets]
+                          axes[t].get("effects", []), fastest) for t in targets]
     budget = shared_lag_budget(starts, read or wired, data.runs, data.period_s)
     return {target: fit_for_the_next_day(axes[target], data.runs, target, fit=fit,
                                          nested=nested, options=options,
