@@ -347,7 +347,7 @@ def test_report_describes_the_model_the_box_runs(example, budget_model):
     ch5 = next(r for r in summary["axes"] if r["axis"] == "ch5_um")
     assert ch5["effects"] == ["lag(T16, tau=1800s)"]
     assert ch5["effects_dropped"] == ["T05 + square(T05)"]
-    assert "T05 + square(T05) (dropped: no box channel)" in page
+    assert "T05 + square(T05) (dropped: no box channel left for its sensor)" in page
     # the selection caption names what the box reads, and T01 as dropped
     assert "the sensors the box reads for ch5_um (T11, T16)" in page
     assert "dropped by the box's channel budget (T01)" in page

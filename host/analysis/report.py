@@ -96,7 +96,8 @@ def dropped_sensors(axis: dict) -> list[str]:
 
 
 def effect_label(effect: dict) -> str:
-    """An effect's name, marked when the channel budget took it out of the box's model."""
+    """An effect's name, marked when it is not in the box's model (dropped_reason) or when the
+    box's ridge models it with its own lags (ridge_lags_note)."""
     name = str(effect.get("name", effect.get("kind", "?")))
     why = dropped_reason(effect)
     if why:
@@ -331,6 +332,8 @@ def summary_rows(model: dict) -> list[dict]:
                         if not dropped_reason(e)],
             "effects_dropped": [e.get("name", "?") for e in axis.get("effects", [])
                                 if dropped_reason(e)],
+            # every effect as the page shows it: dropped, or modelled by the ridge's lags
+            "effect_labels": [effect_label(e) for e in axis.get("effects", [])],
             "sensors_dropped": dropped_sensors(axis),
             "validation": metrics.get("validation"),
         })
@@ -973,7 +976,6 @@ def _environment():
                              trim_blocks=False)
     env.filters["num"] = lambda v, digits=2: _fmt(v, digits)
     env.filters["nm"] = lambda v: _fmt(None if v is None else v * 1000, 3)
-    env.filters["dropped_effect"] = lambda name: f"{name} (dropped: no box channel)"
     env.globals["status_counts"] = _status_counts_text
     env.globals["hil_checks"] = lambda hil: ", ".join(
         f"{k} {'passed' if v else 'FAILED'}" for k, v in (hil.get("checks") or {}).items()) \
