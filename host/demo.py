@@ -132,8 +132,8 @@ def print_training(demo: Demo, doc: dict, model: dict) -> None:
         effects = [e.get("name", "?") + (" (box: its sensor's ridge lags)"
                                          if ridge_lags_note(e) else "")
                    for e in spec.get("effects", []) if not dropped_reason(e)]
-        dropped = [e.get("name", "?") for e in spec.get("effects", [])
-                   if dropped_reason(e)]
+        dropped = [f"{e.get('name', '?')} ({dropped_reason(e)})"
+                   for e in spec.get("effects", []) if dropped_reason(e)]
         line = (f"    {axis}: sensors {', '.join(row['sensors'])}; validation RMSE "
                 f"{fmt_um(row['validation_rmse_um'])} of {fmt_um(row['raw_rms_um'])} raw"
                 f" ({row.get('fit') or 'ols'})")
@@ -143,7 +143,7 @@ def print_training(demo: Demo, doc: dict, model: dict) -> None:
         gone = [s for s in spec.get("selection", {}).get("sensors", [])
                 if s not in row["sensors"]]
         if dropped:
-            line += f"; dropped for lack of a box channel: {', '.join(dropped)}"
+            line += f"; not in the box's model: {', '.join(dropped)}"
         if gone:
             line += f"; selected but not read by the box: {', '.join(gone)}"
         demo.say(line)
