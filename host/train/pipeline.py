@@ -158,13 +158,13 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         spec = train_model(sub, [target], **options, fit="ols", nested=False)["axes"][target]
         final = [Term.from_json(x) for x in spec["terms"]]
         base = spec.get("baseline")
+        sub_period = common_period(sub)  # a long run's folds are thinned
         extra = channel_fill(sub, [target], term_sensors(final), pool,
-                             max_channels=options["max_channels"],
-                             period_s=common_period(sub),  # a long run's folds are thinned
+                             max_channels=options["max_channels"], period_s=sub_period,
                              n_blocks=n_blocks, reference=reference) if fill else []
         return FoldTerms(final, [Term.from_json(x) for x in base["terms"]] if base else final,
                          ridge_start(final, spec.get("effects", []),
-                                     fastest_lag_s(sub, common_period(sub))), extra)
+                                     fastest_lag_s(sub, sub_period)), extra)
 
     result = None
     if nested:
