@@ -1,6 +1,7 @@
 """The accuracy bench's harness (bench/bench_accuracy.py): its start reference against a
 hand-computed example, its scoring, a peer's test error against a direct numpy fit on a tiny
-case, and its summary (geometric mean, the loop's check, the calibration count)."""
+case, a peer's out-of-fold error against a direct refit without each fold, and its summary
+(geometric mean, the peer picked by validation, the loop's check, the calibration count)."""
 
 from pathlib import Path
 
@@ -64,6 +65,7 @@ def test_peer_test_rmse_equals_a_direct_numpy_fit(tmp_path):
     rows, timings = acc.run_job(job)
     (row,) = rows
     assert set(row["rmse_um"]) == set(acc.OURS) | set(acc.PEERS)
+    assert set(row["peer_validation_um"]) == set(acc.PEERS)
     assert timings["job"] > 0
 
     k = acc.reference_window(60.0)
@@ -85,6 +87,31 @@ def test_peer_test_rmse_equals_a_direct_numpy_fit(tmp_path):
     assert row["promised_um"]["default"] > 0
 
 
+def test_peer_validation_refits_each_peer_without_each_fold():
+    rng = np.random.default_rng(3)
+    n = 300
+    X = np.cumsum(rng.normal(size=(n, 6)), axis=0)
+    y = 2.0 * X[:, 0] - X[:, 3] + rng.normal(size=n)
+    folds = np.repeat([0, 1, 2], n // 3)
+    v = acc.peer_validation(X, X, y, folds)
+    assert set(v) == set(acc.PEERS)
+    sse = 0.0
+    for f in range(3):
+        tr = folds != f
+        A = np.column_stack([X[tr], np.ones(tr.sum())])
+        coef, *_ = np.linalg.lstsq(A, y[tr], rcond=None)
+        pred = np.column_stack([X[~tr], np.ones((~tr).sum())]) @ coef
+        sse += float(np.sum((y[~tr] - pred) ** 2))
+    assert v["OLS all"] == pytest.approx(np.sqrt(sse / n), rel=1e-9)
+    # out of fold, not the training fit: above the in-sample residual of OLS on everything
+    A = np.column_stack([X, np.ones(n)])
+    resid = y - A @ np.linalg.lstsq(A, y, rcond=None)[0]
+    assert v["OLS all"] > np.sqrt(np.mean(resid ** 2))
+    # one group left inside a fold: the peer's own settings are chosen on three blocks
+    np.testing.assert_array_equal(acc.inner_folds(np.full(6, 4)), [0, 0, 1, 1, 2, 2])
+    np.testing.assert_array_equal(acc.inner_folds(np.array([2, 2, 5, 5])), [0, 0, 1, 1])
+
+
 def test_promised_is_the_nested_error_when_training_reports_one():
     assert acc.promised({"metrics": {"validation_rmse_um": 1.0}}) == 1.0
     assert acc.promised({"metrics": {"validation_rmse_um": 1.0, "promised_rmse_um": 2.5}}) == 2.5
@@ -97,6 +124,8 @@ def test_summary_geomean_loop_and_calibration():
                      "HGB": 2 * peer, "best-5": float("nan")}
         c.promised_um = {"default": promised}
         c.peer_sensors = {"OLS all": 16, "HGB": 3, "best-5": 5}  # OLS on 16 cannot be wired
+        # on the training file HGB looked better: the user would have picked it
+        c.peer_validation_um = {"OLS all": 0.9, "HGB": 0.5, "best-5": float("nan")}
         return c
 
     cases = [case(1.0, 1.0, 2.0, 1.5), case(4.0, 3.0, 2.0, 1.0)]
@@ -106,6 +135,10 @@ def test_summary_geomean_loop_and_calibration():
     assert cases[1].best_box_peer == ("HGB", 4.0) and cases[1].box_ratio() == 1.0
     assert s["per_source"]["fl"]["geomean default / best peer within the box"] == \
         pytest.approx(np.sqrt(0.25 * 1.0))
+    assert cases[1].validated_peer == ("HGB", 4.0) and cases[1].validated_ratio() == 1.0
+    assert s["per_source"]["fl"]["geomean default / peer picked by validation"] == \
+        pytest.approx(np.sqrt(0.25 * 1.0))
+    assert s["per_source"]["fl"]["peer picked by validation counts"]["HGB"] == 2
     assert [w["default_um"] for w in s["loop_worse"]] == [4.0]
     assert s["calibration"]["fl"]["within factor 2"] == 1  # 1/1.5 yes, 4/1 no
     assert "loop" in acc.table(cases, s)
