@@ -33,6 +33,10 @@ run: no method can make that choice, so the bench also names the peer a user wou
 without it, the one with the lowest out-of-fold error on the training file (every peer
 refitted, its own settings too, without each fold of ``fold_groups``; ``peer_validation``).
 
+For sim_dev the bench also carries its manifest's scores of each test run (``floor_um``): the
+oracle (least squares on the true node temperatures and effect term, what a model could at
+best reach) and the probe noise floor, as its README asks ("use the oracle as the floor").
+
 Per case: every column's test RMSE (um), ours / best peer, ours / the peer picked by
 validation, and the error ``host train`` promised (the axis's ``metrics.promised_rmse_um``,
 before nested validation its ``validation_rmse_um``) against the test RMSE. Summary: geometric
@@ -185,6 +189,9 @@ class CaseResult:
     validation_um: dict[str, float] = field(default_factory=dict)  # ours -> validation RMSE
     n_terms: dict[str, int] = field(default_factory=dict)  # ours -> terms on this axis
     raw_um: float = math.nan  # scored error of predicting zero change
+    # sim_dev only: its manifest's scores of the test run ("oracle": least squares on the true
+    # node temperatures and effect term, the floor a model could reach; "noise floor")
+    floor_um: dict[str, float] = field(default_factory=dict)
     peer_sensors: dict[str, int] = field(default_factory=dict)  # peer -> sensors it reads
     # peer -> its out-of-fold RMSE on the training file (peer_validation)
     peer_validation_um: dict[str, float] = field(default_factory=dict)
@@ -247,6 +254,22 @@ def sim_jobs(tmp: Path) -> list[Job]:
         jobs.append(Job("sim", f"machine {m}", tuple(specs[:2]), tuple(specs[2:]),
                         tuple(SIM_TARGETS), "start"))
     return jobs
+
+
+def manifest_floor(test_path: str, target: str) -> dict[str, float]:
+    """The sim_dev manifest's oracle and noise floor for one test run and axis (its README:
+    "use the oracle as the floor"); empty where the manifest scores no such run (a training
+    run held out by leave-one-run-out) or the file is not a sim_dev run."""
+    path = Path(test_path)
+    manifest = path.parent / "manifest.json"
+    if not manifest.is_file():
+        return {}
+    axis = target.removesuffix("_um")
+    for scenario in json.loads(manifest.read_text()).get("scenarios", []):
+        scores = scenario.get("rmse_um", {}).get(path.name, {}).get(axis)
+        if scores:
+            return {"oracle": float(scores["oracle"]), "noise floor": float(scores["noise_floor"])}
+    return {}
 
 
 def dev_jobs(big: bool = True) -> list[Job]:
@@ -468,9 +491,12 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
     cases = {(g, s.name, t): CaseResult(job.source, g, s.name, t, job.reference)
              for g, _ in job.ours_variants() for s, _ in test for t in targets}
     runs = {s.name: r for s, r in test}
+    paths = {s.name: s.path for s, _ in test}
     for (_, name, t), case in cases.items():
         case.raw_um = score(runs[name].target(t), np.zeros(runs[name].n_samples),
                             job.reference, period)
+        if job.source == "sim_dev":
+            case.floor_um = manifest_floor(paths[name], t)
     timings: dict[str, float] = {}
     ref_kw = train_kwargs(job.reference)
 
@@ -548,6 +574,17 @@ def summarise(cases: list[CaseResult]) -> dict:
                 {p: sum(c.validated_peer[0] == p for c in cs) for p in PEERS}.items(),
                 key=lambda kv: -kv[1])),
         }
+        floored = [c for c in cs if c.floor_um.get("oracle", 0) > 0]
+        if floored:  # sim_dev: how far from what a model could at best reach
+            out["per_source"][source].update({
+                "cases with an oracle": len(floored),
+                "geomean default / oracle": geomean(
+                    [c.rmse_um["default"] / c.floor_um["oracle"] for c in floored]),
+                "geomean best peer / oracle": geomean(
+                    [c.best_peer[1] / c.floor_um["oracle"] for c in floored]),
+                "geomean oracle / noise floor": geomean(
+                    [c.floor_um["oracle"] / c.floor_um["noise floor"] for c in floored]),
+            })
         ratios = [c.rmse_um["default"] / c.promised_um["default"] for c in cs
                   if c.promised_um.get("default", 0) > 0]
         out["calibration"][source] = {
@@ -619,6 +656,12 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
                      + "; picked: " + ", ".join(
                          f"{p} {n}" for p, n in s["peer picked by validation counts"].items()
                          if n))
+        if "geomean default / oracle" in s:
+            lines.append(f"           against the manifest's oracle (the floor, on "
+                         f"{s['cases with an oracle']} cases): default "
+                         f"{s['geomean default / oracle']:.2f}x, best peer "
+                         f"{s['geomean best peer / oracle']:.2f}x; the oracle is "
+                         f"{s['geomean oracle / noise floor']:.2f}x the probe noise floor")
     worse = summary["loop_worse"]
     lines.append(f"The loop (default vs effects=False): worse by more than "
                  f"{100 * (LOOP_TOLERANCE - 1):.0f} % in {len(worse)} of {len(cases)} cases")

@@ -142,3 +142,25 @@ def test_summary_geomean_loop_and_calibration():
     assert [w["default_um"] for w in s["loop_worse"]] == [4.0]
     assert s["calibration"]["fl"]["within factor 2"] == 1  # 1/1.5 yes, 4/1 no
     assert "loop" in acc.table(cases, s)
+
+
+def test_sim_dev_floor_comes_from_the_manifest_of_the_test_run(tmp_path):
+    import json
+
+    (tmp_path / "manifest.json").write_text(json.dumps({"scenarios": [
+        {"id": "S0", "rmse_um": {"S0_test_P3.csv": {
+            "dy": {"oracle": 0.3, "noise_floor": 0.2, "naive_ols_all_sensors": 0.8}}}}]}))
+    run = tmp_path / "S0_test_P3.csv"
+    assert acc.manifest_floor(str(run), "dy_um") == {"oracle": 0.3, "noise floor": 0.2}
+    # no score for that axis or run (a training run held out), or no manifest: no floor
+    assert acc.manifest_floor(str(run), "dz_um") == {}
+    assert acc.manifest_floor(str(tmp_path / "S0_train_P1.csv"), "dy_um") == {}
+    assert acc.manifest_floor(str(tmp_path / "sub" / "S0_test_P3.csv"), "dy_um") == {}
+
+    c = acc.CaseResult("sim_dev", "m S0", "S0_test_P3", "dy_um", "start")
+    c.rmse_um = {"default": 0.9, "no effects": 0.9, "paper": 1.0, "OLS all": 0.6}
+    c.floor_um = acc.manifest_floor(str(run), "dy_um")
+    s = acc.summarise([c])["per_source"]["sim_dev"]
+    assert s["geomean default / oracle"] == pytest.approx(3.0)
+    assert s["geomean best peer / oracle"] == pytest.approx(2.0)
+    assert s["geomean oracle / noise floor"] == pytest.approx(1.5)
