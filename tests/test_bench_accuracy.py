@@ -160,7 +160,11 @@ def test_sim_dev_floor_comes_from_the_manifest_of_the_test_run(tmp_path):
     c = acc.CaseResult("sim_dev", "m S0", "S0_test_P3", "dy_um", "start")
     c.rmse_um = {"default": 0.9, "no effects": 0.9, "paper": 1.0, "OLS all": 0.6}
     c.floor_um = acc.manifest_floor(str(run), "dy_um")
-    s = acc.summarise([c])["per_source"]["sim_dev"]
+    summary = acc.summarise([c])
+    s = summary["per_source"]["sim_dev"]
     assert s["geomean default / oracle"] == pytest.approx(3.0)
     assert s["geomean best peer / oracle"] == pytest.approx(2.0)
     assert s["geomean oracle / noise floor"] == pytest.approx(1.5)
+    rows = {r["name"]: r["value"] for r in acc.summary_rows(summary, 1)}
+    assert rows["sim_dev: geomean default / its manifest's oracle"] == pytest.approx(3.0)
+    assert rows["sim_dev: geomean default / best peer"] == pytest.approx(1.5)
