@@ -190,6 +190,16 @@ def test_cli_train_prints_the_filter_states_the_axes_share(runs, tmp_path, capsy
             if t["kind"] in ("lag", "rate")]
     assert len(lags) > len(set(lags))  # both axes read the pool: terms outnumber the states
     assert f"filter states: {len(set(lags))} of 32 " in printed
+    assert "one training run" not in printed  # two runs: no hint to add a day
+
+
+def test_cli_train_on_one_run_suggests_a_second_day(runs, tmp_path, capsys):
+    p = tmp_path / "a.csv"
+    _write(runs[0], p)
+    assert main(["train", "--fit", "ols", "--no-nested", str(p), "--target", "dz_um",
+                 "--out", str(tmp_path / "one"), "--no-codegen"]) == 0
+    printed = capsys.readouterr().out
+    assert "one training run:" in printed and "a second day" in printed
 
 
 def test_cli_errors_are_clear(runs, tmp_path, capsys):
