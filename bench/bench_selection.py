@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PROBES = [f"ch{i}_um" for i in range(1, 6)]
 AXES = ["dx_um", "dy_um", "dz_um"]
 OURS = ("validated", "validated-refined", "paper")
-DEFAULT = "ours, validated (default)"
+DEFAULT = "ours, validated selection + OLS"
 SIM_SEEDS = range(5)
 LOCO = "FL, one cycle held out (20)"
 
@@ -73,7 +73,7 @@ def _score(cases: list[tuple[list[Run], list[Run], list[str]]]) -> dict[str, lis
     """method label -> test RMSE per (case, target), in a fixed order."""
     errors: dict[str, list[float]] = {}
     for train, test, targets in cases:
-        doc = compare_methods(train, test, targets, methods=OURS)
+        doc = compare_methods(train, test, targets, methods=OURS, box_model=False)
         for target in targets:
             for m in doc["axes"][target]["methods"]:
                 label = re.sub(r" \(k=\d+\)|, k=\d+", "", m["method"])  # k varies by case

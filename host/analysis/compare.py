@@ -3,8 +3,12 @@
 Every method sees only the training runs (its own choices, fits and any internal validation use
 the same folds as ours: leave-one-run-out, or time blocks of one run) and is judged by the RMSE
 of its predictions on the test runs. Methods:
-- ours, ``validated`` (default), ``validated-refined`` (plus the group refinement, opt-in)
-  and ``paper`` (paper 000 exactly), static linear models;
+- ours as ``host train`` fits it with its defaults (``box_model``): the box's model, a ridge
+  over the selected sensors, the free channels, their lags, the speed of every ``aux`` input
+  and the effects the loop found;
+- ours, ``validated`` (the default selection), ``validated-refined`` (plus the group
+  refinement, opt-in) and ``paper`` (paper 000 exactly), each a static least-squares model on
+  its selected sensors, so that the selections are compared alone;
 - OLS on all sensors;
 - the k most correlated sensors (paper 002, k = 4 by default) + OLS;
 - an engineering pick given by the user + OLS;
@@ -36,6 +40,7 @@ from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, 
 from host.train import DEFAULT_REFERENCE, axis_sensors, train_model
 
 DEFAULT_K_CORRELATED = 4
+BOX_MODEL = "ours, as host train fits it (the box's model)"
 EXHAUSTIVE_LIMIT = 200_000  # subsets; C(16,5) = 4368 runs, C(64,5) = 7.6 M is skipped
 
 
@@ -148,10 +153,13 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
                     n_blocks: int = DEFAULT_BLOCKS, max_delay_s: float | None = None,
                     exhaustive_limit: int = EXHAUSTIVE_LIMIT, seed: int = 0,
                     methods: Sequence[str] = ("validated", "validated-refined", "paper"),
-                    reference: str = DEFAULT_REFERENCE, quiet: bool = True) -> dict:
+                    reference: str = DEFAULT_REFERENCE, aux: Sequence[str] = (),
+                    box_model: bool = True, quiet: bool = True) -> dict:
     """Train every method on ``train_runs`` and report its test RMSE per axis.
 
-    Every method is judged the same way: with the ``start`` reference the peers are fitted on
+    ``box_model`` adds the model ``host train`` makes with its defaults (reading ``aux``; its
+    nested validation is skipped: it does not change the fit). Every method is judged the
+    same way: with the ``start`` reference the peers are fitted on
     the change since each fold's start and every prediction and measurement is referenced at
     its test run's start (host.fitting.reference)."""
     train_runs, test_runs = list(train_runs), list(test_runs)
@@ -173,6 +181,20 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
         y = np.concatenate([ref.apply(r.target(target)) for r in train_runs])
         yt = np.concatenate([ref.apply(r.target(target)) for r in test_runs])
         results: list[MethodResult] = []
+        if box_model:
+            t0 = time.perf_counter()
+            model = train_model(train_runs, [target], aux=list(aux), max_sensors=max_sensors,
+                                groups=groups, max_delay_s=max_delay_s, n_blocks=n_blocks,
+                                seed=seed, reference=reference, nested=False)
+            dt = time.perf_counter() - t0
+            pred = np.concatenate([predict(model, r)[target] for r in test_runs])
+            axis = model["axes"][target]
+            effects = [e["name"] for e in axis.get("effects", [])
+                       if not e.get("dropped_by_nested_validation")]
+            results.append(MethodResult(
+                BOX_MODEL, axis_sensors(axis), rmse(yt - pred), float(np.max(np.abs(yt - pred))),
+                dt, f"fit {axis.get('fit', {}).get('family', '?')}"
+                + (f"; effects: {', '.join(effects)}" if effects else "")))
         k = None
         for method in methods:
             t0 = time.perf_counter()
@@ -184,7 +206,8 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
             pred = np.concatenate([predict(model, r)[target] for r in test_runs])
             sensors = axis_sensors(model["axes"][target])
             k = len(sensors) if k is None else k  # peers get as many sensors as the default
-            label = {"validated": "ours, validated (default)", "paper": "ours, paper 000 exact",
+            label = {"validated": "ours, validated selection + OLS",
+                     "paper": "ours, paper 000 exact",
                      "validated-refined": "ours, validated + group refinement",
                      "validated-ec": "ours, validated reps + EC"}.get(method, method)
             results.append(MethodResult(label, sensors, rmse(yt - pred),

@@ -1,4 +1,4 @@
-"""`host compare TRAIN.csv... --test TEST.csv... --target dz_um`: our selection vs its peers."""
+"""`host compare TRAIN.csv... --test TEST.csv... --target dz_um`: ours vs its peers."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from host.commands.train import add_data_arguments, add_selection_arguments
 from host.io import check_variation, load_runs, window
 
 NAME = "compare"
-HELP = ("train our selection (validated, refined, paper-exact) and peer methods; "
-        "compare test RMSE")
+HELP = ("train the box's model, our selections (validated, refined, paper-exact) and peer "
+        "methods; compare test RMSE")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
                           groups=args.groups, n_blocks=args.blocks,
                           max_delay_s=None if args.max_delay_h is None else args.max_delay_h * 3600,
                           exhaustive_limit=args.exhaustive_limit, seed=args.seed,
-                          reference=args.reference,
+                          reference=args.reference, aux=args.aux,
                           quiet=args.json)
     if args.json:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
