@@ -164,17 +164,27 @@ def reading(terms: Sequence[Term], sensors: Sequence[str]) -> list[Term]:
     return list(terms) + [make_temp(s) for s in sensors if s not in have]
 
 
+def fill_rankings(runs: Sequence[Run], targets: Sequence[str], pool: Sequence[str], *,
+                  period_s: float, n_blocks: int, reference: Reference) -> list[list[str]]:
+    """Each axis's L1 ranking of ``pool`` (host.selection.screening): the order its turns
+    at the free channels go in. It does not depend on what is wired already."""
+    taus = lag_taus(runs, period_s)
+    return [l1_ranking(runs, t, pool, period_s=period_s, taus=taus, n_blocks=n_blocks,
+                       reference=reference) for t in targets]
+
+
 def channel_fill(runs: Sequence[Run], targets: Sequence[str], wired: Sequence[str],
                  pool: Sequence[str], *, max_channels: int, period_s: float, n_blocks: int,
-                 reference: Reference) -> list[str]:
+                 reference: Reference,
+                 rankings: Callable[[], list[list[str]]] | None = None) -> list[str]:
     """The sensors of ``pool`` the ridge reads on the free channels: each axis's L1 ranking
-    in turn (host.selection.screening) until ``max_channels`` are wired."""
+    in turn until ``max_channels`` are wired. ``rankings`` gives fill_rankings of these
+    runs, targets and pool when the caller has them already (computed only if needed)."""
     if len(wired) >= max_channels:
         return []
-    taus = lag_taus(runs, period_s)
-    rankings = [l1_ranking(runs, t, pool, period_s=period_s, taus=taus, n_blocks=n_blocks,
-                           reference=reference) for t in targets]
-    return fill_free_channels(wired, rankings, max_channels)
+    ranked = rankings() if rankings is not None else fill_rankings(
+        runs, targets, pool, period_s=period_s, n_blocks=n_blocks, reference=reference)
+    return fill_free_channels(wired, ranked, max_channels)
 
 
 def pool_lags(sensors: Sequence[str], taus: Sequence[float], period_s: float) -> list[Term]:

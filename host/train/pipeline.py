@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import fnmatch
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,7 @@ from host.train.next_day import (
     channel_fill,
     check_fit,
     fastest_lag_s,
+    fill_rankings,
     lag_family_filters,
     lag_taus,
     nested_validation,
@@ -304,7 +306,12 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     selected = _selected_within_budget(data, targets, max_channels, choose, quiet)
     if fill_first is None:  # the harm it prevents is between axes (_free_channel_fill)
         fill_first = fill_channels and fit != "ols" and len(targets) > 1
-    fill = _free_channel_fill(data, selected, max_channels) if fill_first else []
+    # the axes' L1 rankings for the free channels: once, for the fill before the effects and
+    # again after them (they do not depend on what is wired)
+    rankings = cache(lambda: fill_rankings(data.runs, targets, data.pool,
+                                           period_s=data.period_s, n_blocks=data.n_blocks,
+                                           reference=data.ref))
+    fill = _free_channel_fill(data, selected, max_channels, rankings) if fill_first else []
     axes = _axes_with_effects(data, selected, effects=effects, ambient=ambient,
                               max_sensors=max_sensors, max_channels=max_channels, fill=fill,
                               quiet=quiet)
@@ -317,7 +324,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                        fill_first=fill_first)  # a fold of one axis fills as this model did
         axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
                                       fill_channels=fill_channels, max_channels=max_channels,
-                                      quiet=quiet)
+                                      rankings=rankings, quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
@@ -408,7 +415,8 @@ def _selected_within_budget(data: TrainingData, targets: list[str], max_channels
 
 
 def _free_channel_fill(data: TrainingData, selected: dict[str, tuple[list[Term], dict]],
-                       max_channels: int) -> list[str]:
+                       max_channels: int, rankings: Callable[[], list[list[str]]]
+                       ) -> list[str]:
     """The sensors the box's free channels get (the axes' L1 rankings, next_day.channel_fill),
     settled before the effects are searched. An effect that took a free channel changed what
     every axis's ridge reads: axes without an effect of their own got worse on unseen runs
@@ -417,7 +425,8 @@ def _free_channel_fill(data: TrainingData, selected: dict[str, tuple[list[Term],
     wired = [n for n in data.names if n in channels_of({t: terms for t, (terms, _)
                                                         in selected.items()})]
     return channel_fill(data.runs, list(selected), wired, data.pool, max_channels=max_channels,
-                        period_s=data.period_s, n_blocks=data.n_blocks, reference=data.ref)
+                        period_s=data.period_s, n_blocks=data.n_blocks, reference=data.ref,
+                        rankings=rankings)
 
 
 def _axes_with_effects(data: TrainingData, selected: dict[str, tuple[list[Term], dict]], *,
@@ -476,6 +485,7 @@ def _budget_after_effects(data: TrainingData, axes: dict[str, dict], max_channel
 
 def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, *,
                            fit: str, nested: bool, fill_channels: bool, max_channels: int,
+                           rankings: Callable[[], list[list[str]]],
                            quiet: bool) -> dict[str, dict]:
     """Every axis's family for the next day (fit_for_the_next_day), reading the free
     channels: every axis's ridge reads every wired sensor, and the free channels filled by
@@ -487,7 +497,7 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
     # input family's re-selection gave up)
     read = [*wired, *channel_fill(data.runs, list(axes), wired, pool, max_channels=max_channels,
                                   period_s=data.period_s, n_blocks=data.n_blocks,
-                                  reference=data.ref)
+                                  reference=data.ref, rankings=rankings)
             ] if fill_channels and fit != "ols" else []
     targets = list(axes)
     fastest = fastest_lag_s(data.runs, data.period_s)
