@@ -1,8 +1,10 @@
 """The accuracy bench's harness (bench/bench_accuracy.py): its start reference against a
 hand-computed example, its scoring, a peer's test error against a direct numpy fit on a tiny
 case, a peer's out-of-fold error against a direct refit without each fold, and its summary
-(geometric mean, the peer picked by validation, the loop's check, the calibration count)."""
+(geometric mean, the peer picked by validation, the strongest single peer, the loop's check,
+the calibration count)."""
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -142,6 +144,27 @@ def test_summary_geomean_loop_and_calibration():
     assert [w["default_um"] for w in s["loop_worse"]] == [4.0]
     assert s["calibration"]["fl"]["within factor 2"] == 1  # 1/1.5 yes, 4/1 no
     assert "loop" in acc.table(cases, s)
+
+
+def test_strongest_single_peer_is_the_lowest_geomean_to_the_best_per_case():
+    # OLS wins one case, LassoCV two; LassoCV is the steadier method, best-5 always skipped
+    rows = [(1.0, 1.0, 2.0), (2.0, 8.0, 2.0), (1.0, 4.0, 1.0)]  # default, OLS all, LassoCV
+    cases = []
+    for d, ols, lasso in rows:
+        c = acc.CaseResult("sim_dev", "g", "t", "dy_um", "start")
+        c.rmse_um = {"default": d, "no effects": d, "paper": d, "OLS all": ols,
+                     "LassoCV": lasso, "best-5": float("nan")}
+        cases.append(c)
+    s = acc.summarise(cases)["per_source"]["sim_dev"]
+    assert s["geomean each peer / best peer"]["OLS all"] == pytest.approx(16 ** (1 / 3))
+    assert s["geomean each peer / best peer"]["LassoCV"] == pytest.approx(2 ** (1 / 3))
+    assert math.isnan(s["geomean each peer / best peer"]["best-5"])
+    assert s["strongest single peer"] == "LassoCV"
+    assert s["geomean default / strongest single peer"] == pytest.approx(0.5 ** (1 / 3))
+    assert s["geomean default / each peer"]["OLS all"] == pytest.approx((1 / 16) ** (1 / 3))
+    assert s["geomean strongest single peer / best peer"] == pytest.approx(2 ** (1 / 3))
+    text = acc.table(cases, acc.summarise(cases))
+    assert "the strongest single peer, LassoCV" in text
 
 
 def test_sim_dev_floor_comes_from_the_manifest_of_the_test_run(tmp_path):
