@@ -33,7 +33,7 @@ $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	touch $(STAMP)
 
 lint: $(STAMP)
-	$(PY) -m ruff check contract host codegen hil tests bench cnc
+	$(PY) -m ruff check contract host codegen hil tests bench cnc firmware/test
 
 test: $(STAMP) lint test-firmware test-python test-floors
 

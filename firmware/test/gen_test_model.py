@@ -297,6 +297,7 @@ def main(argv: list[str]) -> int:
 
     axes = ";".join(gen.model.axes[a].name for a in range(len(gen.model.axes)))
     chmap = ";".join(f"{c.index}:{c.sensor}:{c.tc_type}" for c in gen.model.channels)
+    zero_before = np.isin(np.arange(N_SAMPLES), ZERO_BEFORE).astype(int)
     out = args.out_dir
     out.mkdir(parents=True, exist_ok=True)
     (out / "model_test.h").write_text(gen.text)
@@ -342,7 +343,7 @@ static const int32_t vec_out_nm[VEC_N][VEC_N_AXES] = {{
 }};
 static const uint16_t vec_status[VEC_N] = {{{c_list(e["status"])}}};
 /* ZERO is sent before these samples */
-static const bool vec_zero_before[VEC_N] = {{{c_list(np.isin(np.arange(N_SAMPLES), ZERO_BEFORE).astype(int))}}};
+static const bool vec_zero_before[VEC_N] = {{{c_list(zero_before)}}};
 
 #endif
 """)
