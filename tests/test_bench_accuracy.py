@@ -143,6 +143,8 @@ def test_summary_geomean_loop_and_calibration():
     assert s["per_source"]["fl"]["peer picked by validation counts"]["HGB"] == 2
     assert [w["default_um"] for w in s["loop_worse"]] == [4.0]
     assert s["calibration"]["fl"]["within factor 2"] == 1  # 1/1.5 yes, 4/1 no
+    assert s["calibration"]["fl"]["optimistic by more than 2"] == 1  # 4 µm where 1 promised
+    assert s["calibration"]["fl"]["pessimistic by more than 2"] == 0
     assert "loop" in acc.table(cases, s)
 
 

@@ -215,8 +215,9 @@ def run_fit(run: str, axis: str, time_s: np.ndarray, measured: np.ndarray,
             promise: tuple[float, Sequence[float]] | None = None) -> Figure:
     """Measured displacement, each model's prediction (top) and its residual (bottom).
 
-    ``promise`` (the error ``host train`` promised for an unseen day and its per-fold values)
-    is drawn on the residual as a band of ± that RMS, the worst fold as dotted lines."""
+    ``promise`` (the error ``host train`` promised for an unseen day, its lowest nested fold,
+    and the per-fold values) is drawn on the residual as a band of ± that RMS, the worst fold
+    as dotted lines."""
     unit, what = axis_unit(axis)
     fig = Figure(figsize=(9.0, 6.5), layout="constrained")
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])

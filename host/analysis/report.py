@@ -450,7 +450,7 @@ def _fig_run(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
     caption = ("Top: the measured displacement and what each model predicts from what "
                "the box measures. Bottom: what is left (RMS in the legend)"
                + ("; the shaded band is ± the error host train promised for an "
-                  "unseen day (nested validation), dotted its worst fold."
+                  "unseen day (its lowest nested fold), dotted the worst fold."
                   if promised is not None else ".")
                + (" This run was used for training." if entry[axis_name]["in_training"]
                   else " The model never saw this run."))

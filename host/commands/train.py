@@ -144,8 +144,9 @@ def print_table(doc: dict, model: dict) -> None:
         folds = a.get("promised_fold_rmse_um") or []
         if a.get("promised_rmse_um") is not None and folds:
             u = unit_of(name)
-            print(f"{name}: promised for an unseen day {_fmt(a['promised_rmse_um'])} {u} (nested,"
-                  f" folds {_fmt(min(folds))}..{_fmt(max(folds))} {u}), fit {a.get('fit')}"
+            print(f"{name}: promised for an unseen day {_fmt(a['promised_rmse_um'])} {u} (the "
+                  f"lowest of {len(folds)} nested folds, the highest {_fmt(max(folds))} {u}), "
+                  f"fit {a.get('fit')}"
                   + (f", free channels read: {','.join(a['free_channels_read'])}"
                      if a.get("free_channels_read") else ""))
     if len(model["training"]["runs"]) == 1:

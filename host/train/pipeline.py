@@ -213,7 +213,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     if result is not None:
         axis["fit"]["nested"] = {"scheme": result.scheme, "fold_rmse_um": result.fold_rmse_um,
                                  "rmse_um": {f: result.rms(f) for f in result.fold_rmse_um}}
-        axis["metrics"]["promised_rmse_um"] = result.rms(family)
+        axis["metrics"]["promised_rmse_um"] = result.promise(family)
         axis["metrics"]["promised_fold_rmse_um"] = result.fold_rmse_um[family]
     return axis
 

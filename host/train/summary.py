@@ -33,7 +33,8 @@ def summary(model: dict, model_path: str) -> dict:
             "max_abs_um": m.get("max_abs_um"),
             "condition_number": m.get("condition_number"),
             "validation": m.get("validation"),
-            # the error promised for an unseen day: the pipeline refitted without each fold
+            # the error promised for an unseen day: the lowest fold of the pipeline refitted
+            # without each fold (next_day.NestedResult.promise)
             "promised_rmse_um": m.get("promised_rmse_um"),
             "promised_fold_rmse_um": m.get("promised_fold_rmse_um"),
             "fit": (axis.get("fit") or {}).get("family"),
