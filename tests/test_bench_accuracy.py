@@ -117,6 +117,8 @@ def test_peer_validation_refits_each_peer_without_each_fold():
 def test_promised_is_the_nested_error_when_training_reports_one():
     assert acc.promised({"metrics": {"validation_rmse_um": 1.0}}) == 1.0
     assert acc.promised({"metrics": {"validation_rmse_um": 1.0, "promised_rmse_um": 2.5}}) == 2.5
+    assert acc.highest_fold({"metrics": {"promised_fold_rmse_um": [2.5, 4.0, 3.0]}}) == 4.0
+    assert math.isnan(acc.highest_fold({"metrics": {"validation_rmse_um": 1.0}}))
 
 
 def test_summary_geomean_loop_and_calibration():
@@ -125,6 +127,7 @@ def test_summary_geomean_loop_and_calibration():
         c.rmse_um = {"default": d, "no effects": noeff, "paper": d, "OLS all": peer,
                      "HGB": 2 * peer, "best-5": float("nan")}
         c.promised_um = {"default": promised}
+        c.highest_fold_um = {"default": 1.5 * promised}
         c.peer_sensors = {"OLS all": 16, "HGB": 3, "best-5": 5}  # OLS on 16 cannot be wired
         # on the training file HGB looked better: the user would have picked it
         c.peer_validation_um = {"OLS all": 0.9, "HGB": 0.5, "best-5": float("nan")}
@@ -145,6 +148,9 @@ def test_summary_geomean_loop_and_calibration():
     assert s["calibration"]["fl"]["within factor 2"] == 1  # 1/1.5 yes, 4/1 no
     assert s["calibration"]["fl"]["optimistic by more than 2"] == 1  # 4 µm where 1 promised
     assert s["calibration"]["fl"]["pessimistic by more than 2"] == 0
+    # highest folds 2.25 and 1.5 um: 1 um is inside the first, 4 um above twice the second
+    assert s["calibration"]["fl"]["worse than the highest fold"] == 1
+    assert s["calibration"]["fl"]["worse than twice the highest fold"] == 1
     assert "loop" in acc.table(cases, s)
 
 
