@@ -43,8 +43,9 @@ before nested validation its ``validation_rmse_um``) against the test RMSE. Summ
 mean of ours / best peer and of ours / the peer picked by validation per source, the loop's
 effect (default worse than ``effects=False`` by more than 5 %), the calibration (promised
 within a factor 2 of the test RMSE, and how many went worse or better than that), and the
-timing target of ``host train`` on 64 x 86,400 rows. Writes bench/results/accuracy.json and the
-text table to stdout and /tmp/accuracy_latest.txt; progress on stderr.
+timing target of ``host train`` on 64 x 86,400 rows. Writes bench/results/accuracy.json, its
+figure bench/results/accuracy.png (bench.accuracy_figure) and the text table to stdout and
+/tmp/accuracy_latest.txt; progress on stderr.
 
     python -m bench accuracy                  # as part of the bench runner (also `make bench`)
     python -m bench.bench_accuracy --source fl --jobs 2   # one source, table only
@@ -859,6 +860,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = table(cases, summary, extra)
     print(text)
     _write(cases, summary, timings, extra, text)
+    from bench import accuracy_figure  # matplotlib only once the numbers are written
+
+    _log(f"wrote {accuracy_figure.save(RESULTS, RESULTS.with_suffix('.png'))}")
     return 0
 
 
