@@ -59,7 +59,8 @@ def draw(cases: Sequence[dict], peers: Sequence[str]) -> Figure:
         left.hlines(geo, k - 0.3, k + 0.3, color="black", lw=2.5)
         left.annotate(f"{geo:.3f}", (k + 0.32, geo), va="center", fontsize=9)
     names = [SOURCES[s] for s in ratios_by_source(cases, peers)]
-    left.set_xticks(range(len(names)), [f"{n}" for n in names])
+    left.set_xticks(range(len(names)), names)
+    left.set_xlim(-0.6, len(names) - 0.1)  # room for the means' labels, whatever the count
     left.set_yscale("log")
     left.axhline(1.0, color="grey", lw=0.8)
     left.axhline(TARGET, color="black", lw=1.0, ls="--", label=f"target {TARGET} (geometric mean)")

@@ -797,6 +797,9 @@ def _write(cases: list[CaseResult], summary: dict, timings: list[dict], extra: l
         LATEST_TXT.write_text(text + "\n")
     except OSError:
         pass
+    from bench import accuracy_figure  # matplotlib only once the numbers are written
+
+    _log(f"wrote {accuracy_figure.save(RESULTS, RESULTS.with_suffix('.png'))}")
 
 
 def run() -> list[dict]:
@@ -860,9 +863,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = table(cases, summary, extra)
     print(text)
     _write(cases, summary, timings, extra, text)
-    from bench import accuracy_figure  # matplotlib only once the numbers are written
-
-    _log(f"wrote {accuracy_figure.save(RESULTS, RESULTS.with_suffix('.png'))}")
     return 0
 
 
