@@ -27,30 +27,32 @@ from contract.errors import InputError
 KINDS = ("start", "none")
 
 
+def _running_head(values: np.ndarray, samples: int) -> np.ndarray:
+    """The running mean of each of the first min(samples, n) rows (n >= 1)."""
+    k = min(samples, values.shape[0])
+    counts = np.arange(1, k + 1, dtype=float).reshape((k,) + (1,) * (values.ndim - 1))
+    return np.cumsum(values[:k], axis=0) / counts
+
+
 def causal_reference(values: np.ndarray, samples: int) -> np.ndarray:
     """Per row, the running mean of the first ``samples`` rows (frozen after them); 1-D or 2-D."""
     values = np.asarray(values, dtype=float)
-    n = values.shape[0]
-    if n == 0:
+    if values.shape[0] == 0:
         return values.copy()
-    k = min(samples, n)
-    counts = np.arange(1, k + 1, dtype=float).reshape((k,) + (1,) * (values.ndim - 1))
-    head = np.cumsum(values[:k], axis=0) / counts
+    head = _running_head(values, samples)
     out = np.empty_like(values)
-    out[:k] = head
-    out[k:] = head[-1]
+    out[:len(head)] = head
+    out[len(head):] = head[-1]
     return out
 
 
 def _subtract_reference(view: np.ndarray, samples: int) -> None:
     """``view`` minus causal_reference(view, samples), in place (the same arithmetic)."""
-    k = min(samples, view.shape[0])
-    if k == 0:
+    if view.shape[0] == 0:
         return
-    counts = np.arange(1, k + 1, dtype=float).reshape((k,) + (1,) * (view.ndim - 1))
-    head = np.cumsum(view[:k], axis=0) / counts
-    view[k:] -= head[-1]
-    view[:k] -= head
+    head = _running_head(view, samples)
+    view[len(head):] -= head[-1]
+    view[:len(head)] -= head
 
 
 @dataclass(frozen=True)
