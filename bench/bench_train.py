@@ -1,11 +1,12 @@
 """`host train` speed and memory: 64 sensors x 86,400 rows (24 h at 1 s) and 600 rows.
 
 Targets: the large run in under 10 s and 1 GB on a 2-core machine, the small one in
-under 1 s. `host train` is timed in a fresh process (interpreter start and CSV parsing
-included), once with codegen and the effects search off (selection + fit + validation) and
-once as a user runs it by default (effects + codegen); its peak resident memory comes from
-its own rusage (``os.wait4`` in a small launcher, see LAUNCHER). The EC step is timed alone
-for c = 10 groups (1,023 subset fits, each from Gram matrices).
+under 1 s. `host train` is timed in fresh processes (interpreter start and CSV parsing
+included; the fastest of ``REPEAT``, every run shown), once with codegen and the effects
+search off (selection + fit + validation) and once as a user runs it by default (effects +
+codegen); its peak resident memory comes from its own rusage (``os.wait4`` in a small
+launcher, see LAUNCHER). The EC step is timed alone for c = 10 groups (1,023 subset fits,
+each from Gram matrices).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +61,30 @@ print(json.dumps({"seconds": time.perf_counter() - t0, "maxrss_kb": usage.ru_max
 """
 
 
-def _timed_process(cmd: list[str]) -> tuple[float, float]:
+REPEAT = 3  # fresh processes per timed command: the fastest is reported, every one shown
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Wall times of ``REPEAT`` fresh processes and the largest peak RSS (MB) among them.
+
+    The fastest run is the figure (as ``timeit`` reports it): a shared 2-core VM's speed
+    varies twofold within minutes (docs/selection.md section 7), and interference only ever
+    adds time. The others are shown beside it, so the spread is not hidden."""
+
+    seconds: tuple[float, ...]
+    peak_mb: float
+
+    @property
+    def fastest(self) -> float:
+        return min(self.seconds)
+
+    def describe(self) -> str:
+        return (f"fastest of {len(self.seconds)} fresh processes "
+                f"({', '.join(f'{s:.2f}' for s in self.seconds)} s)")
+
+
+def _one_process(cmd: list[str]) -> tuple[float, float]:
     """Wall time and peak RSS (MB) of one fresh process (its own rusage, via the launcher)."""
     done = subprocess.run([sys.executable, "-c", LAUNCHER, *cmd], capture_output=True,
                           text=True)
@@ -72,12 +97,17 @@ def _timed_process(cmd: list[str]) -> tuple[float, float]:
     return m["seconds"], m["maxrss_kb"] / 1024.0
 
 
-def _cli(csv: Path, out: Path) -> tuple[float, float, str]:
+def timed_process(cmd: list[str], repeat: int = REPEAT) -> Timing:
+    """``cmd`` run ``repeat`` times, each in a fresh process (see Timing)."""
+    runs = [_one_process(cmd) for _ in range(repeat)]
+    return Timing(tuple(dt for dt, _ in runs), max(peak for _, peak in runs))
+
+
+def _cli(csv: Path, out: Path) -> tuple[Timing, str]:
     """`host train --no-effects --no-codegen`: selection + fit + validation alone."""
     cmd = [sys.executable, "-m", "host", "train", str(csv), "--target", "dz_um", "--out",
            str(out), "--no-codegen", "--no-effects", "--json"]
-    dt, peak = _timed_process(cmd)
-    return dt, peak, "host train --no-effects --no-codegen"
+    return timed_process(cmd), "host train --no-effects --no-codegen"
 
 
 def run() -> list[dict]:
@@ -88,21 +118,23 @@ def run() -> list[dict]:
             t, cols = synthetic_run(n_rows, 64)
             csv = tmpdir / f"run_{n_rows}.csv"
             write_run(csv, t, cols)
-            dt, peak, how = _cli(csv, tmpdir / f"out_{n_rows}")
-            rows.append({"name": f"host train, 64 sensors x {n_rows} rows", "value": dt,
-                         "unit": "s", "target": f"< {target:g} s",
-                         "detail": f"{how}: CSV parse + selection + fit + validation"})
-            rows.append({"name": f"host train peak RSS, 64 x {n_rows} rows", "value": peak,
-                         "unit": "MB", "target": "< 1024 MB"})
+            timing, how = _cli(csv, tmpdir / f"out_{n_rows}")
+            rows.append({"name": f"host train, 64 sensors x {n_rows} rows",
+                         "value": timing.fastest, "unit": "s", "target": f"< {target:g} s",
+                         "detail": f"{how}: CSV parse + selection + fit + validation; "
+                                   f"{timing.describe()}"})
+            rows.append({"name": f"host train peak RSS, 64 x {n_rows} rows",
+                         "value": timing.peak_mb, "unit": "MB", "target": "< 1024 MB"})
             # the default a user runs: effects search and codegen included
             cmd = [sys.executable, "-m", "host", "train", str(csv), "--target", "dz_um",
                    "--out", str(tmpdir / f"full_{n_rows}"), "--json"]
-            dt, peak = _timed_process(cmd)
+            timing = timed_process(cmd)
             rows.append({"name": f"host train (default: effects + codegen), 64 x {n_rows}",
-                         "value": dt, "unit": "s", "target": f"< {target:g} s",
-                         "detail": "what `host train RUN.csv --target dz_um` costs"})
+                         "value": timing.fastest, "unit": "s", "target": f"< {target:g} s",
+                         "detail": f"what `host train RUN.csv --target dz_um` costs; "
+                                   f"{timing.describe()}"})
             rows.append({"name": f"host train (default) peak RSS, 64 x {n_rows}",
-                         "value": peak, "unit": "MB", "target": "< 1024 MB"})
+                         "value": timing.peak_mb, "unit": "MB", "target": "< 1024 MB"})
             names = [c for c in cols if c.startswith("T")]
             mem = Run(str(csv), t, names, np.column_stack([cols[c] for c in names]), ["dz_um"],
                       cols["dz_um"][:, None])
