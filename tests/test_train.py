@@ -303,3 +303,31 @@ def test_example_simulations_train_on_two_protocols_judge_on_random(selection):
         assert result[axis]["rmse_um"] == pytest.approx(np.sqrt(np.mean((y - pred) ** 2)))
         assert result[axis]["reduction_pct"] > 90.0, (axis, result[axis])
         assert 1 <= len(model["axes"][axis]["selection"]["sensors"]) <= 5
+
+
+def test_training_runs_blas_on_one_thread_and_gives_the_callers_threads_back(runs,
+                                                                            monkeypatch):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import host.train.pipeline as pipeline
+
+    def blas() -> dict[str, int]:
+        return {i["filepath"]: i["num_threads"] for i in threadpool_info()
+                if i["user_api"] == "blas"}
+
+    if not blas():
+        pytest.skip("no BLAS library that threadpoolctl controls")
+    inside = []
+    fit = pipeline.fit_for_the_next_day  # late in training: scipy and scikit-learn at work
+
+    def record(*args, **kwargs):
+        inside.append(blas())
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "fit_for_the_next_day", record)
+    with threadpool_limits(limits=2, user_api="blas"):  # the caller's setting, on any machine
+        before = blas()
+        train_model(runs, ["dz_um"], effects=False, nested=False, reference="none")
+        after = blas()
+    assert inside and set(inside[0].values()) == {pipeline.BLAS_THREADS}
+    assert {lib: n for lib, n in after.items() if lib in before} == before

@@ -70,6 +70,9 @@ DEFAULT_TC_TYPE = "K"
 # BLAS on one thread while training: its matrices have tens of columns, and OpenBLAS's threads
 # spin between calls. `host train` on 64 sensors x 86,400 rows took 8.4-9.6 s with two threads
 # and 5.4-5.8 s with one on the 2-core target (the same model; docs/selection.md section 7).
+# The limit is the process's while train_model runs (threadpoolctl; scikit-learn's KMeans
+# limits its BLAS the same way) and is restored when it returns. It covers the BLAS libraries
+# loaded when it is set: numpy's, and scipy's own (scikit-learn's lasso calls it).
 BLAS_THREADS = 1
 
 
@@ -299,6 +302,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     ridge reads them, i.e. ``fill_channels`` and a fit other than ``ols``; one axis's effects
     keep the first claim on them; see _free_channel_fill).
     """
+    import scipy.linalg  # noqa: F401  (scipy's own OpenBLAS, loaded so that the limit covers it)
+
     with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):  # see BLAS_THREADS
         targets = list(targets)
         aux = list(aux or [])
