@@ -12,7 +12,7 @@ from __future__ import annotations
 import fnmatch
 import math
 from collections.abc import Callable, Mapping, Sequence
-from functools import cache
+from functools import cache, wraps
 from pathlib import Path
 
 import numpy as np
@@ -276,6 +276,18 @@ def _aux(axes: Mapping[str, dict], runs: list[Run]) -> list[dict]:
     return out
 
 
+def _one_blas_thread(train: Callable[..., dict]) -> Callable[..., dict]:
+    """``train`` with BLAS on ``BLAS_THREADS`` threads while it runs (see BLAS_THREADS)."""
+    @wraps(train)
+    def limited(*args, **kwargs) -> dict:
+        import scipy.linalg  # noqa: F401  (scipy's own OpenBLAS, loaded so the limit covers it)
+
+        with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):
+            return train(*args, **kwargs)
+    return limited
+
+
+@_one_blas_thread
 def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 sensors: str | list[str] = "T*", aux: Sequence[str] | None = None,
                 max_sensors: int = DEFAULT_MAX_SENSORS, groups: int = DEFAULT_GROUPS,
@@ -302,82 +314,79 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     ridge reads them, i.e. ``fill_channels`` and a fit other than ``ols``; one axis's effects
     keep the first claim on them; see _free_channel_fill).
     """
-    import scipy.linalg  # noqa: F401  (scipy's own OpenBLAS, loaded so that the limit covers it)
-
-    with threadpool_limits(limits=BLAS_THREADS, user_api="blas"):  # see BLAS_THREADS
-        targets = list(targets)
-        aux = list(aux or [])
-        _check_options(targets, fit=fit, selection=selection, n_blocks=n_blocks,
-                       max_channels=max_channels, max_sensors=max_sensors, tc_type=tc_type,
-                       tilts=tilts)
-        data = TrainingData.of(_as_runs(runs, targets, sensors, aux, fill_gaps, tilts), targets,
-                               n_blocks, Reference.of_kind(reference))
-        choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
-                      max_delay_s=max_delay_s, seed=seed)
-        selected = _selected_within_budget(data, targets, max_channels, choose, quiet)
-        if fill_first is None:  # the harm it prevents is between axes (_free_channel_fill)
-            fill_first = fill_channels and fit != "ols" and len(targets) > 1
-        # the axes' L1 rankings for the free channels: once, for the fill before the effects and
-        # again after them (they do not depend on what is wired)
-        rankings = cache(lambda: fill_rankings(data.runs, targets, data.pool,
-                                               period_s=data.period_s, n_blocks=data.n_blocks,
-                                               reference=data.ref))
-        fill = _free_channel_fill(data, selected, max_channels, rankings) if fill_first else []
-        axes = _axes_with_effects(data, selected, effects=effects, ambient=ambient,
-                                  max_sensors=max_sensors, max_channels=max_channels, fill=fill,
-                                  quiet=quiet)
-        _budget_after_effects(data, axes, max_channels)
-        if nested or fit == "ridge":
-            options = dict(sensors=list(data.names), aux=aux, max_sensors=max_sensors,
-                           groups=groups, effects=effects, ambient=ambient, selection=selection,
-                           max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
-                           max_channels=max_channels, reference=reference,
-                           fill_first=fill_first)  # a fold of one axis fills as this model did
-            axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
-                                          fill_channels=fill_channels, max_channels=max_channels,
-                                          rankings=rankings, quiet=quiet)
-        used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
-        if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
-            raise TrainingError(f"model needs {len(used)} thermocouple channels "
-                                f"({', '.join(sorted(used))}), the box has {max_channels}")
-        for name, axis in axes.items():  # µm, or µrad for a tilt axis: the name says which
-            axis["unit"] = unit_of(name)
-        wired = _channels(axes, data.names, dict(channels or {}), tc_type)
-        aux_inputs = _aux(axes, data.runs)
-        add_training_ranges(wired, aux_inputs, data.runs)
-        model = {
-            "schema": SCHEMA,
-            "tool_version": __version__,
-            "sample_period_s": float(data.period_s),
-            "reference": data.ref.to_json(),
-            "channels": wired,
-            "aux": aux_inputs,
-            "time_max_s": TIME_MAX_S,
-            "axes": axes,
-            **({"tilts": [t.to_json() for t in tilts]} if tilts else {}),
-            "training": {
-                "runs": [r.path for r in data.runs],
-                "targets": targets,
-                "sensors": sensors if isinstance(sensors, str) else list(sensors),
-                "aux": aux,
-                "selection": selection,
-                "max_sensors": int(max_sensors),
-                "groups": int(groups),
-                "max_delay_s": max_delay_s,
-                "validation": data.scheme,
-                "seed": int(seed),
-                "effects": bool(effects),
-                "reference": data.ref.kind,
-                "fit": fit,
-                "nested": bool(nested),
-                "fill_channels": bool(fill_channels),
-                "ambient": ambient,
-                "max_channels": int(max_channels),
-            },
-        }
-        # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
-        add_step_limits(model, data.runs)
-        return model
+    targets = list(targets)
+    aux = list(aux or [])
+    _check_options(targets, fit=fit, selection=selection, n_blocks=n_blocks,
+                   max_channels=max_channels, max_sensors=max_sensors, tc_type=tc_type,
+                   tilts=tilts)
+    data = TrainingData.of(_as_runs(runs, targets, sensors, aux, fill_gaps, tilts), targets,
+                           n_blocks, Reference.of_kind(reference))
+    choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
+                  max_delay_s=max_delay_s, seed=seed)
+    selected = _selected_within_budget(data, targets, max_channels, choose, quiet)
+    if fill_first is None:  # the harm it prevents is between axes (_free_channel_fill)
+        fill_first = fill_channels and fit != "ols" and len(targets) > 1
+    # the axes' L1 rankings for the free channels: once, for the fill before the effects and
+    # again after them (they do not depend on what is wired)
+    rankings = cache(lambda: fill_rankings(data.runs, targets, data.pool,
+                                           period_s=data.period_s, n_blocks=data.n_blocks,
+                                           reference=data.ref))
+    fill = _free_channel_fill(data, selected, max_channels, rankings) if fill_first else []
+    axes = _axes_with_effects(data, selected, effects=effects, ambient=ambient,
+                              max_sensors=max_sensors, max_channels=max_channels, fill=fill,
+                              quiet=quiet)
+    _budget_after_effects(data, axes, max_channels)
+    if nested or fit == "ridge":
+        options = dict(sensors=list(data.names), aux=aux, max_sensors=max_sensors,
+                       groups=groups, effects=effects, ambient=ambient, selection=selection,
+                       max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
+                       max_channels=max_channels, reference=reference,
+                       fill_first=fill_first)  # a fold of one axis fills as this model did
+        axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
+                                      fill_channels=fill_channels, max_channels=max_channels,
+                                      rankings=rankings, quiet=quiet)
+    used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
+    if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
+        raise TrainingError(f"model needs {len(used)} thermocouple channels "
+                            f"({', '.join(sorted(used))}), the box has {max_channels}")
+    for name, axis in axes.items():  # µm, or µrad for a tilt axis: the name says which
+        axis["unit"] = unit_of(name)
+    wired = _channels(axes, data.names, dict(channels or {}), tc_type)
+    aux_inputs = _aux(axes, data.runs)
+    add_training_ranges(wired, aux_inputs, data.runs)
+    model = {
+        "schema": SCHEMA,
+        "tool_version": __version__,
+        "sample_period_s": float(data.period_s),
+        "reference": data.ref.to_json(),
+        "channels": wired,
+        "aux": aux_inputs,
+        "time_max_s": TIME_MAX_S,
+        "axes": axes,
+        **({"tilts": [t.to_json() for t in tilts]} if tilts else {}),
+        "training": {
+            "runs": [r.path for r in data.runs],
+            "targets": targets,
+            "sensors": sensors if isinstance(sensors, str) else list(sensors),
+            "aux": aux,
+            "selection": selection,
+            "max_sensors": int(max_sensors),
+            "groups": int(groups),
+            "max_delay_s": max_delay_s,
+            "validation": data.scheme,
+            "seed": int(seed),
+            "effects": bool(effects),
+            "reference": data.ref.kind,
+            "fit": fit,
+            "nested": bool(nested),
+            "fill_channels": bool(fill_channels),
+            "ambient": ambient,
+            "max_channels": int(max_channels),
+        },
+    }
+    # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
+    add_step_limits(model, data.runs)
+    return model
 
 
 def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
