@@ -68,8 +68,9 @@ AUX_HEADROOM = 2.0  # valid aux range: twice the training extremes (see _aux)
 TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
 DEFAULT_TC_TYPE = "K"
 # BLAS on one thread while training: its matrices have tens of columns, and OpenBLAS's threads
-# spin between calls. `host train` on 64 sensors x 86,400 rows took 8.4-9.6 s with two threads
-# and 5.4-5.8 s with one on the 2-core target (the same model; docs/selection.md section 7).
+# spin between calls. `host train` on 64 sensors x 86,400 rows used 10.9-14.6 s of CPU with two
+# threads and 7.3-9.1 s with one on the 2-core target (the same model; docs/selection.md
+# section 7).
 # The limit is the process's while train_model runs (threadpoolctl; scikit-learn's KMeans
 # limits its BLAS the same way) and is restored when it returns. It covers the BLAS libraries
 # loaded when it is set: numpy's, and scipy's own (scikit-learn's lasso calls it).
