@@ -103,11 +103,13 @@ def timed_process(cmd: list[str], repeat: int = REPEAT) -> Timing:
     return Timing(tuple(dt for dt, _ in runs), max(peak for _, peak in runs))
 
 
-def _cli(csv: Path, out: Path) -> tuple[Timing, str]:
-    """`host train --no-effects --no-codegen`: selection + fit + validation alone."""
-    cmd = [sys.executable, "-m", "host", "train", str(csv), "--target", "dz_um", "--out",
-           str(out), "--no-codegen", "--no-effects", "--json"]
-    return timed_process(cmd), "host train --no-effects --no-codegen"
+def _timed_rows(cmd: list[str], name: str, rss_name: str, target_s: float,
+                detail: str) -> list[dict]:
+    """The time row (against ``target_s``) and the peak-memory row of ``cmd``, timed."""
+    timing = timed_process(cmd)
+    return [{"name": name, "value": timing.fastest, "unit": "s", "target": f"< {target_s:g} s",
+             "detail": f"{detail}; {timing.describe()}"},
+            {"name": rss_name, "value": timing.peak_mb, "unit": "MB", "target": "< 1024 MB"}]
 
 
 def run() -> list[dict]:
@@ -118,23 +120,19 @@ def run() -> list[dict]:
             t, cols = synthetic_run(n_rows, 64)
             csv = tmpdir / f"run_{n_rows}.csv"
             write_run(csv, t, cols)
-            timing, how = _cli(csv, tmpdir / f"out_{n_rows}")
-            rows.append({"name": f"host train, 64 sensors x {n_rows} rows",
-                         "value": timing.fastest, "unit": "s", "target": f"< {target:g} s",
-                         "detail": f"{how}: CSV parse + selection + fit + validation; "
-                                   f"{timing.describe()}"})
-            rows.append({"name": f"host train peak RSS, 64 x {n_rows} rows",
-                         "value": timing.peak_mb, "unit": "MB", "target": "< 1024 MB"})
+            train = [sys.executable, "-m", "host", "train", str(csv), "--target", "dz_um",
+                     "--json", "--out"]
+            rows += _timed_rows([*train, str(tmpdir / f"out_{n_rows}"), "--no-codegen",
+                                 "--no-effects"],
+                                f"host train, 64 sensors x {n_rows} rows",
+                                f"host train peak RSS, 64 x {n_rows} rows", target,
+                                "host train --no-effects --no-codegen: CSV parse + selection + "
+                                "fit + validation")
             # the default a user runs: effects search and codegen included
-            cmd = [sys.executable, "-m", "host", "train", str(csv), "--target", "dz_um",
-                   "--out", str(tmpdir / f"full_{n_rows}"), "--json"]
-            timing = timed_process(cmd)
-            rows.append({"name": f"host train (default: effects + codegen), 64 x {n_rows}",
-                         "value": timing.fastest, "unit": "s", "target": f"< {target:g} s",
-                         "detail": f"what `host train RUN.csv --target dz_um` costs; "
-                                   f"{timing.describe()}"})
-            rows.append({"name": f"host train (default) peak RSS, 64 x {n_rows}",
-                         "value": timing.peak_mb, "unit": "MB", "target": "< 1024 MB"})
+            rows += _timed_rows([*train, str(tmpdir / f"full_{n_rows}")],
+                                f"host train (default: effects + codegen), 64 x {n_rows}",
+                                f"host train (default) peak RSS, 64 x {n_rows}", target,
+                                "what `host train RUN.csv --target dz_um` costs")
             names = [c for c in cols if c.startswith("T")]
             mem = Run(str(csv), t, names, np.column_stack([cols[c] for c in names]), ["dz_um"],
                       cols["dz_um"][:, None])
