@@ -52,7 +52,8 @@ def train_default(job) -> dict:
     from host.train import train_model
 
     runs = [acc._load(s, job.targets) for s in job.train]
-    return train_model(runs, list(job.targets), aux=acc.AUX, **acc.train_kwargs(job.reference))
+    return train_model(runs, list(job.targets), aux=acc.AUX,
+                       **acc.train_kwargs(job.reference, job.bending, job.targets))
 
 
 def head_csv(src: str, dst: Path, n: int, start_s: float | None = None) -> Path:

@@ -104,6 +104,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "alike); ols: least squares on "
                              "the selected terms and effects (paper 000's eq. 4); auto: the "
                              "family with the lowest nested error (docs/next-day.md)")
+    parser.add_argument("--bending", action="append", default=[], metavar="AXIS",
+                        help="a target that a temperature difference across the structure "
+                             "moves, not an even warming (a column bent by its front against "
+                             "its back: Y of a vertical machining center); its ridge then "
+                             "penalises the response to an even warming (repeatable; "
+                             "docs/next-day.md section 12)")
     parser.add_argument("--no-fill-channels", action="store_true",
                         help="the ridge reads only the selected sensors (default: also the "
                              "best of the others, by an L1 ranking, on the box's free channels)")
@@ -147,6 +153,8 @@ def print_table(doc: dict, model: dict) -> None:
             print(f"{name}: promised for an unseen day {_fmt(a['promised_rmse_um'])} {u} (the "
                   f"lowest of {len(folds)} nested folds, the highest {_fmt(max(folds))} {u}), "
                   f"fit {a.get('fit')}"
+                  + (f" (bending: an even warming penalised {_fmt(a['even_warming_penalty'])}x)"
+                     if a.get("even_warming_penalty") else "")
                   + (f", free channels read: {','.join(a['free_channels_read'])}"
                      if a.get("free_channels_read") else ""))
     if len(model["training"]["runs"]) == 1:
@@ -213,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
                         tc_type=args.tc_type, max_channels=args.max_channels,
                         reference=args.reference, fit=args.fit, nested=not args.no_nested,
                         fill_channels=not args.no_fill_channels, tilts=args.tilt,
-                        quiet=args.json)
+                        bending=args.bending, quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"
     header = None

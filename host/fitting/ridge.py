@@ -12,6 +12,13 @@ spread, a slow lag that barely moves in the training run was cheap to give a coe
 tens of um/K, and it extrapolates on a day that heats differently; in kelvin the ridge was
 lower on every source on unseen runs (docs/next-day.md). Other columns (speed, squares) are
 scaled by their own spread.
+
+A bending axis (a column bent by its front against its back) hardly moves when the structure
+warms evenly, though each of its sensors moves it by tens of um/K. ``even`` flags the columns
+whose coefficients sum to that response (temperatures and lags, not rates: a rate settles to
+zero), and ``even_penalty`` (kappa) penalises the square of the sum kappa times as much as one
+coefficient's: the ridge then gives the front and the back large coefficients of opposite sign
+rather than shrinking both toward the common warming (docs/next-day.md section 12).
 """
 
 from __future__ import annotations
@@ -37,10 +44,13 @@ class RidgeFit:
         return X @ self.coef + self.intercept if X.shape[1] else np.full(len(X), self.intercept)
 
 
-def _solve(M: np.ndarray, v: np.ndarray, penalty: float) -> np.ndarray:
-    """Ridge normal equations with an unpenalised intercept (row/column 0)."""
-    P = np.eye(M.shape[0]) * penalty
-    P[0, 0] = 0.0
+def _solve(M: np.ndarray, v: np.ndarray, penalty: float,
+           shape: np.ndarray | None = None) -> np.ndarray:
+    """Ridge normal equations with an unpenalised intercept (row/column 0); ``shape`` is the
+    penalty's matrix over the scaled coefficients (the identity when None)."""
+    P = (np.eye(M.shape[0]) if shape is None else shape) * penalty
+    P[0, :] = 0.0
+    P[:, 0] = 0.0
     try:
         return np.linalg.solve(M + P, v)
     except np.linalg.LinAlgError:
@@ -61,11 +71,27 @@ def column_scale(X: np.ndarray, shared: Sequence[bool] | None = None) -> np.ndar
     return sd
 
 
+def penalty_shape(p: int, even: Sequence[bool] | None, even_penalty: float
+                  ) -> np.ndarray | None:
+    """The penalty's matrix over the intercept and ``p`` scaled coefficients: the identity
+    plus ``even_penalty`` times the square of the ``even`` columns' sum (None: the identity)."""
+    if even is None or even_penalty == 0.0:
+        return None
+    flags = np.asarray(even, dtype=bool)
+    if flags.shape != (p,):
+        raise ValueError(f"even: {flags.size} flags for {p} columns")
+    s = np.concatenate([[0.0], flags.astype(float)])
+    return np.eye(p + 1) + even_penalty * np.outer(s, s)
+
+
 def fit_ridge(X: np.ndarray, y: np.ndarray, groups: np.ndarray,
               alphas: tuple[float, ...] = ALPHA_GRID,
-              shared: Sequence[bool] | None = None) -> RidgeFit:
+              shared: Sequence[bool] | None = None,
+              even: Sequence[bool] | None = None, even_penalty: float = 0.0) -> RidgeFit:
     """Ridge of ``y`` on ``X`` with ``alpha`` minimising the out-of-fold RMSE over ``groups``;
-    the columns flagged in ``shared`` share one scale (column_scale).
+    the columns flagged in ``shared`` share one scale (column_scale). ``even``: the columns
+    whose coefficients' sum is penalised ``even_penalty`` times more (a bending axis; they
+    must be ``shared``, so the sum is in one unit).
 
     Ties go to the larger alpha (more shrinkage for the same held-out error).
     """
@@ -74,6 +100,10 @@ def fit_ridge(X: np.ndarray, y: np.ndarray, groups: np.ndarray,
     n, p = X.shape
     mean = X.mean(axis=0) if p else np.zeros(0)
     sd = column_scale(X, shared)
+    shape = penalty_shape(p, even, even_penalty)
+    if shape is not None and (shared is None or any(
+            e and not s for e, s in zip(even, shared, strict=True))):
+        raise ValueError("even: every column of the even-warming sum must be shared (one unit)")
     D = np.empty((n, p + 1))
     D[:, 0] = 1.0
     if p:
@@ -89,14 +119,14 @@ def fit_ridge(X: np.ndarray, y: np.ndarray, groups: np.ndarray,
         sse = np.empty(len(ids))
         for i, r in enumerate(rows):
             n_train = n - int(r.sum())
-            b = _solve(M - M_f[i], v - v_f[i], alpha * n_train)
+            b = _solve(M - M_f[i], v - v_f[i], alpha * n_train, shape)
             sse[i] = max(float(s_f[i] - 2 * b @ v_f[i] + b @ M_f[i] @ b), 0.0)
         total = float(sse.sum())
         if best is None or total < best[0] * (1 - 1e-9):
             best = (total, alpha, sse)
     assert best is not None
     total, alpha, sse = best
-    b = _solve(M, v, alpha * n)
+    b = _solve(M, v, alpha * n, shape)
     coef = b[1:] / sd
     intercept = float(b[0] - (mean / sd) @ b[1:]) if p else float(b[0])
     fold = tuple(float(np.sqrt(s / max(int(r.sum()), 1))) for s, r in zip(sse, rows, strict=True))

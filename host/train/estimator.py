@@ -48,7 +48,7 @@ class ThermalModel(RegressorMixin, BaseEstimator):
                  effects: bool = True, max_channels: int = BOX_CHANNELS,
                  n_blocks: int = DEFAULT_BLOCKS, reference: str | None = None,
                  family: str = DEFAULT_FIT, fill_channels: bool = True,
-                 random_state: int = 0) -> None:
+                 bending: Sequence[str] = (), random_state: int = 0) -> None:
         self.sensor_names = sensor_names
         self.aux_names = aux_names
         self.target_names = target_names
@@ -62,6 +62,7 @@ class ThermalModel(RegressorMixin, BaseEstimator):
         self.reference = reference
         self.family = family  # host train --fit (ridge, ols, auto): ``fit`` is the method
         self.fill_channels = fill_channels
+        self.bending = bending  # host train --bending: targets a column's bending moves
         self.random_state = random_state
 
     # ---- helpers ---------------------------------------------------------------------------
@@ -117,7 +118,8 @@ class ThermalModel(RegressorMixin, BaseEstimator):
                                   effects=self.effects, selection=self.selection,
                                   n_blocks=self.n_blocks, seed=self.random_state,
                                   max_channels=self.max_channels, fit=self.family,
-                                  fill_channels=self.fill_channels, quiet=True, **kwargs)
+                                  fill_channels=self.fill_channels,
+                                  bending=list(self.bending), quiet=True, **kwargs)
         self.axes_ = targets
         self.sensors_ = [c["sensor"] for c in self.model_["channels"]]
         self._single = y.ndim == 1

@@ -65,6 +65,12 @@ from host.train.axis_fit import axis_dict
 FITS = ("auto", "ols", "ridge")
 DEFAULT_FIT = "ridge"  # measured best on unseen runs of every source (docs/next-day.md)
 LAG_TAUS_S = (900.0, 3600.0)  # a fast and a slow part of the structure behind each sensor
+# a bending axis's ridge: the response to an even, settled warming (the sum of its temperature
+# and lag coefficients) costs this many times one coefficient; 1 / 3 / 10 / 30 measured on
+# both simulators' column-bending dy, 3 the highest before the project simulator's dy (whose
+# frame does respond to an even warming a little) lost (docs/next-day.md section 12)
+EVEN_WARMING_PENALTY = 3.0
+EVEN_WARMING_KINDS = ("temp", "lag")  # a rate settles to zero: no part of the settled sum
 MIN_FOLD_SAMPLES = 8  # a training piece shorter than this is left out of a nested fold
 NESTED_MAX_ROWS = 20_000  # beyond this the nested folds train on every k-th sample
 
@@ -230,13 +236,17 @@ def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
 
 
 def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], period_s: float,
-                    n_blocks: int, reference: Reference):
+                    n_blocks: int, reference: Reference, bending: bool = False):
     """The ridge of one axis over ``terms``, its temperature-like terms penalised in kelvin
-    and its penalty chosen on host.fitting.penalty_groups (the stack carries those folds)."""
+    and its penalty chosen on host.fitting.penalty_groups (the stack carries those folds).
+    ``bending``: the axis's response to an even warming is penalised too
+    (EVEN_WARMING_PENALTY; host.fitting.ridge)."""
     st = stack(list(runs), list(terms), target, period_s, n_blocks, reference)
     groups, scheme = penalty_groups(list(runs), n_blocks)
     st = replace(st, groups=groups, scheme=scheme)
-    return fit_ridge(st.X, st.y, st.groups, shared=[t.kind in KELVIN_KINDS for t in terms]), st
+    even = [t.kind in EVEN_WARMING_KINDS for t in terms] if bending else None
+    return fit_ridge(st.X, st.y, st.groups, shared=[t.kind in KELVIN_KINDS for t in terms],
+                     even=even, even_penalty=EVEN_WARMING_PENALTY if bending else 0.0), st
 
 
 def thinned(runs: Sequence[Run], period_s: float, max_rows: int = NESTED_MAX_ROWS
@@ -251,7 +261,7 @@ def thinned(runs: Sequence[Run], period_s: float, max_rows: int = NESTED_MAX_ROW
 
 def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *,
                       aux: Sequence[str], period_s: float, n_blocks: int,
-                      reference: Reference, max_states: int,
+                      reference: Reference, max_states: int, bending: bool = False,
                       quiet: bool = True) -> NestedResult:
     """Each family's held-out error with the whole pipeline refitted without each fold
     (a progress bar over the folds: each is a whole training). The folds train one after
@@ -277,7 +287,7 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
                 start = trained.ridge if with_effects else trained.baseline
                 terms = ridge_basis(start, aux, period_s, shortest, max_states, trained.fill)
                 predict_x = fit_ridge_terms(sub, target, terms, period_s, n_blocks,
-                                            reference)[0].predict
+                                            reference, bending)[0].predict
             else:
                 st = stack(sub, terms, target, period_s, n_blocks, reference)
                 predict_x = fit_linear(st.X, st.y).predict
@@ -299,7 +309,7 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
 
 def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: Sequence[str],
                period_s: float, n_blocks: int, reference: Reference,
-               max_states: int, also: Sequence[str] = ()
+               max_states: int, also: Sequence[str] = (), bending: bool = False
                ) -> tuple[list[Term], object, object] | None:
     """The ridge family fitted on all runs (reading the sensors ``also`` too), within the box's
     states and fixed-point bound (None when not even the terms and temperatures alone fit:
@@ -311,7 +321,7 @@ def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: 
         if basis == tried:
             continue  # one state fewer, the same lags: the same fit, refused already
         tried = basis
-        fit, st = fit_ridge_terms(runs, target, basis, period_s, n_blocks, reference)
+        fit, st = fit_ridge_terms(runs, target, basis, period_s, n_blocks, reference, bending)
         if fixed_point_refusal(basis, fit.coef) is None:
             return basis, fit, st
         if not any(t.kind in FILTER_KINDS for t in basis if t not in terms):

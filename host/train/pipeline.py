@@ -46,6 +46,7 @@ from host.train.axis_fit import axis_dict
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from host.train.next_day import (
     DEFAULT_FIT,
+    EVEN_WARMING_PENALTY,
     FAMILIES,
     FoldTerms,
     channel_fill,
@@ -152,13 +153,14 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
 def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
                          options: dict, period_s: float, n_blocks: int, reference: Reference,
                          max_states: int, fill: Sequence[str] = (), pool: Sequence[str] = (),
-                         quiet: bool = True) -> dict:
+                         bending: bool = False, quiet: bool = True) -> dict:
     """Judge the families by nested validation and keep the one for the next day
     (host.train.next_day); the axis gains ``fit`` and the promised error with its spread.
 
     The ridge also reads the sensors ``fill`` (free channels); each nested fold fills its own
     from ``pool`` when ``fill`` is not empty (the fold's ranking, not the final one). Its basis
-    has at most ``max_states`` distinct filters (next_day.shared_lag_budget)."""
+    has at most ``max_states`` distinct filters (next_day.shared_lag_budget). ``bending``:
+    the ridge also penalises the axis's response to an even warming (next_day)."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
     baseline = axis.get("baseline")
     baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
@@ -181,7 +183,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     if nested:
         result = nested_validation(runs, target, train_fold, aux=aux, period_s=period_s,
                                    n_blocks=n_blocks, reference=reference,
-                                   max_states=max_states, quiet=quiet)
+                                   max_states=max_states, bending=bending, quiet=quiet)
     if fit == "auto" and result is not None:
         candidates = [f for f in FAMILIES if final_terms != baseline_terms
                       or FAMILIES[f][0]]  # without effects, baseline == ols
@@ -204,7 +206,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         for also in ([fill, ()] if fill else [()]):  # the free channels go first if need be
             found = found or ridge_axis(runs, target, terms, aux=aux, period_s=period_s,
                                         n_blocks=n_blocks, reference=reference,
-                                        max_states=max_states, also=also)
+                                        max_states=max_states, also=also, bending=bending)
         if found is None:  # not even the terms alone keep the fixed-point bound: no ridge
             family = family.replace("ridge-", "").replace("ridge", "ols")
         else:
@@ -216,6 +218,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                 _mark_lags_in_basis(axis, basis)
     axis["fit"] = {"family": family, "requested": fit, "alpha": alpha,
                    "free_channels_read": extra,
+                   "even_warming_penalty": EVEN_WARMING_PENALTY if bending else 0.0,
                    "rule": ("the family with the lowest nested error: least squares on the "
                             "selected terms with or without the effects, or a ridge over "
                             "them plus lags and speed and the sensors on the free channels")}
@@ -299,7 +302,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 tc_type: str = DEFAULT_TC_TYPE, max_channels: int = BOX_CHANNELS,
                 reference: str = DEFAULT_REFERENCE, fit: str = DEFAULT_FIT, nested: bool = True,
                 fill_channels: bool = True, tilts: Sequence[Tilt] = (),
-                fill_first: bool | None = None, quiet: bool = True) -> dict:
+                fill_first: bool | None = None, bending: Sequence[str] = (),
+                quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
@@ -313,13 +317,17 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     (see fit_channel_budget). ``fill_first``: the free channels are filled before the effects
     are searched, which may then only use wired sensors (default: with several axes when the
     ridge reads them, i.e. ``fill_channels`` and a fit other than ``ols``; one axis's effects
-    keep the first claim on them; see _free_channel_fill).
+    keep the first claim on them; see _free_channel_fill). ``bending``: targets that a
+    temperature difference across the structure moves rather than an even warming (a
+    column's bending: Y of a vertical machining center); their ridge penalises the response
+    to an even warming (host.train.next_day.EVEN_WARMING_PENALTY).
     """
     targets = list(targets)
     aux = list(aux or [])
+    bending = list(bending)
     _check_options(targets, fit=fit, selection=selection, n_blocks=n_blocks,
                    max_channels=max_channels, max_sensors=max_sensors, tc_type=tc_type,
-                   tilts=tilts)
+                   tilts=tilts, bending=bending)
     data = TrainingData.of(_as_runs(runs, targets, sensors, aux, fill_gaps, tilts), targets,
                            n_blocks, Reference.of_kind(reference))
     choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
@@ -345,7 +353,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                        fill_first=fill_first)  # a fold of one axis fills as this model did
         axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
                                       fill_channels=fill_channels, max_channels=max_channels,
-                                      rankings=rankings, quiet=quiet)
+                                      rankings=rankings, bending=bending, quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
@@ -383,6 +391,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "fill_channels": bool(fill_channels),
             "ambient": ambient,
             "max_channels": int(max_channels),
+            "bending": bending,
         },
     }
     # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
@@ -392,7 +401,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
 
 def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
                    max_channels: int, max_sensors: int, tc_type: str,
-                   tilts: Sequence[Tilt]) -> None:
+                   tilts: Sequence[Tilt], bending: Sequence[str] = ()) -> None:
     """Refuse inconsistent options before any data is read, each with its reason."""
     if not targets:
         raise TrainingError("give at least one --target")
@@ -414,6 +423,13 @@ def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: in
         if tilt.name not in targets:
             raise TrainingError(f"--tilt {tilt.name}: not among the targets "
                                 f"({', '.join(targets)})")
+    for name in bending:
+        if name not in targets:
+            raise TrainingError(f"--bending {name}: not among the targets "
+                                f"({', '.join(targets)})")
+    if bending and fit == "ols":
+        raise TrainingError("--bending shapes the ridge's penalty; --fit ols has none "
+                            "(use --fit ridge or auto)")
 
 
 def _selected_within_budget(data: TrainingData, targets: list[str], max_channels: int,
@@ -507,7 +523,7 @@ def _budget_after_effects(data: TrainingData, axes: dict[str, dict], max_channel
 def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, *,
                            fit: str, nested: bool, fill_channels: bool, max_channels: int,
                            rankings: Callable[[], list[list[str]]],
-                           quiet: bool) -> dict[str, dict]:
+                           bending: Sequence[str] = (), quiet: bool) -> dict[str, dict]:
     """Every axis's family for the next day (fit_for_the_next_day), reading the free
     channels: every axis's ridge reads every wired sensor, and the free channels filled by
     the axes' L1 rankings (a nested fold, trained for one axis, fills its own)."""
@@ -529,7 +545,7 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
                                          nested=nested, options=options,
                                          period_s=data.period_s, n_blocks=data.n_blocks,
                                          reference=data.ref, max_states=budget[i], fill=read,
-                                         pool=pool, quiet=quiet)
+                                         pool=pool, bending=target in bending, quiet=quiet)
             for i, target in enumerate(progress(targets, "nested validation (the next day)",
                                                 quiet=quiet))}
 

@@ -38,6 +38,8 @@ def summary(model: dict, model_path: str) -> dict:
             "promised_rmse_um": m.get("promised_rmse_um"),
             "promised_fold_rmse_um": m.get("promised_fold_rmse_um"),
             "fit": (axis.get("fit") or {}).get("family"),
+            # > 0 for a --bending axis: its ridge's response to an even warming, penalised
+            "even_warming_penalty": (axis.get("fit") or {}).get("even_warming_penalty", 0.0),
             # sensors the ridge reads on the box's free channels (L1 ranking), not selected
             "free_channels_read": free_channels(axis),
             # the loop: before/after the effects, what was added and what is still unexplained
