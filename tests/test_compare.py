@@ -166,3 +166,27 @@ def test_the_box_model_is_compared_and_catches_what_static_fits_miss():
     bare = compare_methods(train, test, ["dz_um"], groups=3, reference="start", box_model=False)
     assert all(not m["method"].startswith("ours, as host train")
                for m in bare["axes"]["dz_um"]["methods"])
+
+
+def test_compare_fits_the_box_model_of_a_bending_axis_as_host_train_would():
+    from host.analysis.evaluate import predict
+    from host.fitting import Reference
+    from host.train import train_model
+
+    train = [_lagged_run("a.csv", 11), _lagged_run("b.csv", 12)]
+    test = [_lagged_run("c.csv", 13)]
+    bent = compare_methods(train, test, ["dz_um"], groups=3, reference="start",
+                           bending=["dz_um"], methods=("paper",))
+    model = train_model(train, ["dz_um"], groups=3, reference="start", nested=False,
+                        bending=["dz_um"])
+    ref = Reference.of_kind("start")
+    err = np.concatenate([ref.apply(t.target("dz_um")) - predict(model, t)["dz_um"]
+                          for t in test])
+    plain = compare_methods(train, test, ["dz_um"], groups=3, reference="start",
+                            methods=("paper",))["axes"]["dz_um"]["methods"][0]
+    box = bent["axes"]["dz_um"]["methods"][0]
+    assert box["method"].startswith("ours, as host train")
+    assert box["test_rmse_um"] != pytest.approx(plain["test_rmse_um"], rel=1e-6)
+    assert box["test_rmse_um"] == pytest.approx(float(np.sqrt(np.mean(err ** 2))), rel=1e-9)
+    with pytest.raises(Exception, match="--bending dx_um: not among the targets"):
+        compare_methods(train, test, ["dz_um"], bending=["dx_um"])

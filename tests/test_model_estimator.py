@@ -118,3 +118,15 @@ def test_the_fit_family_and_the_free_channels_are_estimator_parameters(data):
         # only the ridge with the fill reads more than the two selected sensors
         assert (len(est.sensors_) > 2) is (family == "ridge" and fill)
     assert ThermalModel().get_params()["family"] == "ridge"
+
+
+def test_a_bending_axis_is_an_estimator_parameter_as_in_host_train(data):
+    run, X, y = data
+    kw = dict(sensor_names=run.sensor_names, target_names=["dz_um"], period_s=run.period_s,
+              effects=False, max_sensors=2)
+    est = ThermalModel(**kw, bending=("dz_um",)).fit(X, y)
+    direct = train_model([RUN], ["dz_um"], effects=False, max_sensors=2, bending=["dz_um"])
+    plain = train_model([RUN], ["dz_um"], effects=False, max_sensors=2)
+    assert est.model_["axes"]["dz_um"]["terms"] == direct["axes"]["dz_um"]["terms"]
+    assert est.model_["axes"]["dz_um"]["terms"] != plain["axes"]["dz_um"]["terms"]
+    assert ThermalModel().get_params()["bending"] == ()

@@ -236,3 +236,80 @@ def test_the_ridge_starts_without_the_filters_of_lag_and_rate_effects():
                        900.0) == [make_temp("T1"), fast]
     # a ridge without lags (runs too short for them) leaves every effect its own filter
     assert ridge_start(terms, effects, math.inf) == terms
+
+
+def _bending_data(seed: int = 3, n: int = 600):
+    """A column bent by its front against its back: the front (T1) and back (T2) warm
+    together and the front a little more, the axis moves 17 um/K with their difference only."""
+    rng = np.random.default_rng(seed)
+    common = np.cumsum(rng.normal(0.01, 0.02, n))
+    gradient = 0.2 * common + 0.05 * np.cumsum(rng.normal(0, 0.01, n))
+    front, back = 20 + common + gradient, 20 + common
+    other = 20 + 0.5 * common + 0.02 * rng.standard_normal(n)
+    X = np.column_stack([front, back, other, rng.uniform(0, 8000, n)])
+    y = 17.0 * (front - back) + 0.2 * rng.standard_normal(n)
+    return X, y, np.repeat([0, 1, 2], n // 3)
+
+
+def test_a_bending_axis_ridge_is_the_penalised_least_squares_it_claims_to_be():
+    """Against an independent computation: the augmented least-squares problem of the same
+    penalty, alpha n (|b|^2 + kappa (sum of the even columns' b)^2), on the scaled columns."""
+    X, y, groups = _bending_data()
+    shared, even = [True, True, True, False], [True, True, True, False]
+    alpha, kappa, n = 0.01, 3.0, len(y)
+    fit = fit_ridge(X, y, groups, alphas=(alpha,), shared=shared, even=even,
+                    even_penalty=kappa)
+    mu, sd = X.mean(0), X.std(0)
+    scale = sd.copy()
+    scale[:3] = np.sqrt(np.mean(sd[:3] ** 2))
+    D = (X - mu) / scale
+    s = np.array(even, dtype=float)
+    A = np.vstack([D, math.sqrt(alpha * n) * np.eye(4), math.sqrt(alpha * n * kappa) * s])
+    b = np.linalg.lstsq(A, np.concatenate([y - y.mean(), np.zeros(5)]), rcond=None)[0]
+    np.testing.assert_allclose(fit.coef, b / scale, rtol=1e-8)
+    assert fit.intercept == pytest.approx(y.mean() - (mu / scale) @ b, rel=1e-9)
+
+
+def test_the_even_warming_penalty_shrinks_the_response_to_an_even_warming_as_it_grows():
+    X, y, groups = _bending_data()
+    shared = even = [True, True, True, False]
+    plain = fit_ridge(X, y, groups, shared=shared)
+    none = fit_ridge(X, y, groups, shared=shared, even=even, even_penalty=0.0)
+    np.testing.assert_array_equal(none.coef, plain.coef)
+    assert none.alpha == plain.alpha and none.intercept == plain.intercept
+    sums = [abs(fit_ridge(X, y, groups, alphas=(0.1,), shared=shared, even=even,
+                          even_penalty=k).coef[:3].sum()) for k in (0.0, 1.0, 3.0, 30.0)]
+    assert sums == sorted(sums, reverse=True) and sums[-1] < 0.25 * sums[0]
+    with pytest.raises(ValueError, match="3 flags for 4 columns"):
+        fit_ridge(X, y, groups, shared=shared, even=even[:3], even_penalty=1.0)
+    with pytest.raises(ValueError, match="must be shared"):  # the sum needs one unit
+        fit_ridge(X, y, groups, shared=shared, even=[True, True, True, True],
+                  even_penalty=1.0)
+
+
+def test_train_shapes_only_the_bending_axis_ridge_and_says_so():
+    from host.train import TrainingError
+    from host.train.next_day import EVEN_WARMING_PENALTY
+
+    base = _run("a", 1)
+    t1, t2 = base.temperatures[:, 0], base.temperatures[:, 1]
+    dy = 17.0 * ((t1 - t1[0]) - (t2 - t2[0]))
+    run = Run("a", base.time_s, base.sensor_names, base.temperatures, ["dy_um", "dz_um"],
+              np.column_stack([dy, base.displacements[:, 0]]), base.aux_names, base.aux)
+    kw = dict(aux=["spindle_rpm"], effects=False, groups=3, max_sensors=3, nested=False)
+    plain = train_model([run], ["dy_um", "dz_um"], **kw)
+    bent = train_model([run], ["dy_um", "dz_um"], bending=["dy_um"], **kw)
+    assert bent["training"]["bending"] == ["dy_um"]
+    assert bent["axes"]["dy_um"]["fit"]["even_warming_penalty"] == EVEN_WARMING_PENALTY
+    assert bent["axes"]["dz_um"]["fit"]["even_warming_penalty"] == 0.0
+    assert bent["axes"]["dz_um"]["terms"] == plain["axes"]["dz_um"]["terms"]
+
+    def even_response(model):  # um per kelvin of an even, settled warming
+        return abs(sum(t["coef"] for t in model["axes"]["dy_um"]["terms"]
+                       if t["kind"] in ("temp", "lag")))
+
+    assert even_response(bent) < even_response(plain)
+    with pytest.raises(TrainingError, match="--bending dx_um: not among the targets"):
+        train_model([run], ["dy_um"], bending=["dx_um"], **kw)
+    with pytest.raises(TrainingError, match="--fit ols has none"):
+        train_model([run], ["dy_um"], bending=["dy_um"], fit="ols", **kw)

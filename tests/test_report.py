@@ -427,3 +427,12 @@ def test_run_figure_draws_the_promise_as_a_band_and_ec_figure_the_fold_bars():
     segs = np.concatenate([np.asarray(s) for c in bars for s in c.get_segments()])
     np.testing.assert_allclose(sorted(set(segs[:, 1].round(6))),
                                [1.5, 2.0, 2.4, 2.5, 3.4])
+
+
+def test_the_axis_table_says_which_axes_were_fitted_as_bending():
+    from host.analysis.report import fit_label
+
+    assert fit_label({"family": "ridge", "even_warming_penalty": 3.0}) == "ridge, bending"
+    assert fit_label({"family": "ridge", "even_warming_penalty": 0.0}) == "ridge"
+    assert fit_label({"family": "ols"}) == "ols"  # a model trained before --bending
+    assert fit_label({}) is None

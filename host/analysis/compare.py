@@ -154,17 +154,22 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
                     exhaustive_limit: int = EXHAUSTIVE_LIMIT, seed: int = 0,
                     methods: Sequence[str] = ("validated", "validated-refined", "paper"),
                     reference: str = DEFAULT_REFERENCE, aux: Sequence[str] = (),
-                    box_model: bool = True, quiet: bool = True) -> dict:
+                    box_model: bool = True, bending: Sequence[str] = (),
+                    quiet: bool = True) -> dict:
     """Train every method on ``train_runs`` and report its test RMSE per axis.
 
-    ``box_model`` adds the model ``host train`` makes with its defaults (reading ``aux``; its
-    nested validation is skipped: it does not change the fit). Every method is judged the
+    ``box_model`` adds the model ``host train`` makes with its defaults (reading ``aux``, and
+    ``bending`` for the axes there; its nested validation is skipped: it does not change the
+    fit). Every method is judged the
     same way: with the ``start`` reference the peers are fitted on
     the change since each fold's start and every prediction and measurement is referenced at
     its test run's start (host.fitting.reference)."""
     train_runs, test_runs = list(train_runs), list(test_runs)
     if not train_runs or not test_runs:
         raise InputError("compare needs at least one training and one test run")
+    for name in bending:
+        if name not in targets:
+            raise InputError(f"--bending {name}: not among the targets ({', '.join(targets)})")
     names = train_runs[0].sensor_names
     for run in test_runs:
         if run.sensor_names != names:
@@ -185,7 +190,8 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
             t0 = time.perf_counter()
             model = train_model(train_runs, [target], aux=list(aux), max_sensors=max_sensors,
                                 groups=groups, max_delay_s=max_delay_s, n_blocks=n_blocks,
-                                seed=seed, reference=reference, nested=False)
+                                seed=seed, reference=reference, nested=False,
+                                bending=[target] if target in bending else [])
             dt = time.perf_counter() - t0
             pred = np.concatenate([predict(model, r)[target] for r in test_runs])
             axis = model["axes"][target]

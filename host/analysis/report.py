@@ -327,7 +327,7 @@ def summary_rows(model: dict) -> list[dict]:
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             # the effect search's own figure after its effects (least squares, its folds)
             "effects_validation_rmse_um": axis.get("validation_rmse_um"),
-            "fit": (axis.get("fit") or {}).get("family"),
+            "fit": fit_label(axis.get("fit") or {}),
             "effects": [e.get("name", "?") for e in axis.get("effects", [])
                         if not dropped_reason(e)],
             "effects_dropped": [e.get("name", "?") for e in axis.get("effects", [])
@@ -338,6 +338,14 @@ def summary_rows(model: dict) -> list[dict]:
             "validation": metrics.get("validation"),
         })
     return rows
+
+
+def fit_label(fit: dict) -> str | None:
+    """The fit family, and for a ``--bending`` axis that its even warming was penalised."""
+    family = fit.get("family")
+    if family and fit.get("even_warming_penalty"):
+        return f"{family}, bending"
+    return family
 
 
 @dataclass

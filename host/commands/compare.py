@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
                           max_delay_s=None if args.max_delay_h is None else args.max_delay_h * 3600,
                           exhaustive_limit=args.exhaustive_limit, seed=args.seed,
                           reference=args.reference, aux=args.aux,
-                          quiet=args.json)
+                          bending=args.bending, quiet=args.json)
     if args.json:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
     else:

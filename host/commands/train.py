@@ -49,6 +49,12 @@ def add_data_arguments(parser: argparse.ArgumentParser, tilts: bool = False) -> 
                                  "the test bar: (UPPER - LOWER) * 1000 / DISTANCE_MM, positive "
                                  "when the upper probe reads more; NAME ends in _urad "
                                  "(repeatable; paper 002's five-probe setup)")
+    parser.add_argument("--bending", action="append", default=[], metavar="AXIS",
+                        help="a target that a temperature difference across the structure "
+                             "moves, not an even warming (a column bent by its front against "
+                             "its back: Y of a vertical machining center); its ridge then "
+                             "penalises the response to an even warming (repeatable; "
+                             "docs/next-day.md section 12)")
     parser.add_argument("--sensors", default="T*", metavar="GLOB",
                         help="temperature columns (glob, default %(default)s)")
     parser.add_argument("--aux", action="append", default=[], metavar="COL",
@@ -104,12 +110,6 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "alike); ols: least squares on "
                              "the selected terms and effects (paper 000's eq. 4); auto: the "
                              "family with the lowest nested error (docs/next-day.md)")
-    parser.add_argument("--bending", action="append", default=[], metavar="AXIS",
-                        help="a target that a temperature difference across the structure "
-                             "moves, not an even warming (a column bent by its front against "
-                             "its back: Y of a vertical machining center); its ridge then "
-                             "penalises the response to an even warming (repeatable; "
-                             "docs/next-day.md section 12)")
     parser.add_argument("--no-fill-channels", action="store_true",
                         help="the ridge reads only the selected sensors (default: also the "
                              "best of the others, by an L1 ranking, on the box's free channels)")
