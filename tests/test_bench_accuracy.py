@@ -89,6 +89,29 @@ def test_peer_test_rmse_equals_a_direct_numpy_fit(tmp_path):
     assert row["promised_um"]["default"] > 0
 
 
+def test_the_declared_bending_axis_is_the_default_and_undeclared_is_without_it(tmp_path):
+    from host.train import train_model
+
+    for i, off in enumerate((0.0, 1.0, 3.0)):
+        _tiny_run(tmp_path / f"r{i}.csv", i, off)
+    train, test = (tmp_path / "r0.csv", tmp_path / "r1.csv"), tmp_path / "r2.csv"
+    job = acc.Job("sim_dev", "tiny", tuple(acc.RunSpec(str(p)) for p in train),
+                  (acc.RunSpec(str(test)),), ("dy_um", "dz_um"), "start", bending=("dy_um",))
+    rows, _ = acc.run_job(job)
+    runs = [acc._load(acc.RunSpec(str(p)), ["dy_um", "dz_um"]) for p in train]
+    run = acc._load(acc.RunSpec(str(test)), ["dy_um", "dz_um"])
+    for column, bending in (("default", ["dy_um"]), ("undeclared", [])):
+        model = train_model(runs, ["dy_um", "dz_um"], aux=acc.AUX, reference="start",
+                            bending=bending)
+        pred = acc.raw_prediction(model, run)
+        for row in rows:
+            t = row["target"]
+            expected = acc.score(run.target(t), pred[t], "start", run.period_s)
+            assert row["rmse_um"][column] == pytest.approx(expected, rel=1e-9)
+    dy = next(r for r in rows if r["target"] == "dy_um")
+    assert dy["rmse_um"]["default"] != pytest.approx(dy["rmse_um"]["undeclared"], rel=1e-6)
+
+
 def test_peer_validation_refits_each_peer_without_each_fold():
     rng = np.random.default_rng(3)
     n = 300
