@@ -222,3 +222,20 @@ def test_sim_dev_floor_comes_from_the_manifest_of_the_test_run(tmp_path):
     rows = {r["name"]: r["value"] for r in acc.summary_rows(summary, 1)}
     assert rows["sim_dev: geomean default / its manifest's oracle"] == pytest.approx(3.0)
     assert rows["sim_dev: geomean default / best peer"] == pytest.approx(1.5)
+
+
+def test_fl_next_trains_on_the_recording_so_far_and_judges_the_next_cycle():
+    jobs = acc.fl_next_jobs()
+    assert [j.test[0].start_s for j in jobs] == [2 * acc.FL_CYCLE_S, 3 * acc.FL_CYCLE_S]
+    for job in jobs:
+        (train,), (test,) = job.train, job.test
+        assert train.start_s is None and train.stop_s == test.start_s  # the past, one run
+        assert job.reference == "none" and job.targets == tuple(acc.FL_PROBES)
+        assert [per_probe for _, per_probe in job.variants] == [True, False]
+    assert jobs[0].test[0].stop_s == 3 * acc.FL_CYCLE_S and jobs[-1].test[0].stop_s is None
+    # issue 13's target is on the cycles held out in turn; the forward cases are beside it
+    c = acc.CaseResult("fl_next", "g", "t", "ch1_um", "none")
+    c.rmse_um = {"default": 1.0, "no effects": 1.0, "OLS all": 1.0}
+    rows = acc.summary_rows(acc.summarise([c]), 1)
+    assert next(r for r in rows if r["name"] == "fl_next: geomean default / best peer"
+                )["target"] == ""
