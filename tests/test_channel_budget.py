@@ -101,3 +101,24 @@ def test_the_budget_is_settled_before_the_effects_and_never_removes_one(tmp_path
             for added in effect["added"]:
                 if added["kind"] in ("temp", "lag", "rate", "square"):
                     assert added["source"] in wired and added["source"] in sources
+
+
+def test_auto_gives_up_the_baseline_when_an_effect_rewired_its_sensors():
+    """FL_THERMAL's first two cycles, ch3: the speed family re-selects the sensors (+T14, +T01,
+    -T15, -T03), so the box no longer wires T15 and T03. A family without the effects would
+    read them beside the free channels: ten sensors on eight inputs. `--fit auto` once chose it
+    and training failed its own channel check; such a baseline is no candidate now."""
+    from pathlib import Path
+
+    from contract.terms import Term, term_sensors
+    from host.io import load_run, window
+
+    fl = Path(__file__).resolve().parents[1] / "examples" / "fl_thermal_steps.csv"
+    run = window(load_run(fl, ["ch3_um"], "T*", ["spindle_rpm"]), None, 16 * 3600.0)
+    model = train_model([run], ["ch3_um"], aux=["spindle_rpm"], reference="none", fit="auto")
+    axis = model["axes"]["ch3_um"]
+    wired = {c["sensor"] for c in model["channels"]}
+    assert len(wired) <= 8
+    assert set(term_sensors([Term.from_json(t) for t in axis["terms"]])) <= wired
+    assert not axis["fit"]["family"].endswith("baseline")
+    assert "T15" in axis["fit"]["baseline_not_candidate"]

@@ -153,14 +153,17 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
 def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
                          options: dict, period_s: float, n_blocks: int, reference: Reference,
                          max_states: int, fill: Sequence[str] = (), pool: Sequence[str] = (),
-                         bending: bool = False, quiet: bool = True) -> dict:
+                         box: Sequence[str] = (), bending: bool = False,
+                         quiet: bool = True) -> dict:
     """Judge the families by nested validation and keep the one for the next day
     (host.train.next_day); the axis gains ``fit`` and the promised error with its spread.
 
     The ridge also reads the sensors ``fill`` (free channels); each nested fold fills its own
     from ``pool`` when ``fill`` is not empty (the fold's ranking, not the final one). Its basis
-    has at most ``max_states`` distinct filters (next_day.shared_lag_budget). ``bending``:
-    the ridge also penalises the axis's response to an even warming (next_day)."""
+    has at most ``max_states`` distinct filters (next_day.shared_lag_budget). ``box``: the
+    sensors the box reads; a family without the effects is no candidate when its terms read
+    another (an effect's re-selection gave that sensor's channel away). ``bending``: the
+    ridge also penalises the axis's response to an even warming (next_day)."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
     baseline = axis.get("baseline")
     baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
@@ -184,9 +187,11 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         result = nested_validation(runs, target, train_fold, aux=aux, period_s=period_s,
                                    n_blocks=n_blocks, reference=reference,
                                    max_states=max_states, bending=bending, quiet=quiet)
+    unwired = sorted(set(term_sensors(baseline_terms)) - set(box)) if box else []
     if fit == "auto" and result is not None:
-        candidates = [f for f in FAMILIES if final_terms != baseline_terms
-                      or FAMILIES[f][0]]  # without effects, baseline == ols
+        candidates = [f for f in FAMILIES if FAMILIES[f][0] or (
+            final_terms != baseline_terms  # without effects, baseline == ols
+            and not unwired)]  # the baseline's sensors must still be on the box
         family = min(candidates, key=result.rms)
     else:
         family = "ridge" if fit == "ridge" else "ols"
@@ -222,6 +227,10 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                    "rule": ("the family with the lowest nested error: least squares on the "
                             "selected terms with or without the effects, or a ridge over "
                             "them plus lags and speed and the sensors on the free channels")}
+    if fit == "auto" and unwired:
+        axis["fit"]["baseline_not_candidate"] = (
+            f"the baseline reads {', '.join(unwired)}, which the box no longer wires (an "
+            "effect's re-selection gave the channel away)")
     if result is not None:
         axis["fit"]["nested"] = {"scheme": result.scheme, "fold_rmse_um": result.fold_rmse_um,
                                  "rmse_um": {f: result.rms(f) for f in result.fold_rmse_um}}
@@ -545,7 +554,8 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
                                          nested=nested, options=options,
                                          period_s=data.period_s, n_blocks=data.n_blocks,
                                          reference=data.ref, max_states=budget[i], fill=read,
-                                         pool=pool, bending=target in bending, quiet=quiet)
+                                         pool=pool, box=read or wired,
+                                         bending=target in bending, quiet=quiet)
             for i, target in enumerate(progress(targets, "nested validation (the next day)",
                                                 quiet=quiet))}
 
