@@ -313,3 +313,15 @@ def test_train_shapes_only_the_bending_axis_ridge_and_says_so():
         train_model([run], ["dy_um"], bending=["dx_um"], **kw)
     with pytest.raises(TrainingError, match="--fit ols has none"):
         train_model([run], ["dy_um"], bending=["dy_um"], fit="ols", **kw)
+
+
+def test_a_bending_axis_kept_as_least_squares_does_not_claim_the_penalty(monkeypatch):
+    import host.train.next_day as next_day
+
+    monkeypatch.setattr(next_day.NestedResult, "rms",
+                        lambda self, family: 0.0 if family == "ols" else 1.0)
+    model = train_model([_run("a", 1), _run("b", 2)], ["dz_um"], aux=["spindle_rpm"],
+                        effects=False, groups=3, max_sensors=2, fit="auto", bending=["dz_um"])
+    fit = model["axes"]["dz_um"]["fit"]
+    assert fit["family"] == "ols" and fit["even_warming_penalty"] == 0.0
+    assert model["training"]["bending"] == ["dz_um"]  # what the user declared stays on record

@@ -223,7 +223,9 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                 _mark_lags_in_basis(axis, basis)
     axis["fit"] = {"family": family, "requested": fit, "alpha": alpha,
                    "free_channels_read": extra,
-                   "even_warming_penalty": EVEN_WARMING_PENALTY if bending else 0.0,
+                   # only a ridge has the penalty (auto may keep least squares)
+                   "even_warming_penalty": (EVEN_WARMING_PENALTY if bending and alpha is not None
+                                            else 0.0),
                    "rule": ("the family with the lowest nested error: least squares on the "
                             "selected terms with or without the effects, or a ridge over "
                             "them plus lags and speed and the sensors on the free channels")}
