@@ -311,8 +311,10 @@ def test_train_shapes_only_the_bending_axis_ridge_and_says_so():
     assert even_response(bent) < even_response(plain)
     with pytest.raises(TrainingError, match="--bending dx_um: not among the targets"):
         train_model([run], ["dy_um"], bending=["dx_um"], **kw)
-    with pytest.raises(TrainingError, match="--fit ols has none"):
+    with pytest.raises(TrainingError, match="least squares has none"):
         train_model([run], ["dy_um"], bending=["dy_um"], fit="ols", **kw)
+    with pytest.raises(TrainingError, match="least squares has none"):  # no folds: auto = ols
+        train_model([run], ["dy_um"], bending=["dy_um"], fit="auto", **kw)
 
 
 def test_a_bending_axis_kept_as_least_squares_does_not_claim_the_penalty(monkeypatch):

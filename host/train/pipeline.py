@@ -338,7 +338,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     bending = list(bending)
     _check_options(targets, fit=fit, selection=selection, n_blocks=n_blocks,
                    max_channels=max_channels, max_sensors=max_sensors, tc_type=tc_type,
-                   tilts=tilts, bending=bending)
+                   tilts=tilts, bending=bending, nested=nested)
     data = TrainingData.of(_as_runs(runs, targets, sensors, aux, fill_gaps, tilts), targets,
                            n_blocks, Reference.of_kind(reference))
     choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
@@ -412,7 +412,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
 
 def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
                    max_channels: int, max_sensors: int, tc_type: str,
-                   tilts: Sequence[Tilt], bending: Sequence[str] = ()) -> None:
+                   tilts: Sequence[Tilt], bending: Sequence[str] = (),
+                   nested: bool = True) -> None:
     """Refuse inconsistent options before any data is read, each with its reason."""
     if not targets:
         raise TrainingError("give at least one --target")
@@ -438,9 +439,9 @@ def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: in
         if name not in targets:
             raise TrainingError(f"--bending {name}: not among the targets "
                                 f"({', '.join(targets)})")
-    if bending and fit == "ols":
-        raise TrainingError("--bending shapes the ridge's penalty; --fit ols has none "
-                            "(use --fit ridge or auto)")
+    if bending and (fit == "ols" or (fit == "auto" and not nested)):  # auto is ols then
+        raise TrainingError("--bending shapes the ridge's penalty; least squares has none "
+                            "(--fit ols, or --fit auto with --no-nested: use --fit ridge)")
 
 
 def _selected_within_budget(data: TrainingData, targets: list[str], max_channels: int,
