@@ -97,6 +97,12 @@ AUX = ["spindle_rpm"]
 # center: sim_dev's README, "+ toward the column"; host.sim's column_front/column_back); FL's
 # probe directions are not documented, so it declares none
 BENDING = ("dy_um",)
+BENDING_SOURCES = ("sim", "sim_dev")
+
+
+def declared_bending(source: str) -> tuple[str, ...]:
+    """The axes a source's jobs declare bending (train_model(bending=)): one home for it."""
+    return BENDING if source in BENDING_SOURCES else ()
 # ours: "undeclared" is the default without the job's bending axes (the comparison for the
 # declaration; where a job declares none it is the default itself, not trained twice)
 OURS = {"default": {}, "no effects": {"effects": False}, "paper": {"selection": "paper"},
@@ -271,7 +277,7 @@ def sim_jobs(tmp: Path) -> list[Job]:
             write_simulation(sim, path)
             specs.append(RunSpec(str(path), label=protocol))
         jobs.append(Job("sim", f"machine {m}", tuple(specs[:2]), tuple(specs[2:]),
-                        tuple(SIM_TARGETS), "start", bending=BENDING))
+                        tuple(SIM_TARGETS), "start", bending=declared_bending("sim")))
     return jobs
 
 
@@ -304,13 +310,13 @@ def dev_jobs(big: bool = True) -> list[Job]:
             jobs.append(Job("sim_dev", f"{machine.name} {sc}",
                             tuple(RunSpec(str(f)) for f in train),
                             tuple(RunSpec(str(f)) for f in test), tuple(DEV_TARGETS), "start",
-                            bending=BENDING))
+                            bending=declared_bending("sim_dev")))
         days = [f for f in files if f.name.startswith("S0_") and not f.name.startswith("S0_64")]
         for held in days:
             jobs.append(Job("sim_dev", f"{machine.name} S0 LORO",
                             tuple(RunSpec(str(f)) for f in days if f != held),
                             (RunSpec(str(held)),), tuple(DEV_TARGETS), "start",
-                            bending=BENDING))
+                            bending=declared_bending("sim_dev")))
     return jobs
 
 
@@ -715,7 +721,7 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
              "on the training file, d/val = default / it; "
              "promis = default's metrics.promised_rmse_um (else "
              "validation_rmse_um), "
-             "t/prom = test / promised; ours on sim and sim_dev with "
+             f"t/prom = test / promised; ours on {' and '.join(BENDING_SOURCES)} with "
              f"{', '.join(BENDING)} declared a bending axis (train_model(bending=))",
              head, "-" * len(head)]
     source = None
@@ -845,7 +851,7 @@ def _write(cases: list[CaseResult], summary: dict, timings: list[dict], extra: l
                       "project_reference": Reference is not None,
                       "train_model_reference_kw": bool(train_kwargs("start"))},
         "columns": {"ours": list(OURS), "peers": list(PEERS)},
-        "bending": {"sim": list(BENDING), "sim_dev": list(BENDING), "fl": []},
+        "bending": {source: list(declared_bending(source)) for source in SOURCES},
         "cases": [asdict(c) for c in cases], "summary": summary, "timings": timings,
         "rows": extra}, indent=1, allow_nan=True))
     try:
