@@ -19,6 +19,9 @@ whose coefficients sum to that response (temperatures and lags, not rates: a rat
 zero), and ``even_penalty`` (kappa) penalises the square of the sum kappa times as much as one
 coefficient's: the ridge then gives the front and the back large coefficients of opposite sign
 rather than shrinking both toward the common warming (docs/next-day.md section 12).
+
+The coefficients may be fitted to the rows prefiltered (``fit_on``, host.fitting.prefilter)
+while the out-of-fold error that picks the penalty is scored on the raw rows the box will see.
 """
 
 from __future__ import annotations
@@ -57,6 +60,15 @@ def _solve(M: np.ndarray, v: np.ndarray, penalty: float,
         return np.linalg.lstsq(M + P, v, rcond=None)[0]
 
 
+def _design(X: np.ndarray, mean: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """The intercept's column of ones beside the scaled columns."""
+    D = np.empty((len(X), X.shape[1] + 1))
+    D[:, 0] = 1.0
+    if X.shape[1]:
+        D[:, 1:] = (X - mean) / sd
+    return D
+
+
 def column_scale(X: np.ndarray, shared: Sequence[bool] | None = None) -> np.ndarray:
     """Each column's scale: its own standard deviation, or for the ``shared`` columns (one
     unit) the root mean square of theirs, so their coefficients are penalised alike."""
@@ -87,32 +99,42 @@ def penalty_shape(p: int, even: Sequence[bool] | None, even_penalty: float
 def fit_ridge(X: np.ndarray, y: np.ndarray, groups: np.ndarray,
               alphas: tuple[float, ...] = ALPHA_GRID,
               shared: Sequence[bool] | None = None,
-              even: Sequence[bool] | None = None, even_penalty: float = 0.0) -> RidgeFit:
+              even: Sequence[bool] | None = None, even_penalty: float = 0.0,
+              fit_on: tuple[np.ndarray, np.ndarray] | None = None) -> RidgeFit:
     """Ridge of ``y`` on ``X`` with ``alpha`` minimising the out-of-fold RMSE over ``groups``;
     the columns flagged in ``shared`` share one scale (column_scale). ``even``: the columns
     whose coefficients' sum is penalised ``even_penalty`` times more (a bending axis; they
-    must be ``shared``, so the sum is in one unit).
+    must be ``shared``, so the sum is in one unit). ``fit_on``: the rows (X, y) the
+    coefficients are fitted to, when not ``X``, ``y`` themselves (the same rows prefiltered,
+    host.fitting.prefilter); the out-of-fold error is still scored on ``X``, ``y``.
 
     Ties go to the larger alpha (more shrinkage for the same held-out error).
     """
     X = np.asarray(X, dtype=float)
     y = np.asarray(y, dtype=float)
+    Xf, yf = (X, y) if fit_on is None else (np.asarray(fit_on[0], dtype=float),
+                                            np.asarray(fit_on[1], dtype=float))
+    if Xf.shape != X.shape or yf.shape != y.shape:
+        raise ValueError(f"fit_on: rows of shape {Xf.shape} for {X.shape}")
     n, p = X.shape
-    mean = X.mean(axis=0) if p else np.zeros(0)
-    sd = column_scale(X, shared)
+    mean = Xf.mean(axis=0) if p else np.zeros(0)
+    sd = column_scale(Xf, shared)
     shape = penalty_shape(p, even, even_penalty)
     if shape is not None and (shared is None or any(
             e and not s for e, s in zip(even, shared, strict=True))):
         raise ValueError("even: every column of the even-warming sum must be shared (one unit)")
-    D = np.empty((n, p + 1))
-    D[:, 0] = 1.0
-    if p:
-        D[:, 1:] = (X - mean) / sd
     ids = np.unique(groups)
     rows = [groups == g for g in ids]
-    M_f = np.array([D[r].T @ D[r] for r in rows])
-    v_f = np.array([D[r].T @ y[r] for r in rows])
-    s_f = np.array([float(y[r] @ y[r]) for r in rows])
+    D = _design(X, mean, sd)
+    M_s = np.array([D[r].T @ D[r] for r in rows])  # the scored rows' normal equations
+    v_s = np.array([D[r].T @ y[r] for r in rows])
+    s_s = np.array([float(y[r] @ y[r]) for r in rows])
+    if fit_on is None:
+        M_f, v_f = M_s, v_s
+    else:
+        Df = _design(Xf, mean, sd)
+        M_f = np.array([Df[r].T @ Df[r] for r in rows])
+        v_f = np.array([Df[r].T @ yf[r] for r in rows])
     M, v = M_f.sum(axis=0), v_f.sum(axis=0)
     best: tuple[float, float, np.ndarray] | None = None
     for alpha in sorted(alphas, reverse=True):
@@ -120,7 +142,7 @@ def fit_ridge(X: np.ndarray, y: np.ndarray, groups: np.ndarray,
         for i, r in enumerate(rows):
             n_train = n - int(r.sum())
             b = _solve(M - M_f[i], v - v_f[i], alpha * n_train, shape)
-            sse[i] = max(float(s_f[i] - 2 * b @ v_f[i] + b @ M_f[i] @ b), 0.0)
+            sse[i] = max(float(s_s[i] - 2 * b @ v_s[i] + b @ M_s[i] @ b), 0.0)
         total = float(sse.sum())
         if best is None or total < best[0] * (1 - 1e-9):
             best = (total, alpha, sse)

@@ -14,9 +14,10 @@ select-then-accept is high-variance on data this small. So, per axis:
   same without the effects (an effect is kept only when its evidence also holds in this second
   validation design); ``ridge`` and ``ridge-baseline``, those terms plus first-order lags of
   every sensor read and the spindle speed, fitted by a ridge whose penalty is chosen out of
-  fold and weighs every um/K alike (host.fitting.ridge). ``auto`` keeps the family with the
-  lowest nested error; effects it gives up stay in the report, marked as not in the box's
-  model.
+  fold and weighs every um/K alike (host.fitting.ridge), fitted to its rows low-passed
+  (host.fitting.prefilter: the probes' and thermocouples' noise out of the fit). ``auto``
+  keeps the family with the lowest nested error; effects it gives up stay in the report,
+  marked as not in the box's model.
 
 The ridge reads every wired thermocouple: the sensors the axes selected plus, up to the
 channel budget, the best of the others by an L1 ranking (host.selection.screening), so the box's
@@ -57,6 +58,7 @@ from host.fitting import (
     rmse,
     stack,
 )
+from host.fitting.prefilter import PREFILTER_TAU_S, prefiltered
 from host.io import Run
 from host.progress import progress
 from host.selection import fill_free_channels, l1_ranking
@@ -237,16 +239,19 @@ def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
 
 def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], period_s: float,
                     n_blocks: int, reference: Reference, bending: bool = False):
-    """The ridge of one axis over ``terms``, its temperature-like terms penalised in kelvin
-    and its penalty chosen on host.fitting.penalty_groups (the stack carries those folds).
-    ``bending``: the axis's response to an even warming is penalised too
+    """The ridge of one axis over ``terms``, its temperature-like terms penalised in kelvin,
+    fitted to the rows prefiltered (PREFILTER_TAU_S, host.fitting.prefilter) and its penalty
+    chosen on host.fitting.penalty_groups (the stack carries those folds), scored on the raw
+    rows. ``bending``: the axis's response to an even warming is penalised too
     (EVEN_WARMING_PENALTY; host.fitting.ridge)."""
     st = stack(list(runs), list(terms), target, period_s, n_blocks, reference)
     groups, scheme = penalty_groups(list(runs), n_blocks)
     st = replace(st, groups=groups, scheme=scheme)
     even = [t.kind in EVEN_WARMING_KINDS for t in terms] if bending else None
+    slow = prefiltered(st.X, st.y, [r.n_samples for r in runs], period_s, PREFILTER_TAU_S)
     return fit_ridge(st.X, st.y, st.groups, shared=[t.kind in KELVIN_KINDS for t in terms],
-                     even=even, even_penalty=EVEN_WARMING_PENALTY if bending else 0.0), st
+                     even=even, even_penalty=EVEN_WARMING_PENALTY if bending else 0.0,
+                     fit_on=slow), st
 
 
 def thinned(runs: Sequence[Run], period_s: float, max_rows: int = NESTED_MAX_ROWS

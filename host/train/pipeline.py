@@ -32,6 +32,7 @@ from host.fitting import (
     stack,
     validation_rmse,
 )
+from host.fitting.prefilter import PREFILTER_TAU_S
 from host.fitting.step_limits import add_step_limits
 from host.io import Run, load_runs
 from host.progress import progress
@@ -226,6 +227,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                    # only a ridge has the penalty (auto may keep least squares)
                    "even_warming_penalty": (EVEN_WARMING_PENALTY if bending and alpha is not None
                                             else 0.0),
+                   # the ridge's rows low-passed for the fit (host.fitting.prefilter)
+                   "prefilter_tau_s": PREFILTER_TAU_S if alpha is not None else 0.0,
                    "rule": ("the family with the lowest nested error: least squares on the "
                             "selected terms with or without the effects, or a ridge over "
                             "them plus lags and speed and the sensors on the free channels")}
