@@ -104,9 +104,10 @@ def declared_bending(source: str) -> tuple[str, ...]:
     """The axes a source's jobs declare bending (train_model(bending=)): one home for it."""
     return BENDING if source in BENDING_SOURCES else ()
 # ours: "undeclared" is the default without the job's bending axes (the comparison for the
-# declaration; where a job declares none it is the default itself, not trained twice)
+# declaration; where a job declares none it is the default itself, not trained twice); "no
+# prefilter" is the default with its ridge fitted to the raw rows (host.fitting.prefilter)
 OURS = {"default": {}, "no effects": {"effects": False}, "paper": {"selection": "paper"},
-        "undeclared": {}}
+        "undeclared": {}, "no prefilter": {"prefilter_s": 0.0}}
 PEERS = ("OLS all", "top-4 |r|", "SFS-4", "SFS-5", "LassoCV", "best-4", "best-5",
          "ridge+lags", "lasso+lags", "HGB")
 HGB_MAX_ROWS = 2000  # gradient boosting fits on every k-th training row beyond this
@@ -706,7 +707,7 @@ def _f(x: float, width: int = 6) -> str:
 def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = ()) -> str:
     cols = [*OURS, *PEERS]
     short = {"default": "deflt", "no effects": "noeff", "paper": "paper", "undeclared": "undcl",
-             "OLS all": "OLS",
+             "no prefilter": "nopre", "OLS all": "OLS",
              "top-4 |r|": "top4", "SFS-4": "SFS4", "SFS-5": "SFS5", "LassoCV": "Lasso",
              "best-4": "best4", "best-5": "best5", "ridge+lags": "ridgeL",
              "lasso+lags": "lassoL", "HGB": "HGB"}
@@ -714,8 +715,9 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
             + " ".join(f"{short[c]:>6}" for c in cols)
             + f" {'best peer':<11} {'d/peer':>6} {'d/box':>6} {'val. peer':<11} {'d/val':>6}"
             f" {'promis':>6} {'t/prom':>6}")
-    lines = ["Held-out test RMSE (um); ours = deflt/noeff/paper/undcl (undcl: the default "
-             "without the bending declaration); raw = no compensation; "
+    lines = ["Held-out test RMSE (um); ours = deflt/noeff/paper/undcl/nopre (undcl: the "
+             "default without the bending declaration; nopre: without the ridge's prefilter); "
+             "raw = no compensation; "
              "d/peer = default / best peer, d/box = default / best peer with <= "
              f"{BOX_CHANNELS} sensors, val. peer = the peer with the lowest out-of-fold error "
              "on the training file, d/val = default / it; "

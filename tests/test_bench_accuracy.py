@@ -89,7 +89,8 @@ def test_peer_test_rmse_equals_a_direct_numpy_fit(tmp_path):
     assert row["promised_um"]["default"] > 0
 
 
-def test_the_declared_bending_axis_is_the_default_and_undeclared_is_without_it(tmp_path):
+def test_undeclared_is_the_default_without_its_bending_axes_no_prefilter_without_the_low_pass(
+        tmp_path):
     from host.train import train_model
 
     for i, off in enumerate((0.0, 1.0, 3.0)):
@@ -100,9 +101,10 @@ def test_the_declared_bending_axis_is_the_default_and_undeclared_is_without_it(t
     rows, _ = acc.run_job(job)
     runs = [acc._load(acc.RunSpec(str(p)), ["dy_um", "dz_um"]) for p in train]
     run = acc._load(acc.RunSpec(str(test)), ["dy_um", "dz_um"])
-    for column, bending in (("default", ["dy_um"]), ("undeclared", [])):
+    for column, bending, kw in (("default", ["dy_um"], {}), ("undeclared", [], {}),
+                                ("no prefilter", ["dy_um"], {"prefilter_s": 0.0})):
         model = train_model(runs, ["dy_um", "dz_um"], aux=acc.AUX, reference="start",
-                            bending=bending)
+                            bending=bending, **kw)
         pred = acc.raw_prediction(model, run)
         for row in rows:
             t = row["target"]
@@ -110,6 +112,9 @@ def test_the_declared_bending_axis_is_the_default_and_undeclared_is_without_it(t
             assert row["rmse_um"][column] == pytest.approx(expected, rel=1e-9)
     dy = next(r for r in rows if r["target"] == "dy_um")
     assert dy["rmse_um"]["default"] != pytest.approx(dy["rmse_um"]["undeclared"], rel=1e-6)
+    for row in rows:  # the low-pass changes every ridge axis's fit
+        assert row["rmse_um"]["default"] != pytest.approx(row["rmse_um"]["no prefilter"],
+                                                          rel=1e-6)
 
 
 def test_peer_validation_refits_each_peer_without_each_fold():

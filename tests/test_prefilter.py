@@ -110,3 +110,32 @@ def test_model_json_records_the_prefilter_where_a_ridge_was_fitted():
         == PREFILTER_TAU_S
     ols = train_model([run], ["dz_um"], fit="ols", **kw)["axes"]["dz_um"]
     assert ols.get("fit", {}).get("prefilter_tau_s", 0.0) == 0.0  # least squares: raw rows
+
+
+def test_the_prefilter_is_a_training_option_recorded_and_checked(tmp_path, capsys):
+    import json
+
+    from host.cli import main
+    from host.io import write_run
+    from host.train import TrainingError
+
+    X, y, _ = _slow_and_noisy(7)
+    t = np.arange(len(y)) * 60.0
+    run = Run("a", t, ["T1", "T2"], X, ["dz_um"], y[:, None], [], np.zeros((len(y), 0)))
+    kw = dict(effects=False, nested=False, groups=2, max_sensors=2)
+    default = train_model([run], ["dz_um"], **kw)
+    raw = train_model([run], ["dz_um"], prefilter_s=0.0, **kw)
+    assert default["training"]["prefilter_s"] == PREFILTER_TAU_S
+    assert raw["training"]["prefilter_s"] == 0.0
+    assert raw["axes"]["dz_um"]["fit"]["prefilter_tau_s"] == 0.0
+    assert raw["axes"]["dz_um"]["terms"] != default["axes"]["dz_um"]["terms"]
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(TrainingError, match="--prefilter-s must be 0 .off. or a time"):
+            train_model([run], ["dz_um"], prefilter_s=bad, **kw)
+    csv = tmp_path / "a.csv"
+    write_run(csv, t, {"T1": X[:, 0], "T2": X[:, 1], "dz_um": y})
+    assert main(["train", str(csv), "--target", "dz_um", "--no-nested", "--no-effects",
+                 "--no-codegen", "--prefilter-s", "600", "--out", str(tmp_path / "m")]) == 0
+    model = json.loads((tmp_path / "m" / "model.json").read_text())
+    assert model["axes"]["dz_um"]["fit"]["prefilter_tau_s"] == 600.0
+    capsys.readouterr()

@@ -14,6 +14,7 @@ from contract.terms import FILTER_KINDS, Term, filter_states
 from contract.tilt import Tilt, unit_of
 from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
+from host.fitting.prefilter import PREFILTER_TAU_S
 from host.io import load_runs
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
 from host.train import DEFAULT_FIT, FITS, dropped_reason, ridge_lags_note, summary, train_model
@@ -110,6 +111,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "alike); ols: least squares on "
                              "the selected terms and effects (paper 000's eq. 4); auto: the "
                              "family with the lowest nested error (docs/next-day.md)")
+    parser.add_argument("--prefilter-s", type=float, default=PREFILTER_TAU_S, metavar="S",
+                        help="the ridge is fitted to its rows low-passed by this time constant "
+                             "(the probes' and thermocouples' noise out of the fit; the box "
+                             "runs the same coefficients on raw readings); 0: the raw rows "
+                             "(default %(default)g; docs/next-day.md section 13)")
     parser.add_argument("--no-fill-channels", action="store_true",
                         help="the ridge reads only the selected sensors (default: also the "
                              "best of the others, by an L1 ranking, on the box's free channels)")
@@ -221,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
                         tc_type=args.tc_type, max_channels=args.max_channels,
                         reference=args.reference, fit=args.fit, nested=not args.no_nested,
                         fill_channels=not args.no_fill_channels, tilts=args.tilt,
-                        bending=args.bending, quiet=args.json)
+                        bending=args.bending, prefilter_s=args.prefilter_s, quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"
     header = None

@@ -27,6 +27,7 @@ from contract.box import BOX_CHANNELS
 from contract.errors import InputError
 from contract.terms import Term
 from host.fitting import Reference, design_matrix
+from host.fitting.prefilter import PREFILTER_TAU_S
 from host.io import Run
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS
 from host.train.next_day import DEFAULT_FIT
@@ -48,7 +49,8 @@ class ThermalModel(RegressorMixin, BaseEstimator):
                  effects: bool = True, max_channels: int = BOX_CHANNELS,
                  n_blocks: int = DEFAULT_BLOCKS, reference: str | None = None,
                  family: str = DEFAULT_FIT, fill_channels: bool = True,
-                 bending: Sequence[str] = (), random_state: int = 0) -> None:
+                 bending: Sequence[str] = (), prefilter_s: float = PREFILTER_TAU_S,
+                 random_state: int = 0) -> None:
         self.sensor_names = sensor_names
         self.aux_names = aux_names
         self.target_names = target_names
@@ -63,6 +65,7 @@ class ThermalModel(RegressorMixin, BaseEstimator):
         self.family = family  # host train --fit (ridge, ols, auto): ``fit`` is the method
         self.fill_channels = fill_channels
         self.bending = bending  # host train --bending: targets a column's bending moves
+        self.prefilter_s = prefilter_s  # host train --prefilter-s: the ridge's low-pass (s)
         self.random_state = random_state
 
     # ---- helpers ---------------------------------------------------------------------------
@@ -119,7 +122,8 @@ class ThermalModel(RegressorMixin, BaseEstimator):
                                   n_blocks=self.n_blocks, seed=self.random_state,
                                   max_channels=self.max_channels, fit=self.family,
                                   fill_channels=self.fill_channels,
-                                  bending=list(self.bending), quiet=True, **kwargs)
+                                  bending=list(self.bending), prefilter_s=self.prefilter_s,
+                                  quiet=True, **kwargs)
         self.axes_ = targets
         self.sensors_ = [c["sensor"] for c in self.model_["channels"]]
         self._single = y.ndim == 1

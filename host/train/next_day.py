@@ -99,6 +99,20 @@ class FoldTerms:
 TrainFold = Callable[[list[Run]], FoldTerms]
 
 
+@dataclass(frozen=True)
+class RidgeOptions:
+    """How an axis's ridge is fitted beyond its basis: ``bending``, its response to an even
+    warming penalised too (EVEN_WARMING_PENALTY, section 12 of docs/next-day.md), and
+    ``prefilter_s``, the low-pass its rows are fitted through (host.fitting.prefilter; 0: the
+    raw rows, as before main 4102d6e)."""
+
+    bending: bool = False
+    prefilter_s: float = PREFILTER_TAU_S
+
+
+DEFAULT_RIDGE = RidgeOptions()
+
+
 def lag_family_filters(effects: Sequence[dict]) -> list[Term]:
     """The lags and rates that lag and rate effects added, in the effects' order."""
     return [Term.from_json(t) for e in effects if e.get("kind") in LAG_FAMILY_KINDS
@@ -238,20 +252,20 @@ def ridge_basis(terms: Sequence[Term], aux: Sequence[str], period_s: float,
 
 
 def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], period_s: float,
-                    n_blocks: int, reference: Reference, bending: bool = False):
+                    n_blocks: int, reference: Reference, ridge: RidgeOptions = DEFAULT_RIDGE):
     """The ridge of one axis over ``terms``, its temperature-like terms penalised in kelvin,
-    fitted to the rows prefiltered (PREFILTER_TAU_S, host.fitting.prefilter) and its penalty
-    chosen on host.fitting.penalty_groups (the stack carries those folds), scored on the raw
-    rows. ``bending``: the axis's response to an even warming is penalised too
+    fitted to the rows prefiltered (``ridge.prefilter_s``, host.fitting.prefilter) and its
+    penalty chosen on host.fitting.penalty_groups (the stack carries those folds), scored on
+    the raw rows. ``ridge.bending``: the axis's response to an even warming is penalised too
     (EVEN_WARMING_PENALTY; host.fitting.ridge)."""
     st = stack(list(runs), list(terms), target, period_s, n_blocks, reference)
     groups, scheme = penalty_groups(list(runs), n_blocks)
     st = replace(st, groups=groups, scheme=scheme)
-    even = [t.kind in EVEN_WARMING_KINDS for t in terms] if bending else None
-    slow = prefiltered(st.X, st.y, [r.n_samples for r in runs], period_s, PREFILTER_TAU_S)
+    even = [t.kind in EVEN_WARMING_KINDS for t in terms] if ridge.bending else None
+    slow = prefiltered(st.X, st.y, [r.n_samples for r in runs], period_s, ridge.prefilter_s)
     return fit_ridge(st.X, st.y, st.groups, shared=[t.kind in KELVIN_KINDS for t in terms],
-                     even=even, even_penalty=EVEN_WARMING_PENALTY if bending else 0.0,
-                     fit_on=slow), st
+                     even=even, even_penalty=EVEN_WARMING_PENALTY if ridge.bending else 0.0,
+                     fit_on=slow if ridge.prefilter_s > 0 else None), st
 
 
 def thinned(runs: Sequence[Run], period_s: float, max_rows: int = NESTED_MAX_ROWS
@@ -266,8 +280,8 @@ def thinned(runs: Sequence[Run], period_s: float, max_rows: int = NESTED_MAX_ROW
 
 def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *,
                       aux: Sequence[str], period_s: float, n_blocks: int,
-                      reference: Reference, max_states: int, bending: bool = False,
-                      quiet: bool = True) -> NestedResult:
+                      reference: Reference, max_states: int,
+                      ridge: RidgeOptions = DEFAULT_RIDGE, quiet: bool = True) -> NestedResult:
     """Each family's held-out error with the whole pipeline refitted without each fold
     (a progress bar over the folds: each is a whole training). The folds train one after
     the other: they are Python-bound, and on two threads they took as long as on one
@@ -292,7 +306,7 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
                 start = trained.ridge if with_effects else trained.baseline
                 terms = ridge_basis(start, aux, period_s, shortest, max_states, trained.fill)
                 predict_x = fit_ridge_terms(sub, target, terms, period_s, n_blocks,
-                                            reference, bending)[0].predict
+                                            reference, ridge)[0].predict
             else:
                 st = stack(sub, terms, target, period_s, n_blocks, reference)
                 predict_x = fit_linear(st.X, st.y).predict
@@ -314,7 +328,8 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
 
 def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: Sequence[str],
                period_s: float, n_blocks: int, reference: Reference,
-               max_states: int, also: Sequence[str] = (), bending: bool = False
+               max_states: int, also: Sequence[str] = (),
+               ridge: RidgeOptions = DEFAULT_RIDGE
                ) -> tuple[list[Term], object, object] | None:
     """The ridge family fitted on all runs (reading the sensors ``also`` too), within the box's
     states and fixed-point bound (None when not even the terms and temperatures alone fit:
@@ -326,7 +341,7 @@ def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: 
         if basis == tried:
             continue  # one state fewer, the same lags: the same fit, refused already
         tried = basis
-        fit, st = fit_ridge_terms(runs, target, basis, period_s, n_blocks, reference, bending)
+        fit, st = fit_ridge_terms(runs, target, basis, period_s, n_blocks, reference, ridge)
         if fixed_point_refusal(basis, fit.coef) is None:
             return basis, fit, st
         if not any(t.kind in FILTER_KINDS for t in basis if t not in terms):

@@ -47,9 +47,11 @@ from host.train.axis_fit import axis_dict
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from host.train.next_day import (
     DEFAULT_FIT,
+    DEFAULT_RIDGE,
     EVEN_WARMING_PENALTY,
     FAMILIES,
     FoldTerms,
+    RidgeOptions,
     channel_fill,
     check_fit,
     fastest_lag_s,
@@ -154,7 +156,7 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
 def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
                          options: dict, period_s: float, n_blocks: int, reference: Reference,
                          max_states: int, fill: Sequence[str] = (), pool: Sequence[str] = (),
-                         box: Sequence[str] = (), bending: bool = False,
+                         box: Sequence[str] = (), ridge: RidgeOptions = DEFAULT_RIDGE,
                          quiet: bool = True) -> dict:
     """Judge the families by nested validation and keep the one for the next day
     (host.train.next_day); the axis gains ``fit`` and the promised error with its spread.
@@ -163,8 +165,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     from ``pool`` when ``fill`` is not empty (the fold's ranking, not the final one). Its basis
     has at most ``max_states`` distinct filters (next_day.shared_lag_budget). ``box``: the
     sensors the box reads; a family without the effects is no candidate when its terms read
-    another (an effect's re-selection gave that sensor's channel away). ``bending``: the
-    ridge also penalises the axis's response to an even warming (next_day)."""
+    another (an effect's re-selection gave that sensor's channel away). ``ridge``: how the
+    ridge is fitted beyond its basis (the bending penalty, the prefilter; next_day)."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
     baseline = axis.get("baseline")
     baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
@@ -187,7 +189,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     if nested:
         result = nested_validation(runs, target, train_fold, aux=aux, period_s=period_s,
                                    n_blocks=n_blocks, reference=reference,
-                                   max_states=max_states, bending=bending, quiet=quiet)
+                                   max_states=max_states, ridge=ridge, quiet=quiet)
     unwired = sorted(set(term_sensors(baseline_terms)) - set(box)) if box else []
     if fit == "auto" and result is not None:
         candidates = [f for f in FAMILIES if FAMILIES[f][0] or (
@@ -212,23 +214,23 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         for also in ([fill, ()] if fill else [()]):  # the free channels go first if need be
             found = found or ridge_axis(runs, target, terms, aux=aux, period_s=period_s,
                                         n_blocks=n_blocks, reference=reference,
-                                        max_states=max_states, also=also, bending=bending)
+                                        max_states=max_states, also=also, ridge=ridge)
         if found is None:  # not even the terms alone keep the fixed-point bound: no ridge
             family = family.replace("ridge-", "").replace("ridge", "ols")
         else:
-            basis, ridge, st = found
+            basis, shrunk_fit, st = found
             extra = [s for s in term_sensors(basis) if s not in term_sensors(terms)]
-            axis = {**axis, **ridge_axis_dict(basis, ridge, st)}
-            alpha = float(ridge.alpha)
+            axis = {**axis, **ridge_axis_dict(basis, shrunk_fit, st)}
+            alpha = float(shrunk_fit.alpha)
             if with_effects:
                 _mark_lags_in_basis(axis, basis)
     axis["fit"] = {"family": family, "requested": fit, "alpha": alpha,
                    "free_channels_read": extra,
                    # only a ridge has the penalty (auto may keep least squares)
-                   "even_warming_penalty": (EVEN_WARMING_PENALTY if bending and alpha is not None
-                                            else 0.0),
+                   "even_warming_penalty": (EVEN_WARMING_PENALTY
+                                            if ridge.bending and alpha is not None else 0.0),
                    # the ridge's rows low-passed for the fit (host.fitting.prefilter)
-                   "prefilter_tau_s": PREFILTER_TAU_S if alpha is not None else 0.0,
+                   "prefilter_tau_s": ridge.prefilter_s if alpha is not None else 0.0,
                    "rule": ("the family with the lowest nested error: least squares on the "
                             "selected terms with or without the effects, or a ridge over "
                             "them plus lags and speed and the sensors on the free channels")}
@@ -317,7 +319,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 reference: str = DEFAULT_REFERENCE, fit: str = DEFAULT_FIT, nested: bool = True,
                 fill_channels: bool = True, tilts: Sequence[Tilt] = (),
                 fill_first: bool | None = None, bending: Sequence[str] = (),
-                quiet: bool = True) -> dict:
+                prefilter_s: float = PREFILTER_TAU_S, quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
@@ -334,14 +336,16 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     keep the first claim on them; see _free_channel_fill). ``bending``: targets that a
     temperature difference across the structure moves rather than an even warming (a
     column's bending: Y of a vertical machining center); their ridge penalises the response
-    to an even warming (host.train.next_day.EVEN_WARMING_PENALTY).
+    to an even warming (host.train.next_day.EVEN_WARMING_PENALTY). ``prefilter_s``: the time
+    constant (s) of the low-pass the ridge's rows are fitted through (host.fitting.prefilter;
+    0: the raw rows).
     """
     targets = list(targets)
     aux = list(aux or [])
     bending = list(bending)
     _check_options(targets, fit=fit, selection=selection, n_blocks=n_blocks,
                    max_channels=max_channels, max_sensors=max_sensors, tc_type=tc_type,
-                   tilts=tilts, bending=bending, nested=nested)
+                   tilts=tilts, bending=bending, nested=nested, prefilter_s=prefilter_s)
     data = TrainingData.of(_as_runs(runs, targets, sensors, aux, fill_gaps, tilts), targets,
                            n_blocks, Reference.of_kind(reference))
     choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
@@ -367,7 +371,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                        fill_first=fill_first)  # a fold of one axis fills as this model did
         axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
                                       fill_channels=fill_channels, max_channels=max_channels,
-                                      rankings=rankings, bending=bending, quiet=quiet)
+                                      rankings=rankings, bending=bending,
+                                      prefilter_s=prefilter_s, quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
@@ -406,6 +411,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
             "ambient": ambient,
             "max_channels": int(max_channels),
             "bending": bending,
+            "prefilter_s": float(prefilter_s),
         },
     }
     # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
@@ -416,7 +422,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
 def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
                    max_channels: int, max_sensors: int, tc_type: str,
                    tilts: Sequence[Tilt], bending: Sequence[str] = (),
-                   nested: bool = True) -> None:
+                   nested: bool = True, prefilter_s: float = PREFILTER_TAU_S) -> None:
     """Refuse inconsistent options before any data is read, each with its reason."""
     if not targets:
         raise TrainingError("give at least one --target")
@@ -442,6 +448,9 @@ def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: in
         if name not in targets:
             raise TrainingError(f"--bending {name}: not among the targets "
                                 f"({', '.join(targets)})")
+    if not (math.isfinite(prefilter_s) and prefilter_s >= 0):
+        raise TrainingError(f"--prefilter-s must be 0 (off) or a time constant in seconds "
+                            f"(got {prefilter_s})")
     if bending and (fit == "ols" or (fit == "auto" and not nested)):  # auto is ols then
         raise TrainingError("--bending shapes the ridge's penalty; least squares has none "
                             "(--fit ols, or --fit auto with --no-nested: use --fit ridge)")
@@ -538,7 +547,8 @@ def _budget_after_effects(data: TrainingData, axes: dict[str, dict], max_channel
 def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, *,
                            fit: str, nested: bool, fill_channels: bool, max_channels: int,
                            rankings: Callable[[], list[list[str]]],
-                           bending: Sequence[str] = (), quiet: bool) -> dict[str, dict]:
+                           bending: Sequence[str] = (), prefilter_s: float = PREFILTER_TAU_S,
+                           quiet: bool) -> dict[str, dict]:
     """Every axis's family for the next day (fit_for_the_next_day), reading the free
     channels: every axis's ridge reads every wired sensor, and the free channels filled by
     the axes' L1 rankings (a nested fold, trained for one axis, fills its own)."""
@@ -561,7 +571,8 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
                                          period_s=data.period_s, n_blocks=data.n_blocks,
                                          reference=data.ref, max_states=budget[i], fill=read,
                                          pool=pool, box=read or wired,
-                                         bending=target in bending, quiet=quiet)
+                                         ridge=RidgeOptions(target in bending, prefilter_s),
+                                         quiet=quiet)
             for i, target in enumerate(progress(targets, "nested validation (the next day)",
                                                 quiet=quiet))}
 
