@@ -101,18 +101,7 @@ def test_the_prefilter_pulls_the_coefficients_less_toward_zero_on_noisy_readings
         assert np.abs(pre.coef - truth).max() < 0.5 * np.abs(raw.coef - truth).max()
 
 
-def test_model_json_records_the_prefilter_where_a_ridge_was_fitted():
-    X, y, _ = _slow_and_noisy(6)
-    t = np.arange(len(y)) * 60.0
-    run = Run("a", t, ["T1", "T2"], X, ["dz_um"], y[:, None], [], np.zeros((len(y), 0)))
-    kw = dict(effects=False, nested=False, groups=2, max_sensors=2)
-    assert train_model([run], ["dz_um"], **kw)["axes"]["dz_um"]["fit"]["prefilter_tau_s"] \
-        == PREFILTER_TAU_S
-    ols = train_model([run], ["dz_um"], fit="ols", **kw)["axes"]["dz_um"]
-    assert ols.get("fit", {}).get("prefilter_tau_s", 0.0) == 0.0  # least squares: raw rows
-
-
-def test_the_prefilter_is_a_training_option_recorded_and_checked(tmp_path, capsys):
+def test_the_prefilter_is_a_training_option_recorded_and_checked(tmp_path):
     import json
 
     from host.cli import main
@@ -126,6 +115,7 @@ def test_the_prefilter_is_a_training_option_recorded_and_checked(tmp_path, capsy
     default = train_model([run], ["dz_um"], **kw)
     raw = train_model([run], ["dz_um"], prefilter_s=0.0, **kw)
     assert default["training"]["prefilter_s"] == PREFILTER_TAU_S
+    assert default["axes"]["dz_um"]["fit"]["prefilter_tau_s"] == PREFILTER_TAU_S
     assert raw["training"]["prefilter_s"] == 0.0
     assert raw["axes"]["dz_um"]["fit"]["prefilter_tau_s"] == 0.0
     assert raw["axes"]["dz_um"]["terms"] != default["axes"]["dz_um"]["terms"]
@@ -138,4 +128,18 @@ def test_the_prefilter_is_a_training_option_recorded_and_checked(tmp_path, capsy
                  "--no-codegen", "--prefilter-s", "600", "--out", str(tmp_path / "m")]) == 0
     model = json.loads((tmp_path / "m" / "model.json").read_text())
     assert model["axes"]["dz_um"]["fit"]["prefilter_tau_s"] == 600.0
-    capsys.readouterr()
+
+
+def test_an_axis_kept_as_least_squares_does_not_claim_the_prefilter(monkeypatch):
+    """`--fit auto` may keep least squares, which fits the raw rows: the axis says 0."""
+    import host.train.next_day as next_day
+
+    monkeypatch.setattr(next_day.NestedResult, "rms",
+                        lambda self, family: 0.0 if family == "ols" else 1.0)
+    X, y, _ = _slow_and_noisy(8)
+    t = np.arange(len(y)) * 60.0
+    run = Run("a", t, ["T1", "T2"], X, ["dz_um"], y[:, None], [], np.zeros((len(y), 0)))
+    model = train_model([run], ["dz_um"], effects=False, groups=2, max_sensors=2, fit="auto")
+    fit = model["axes"]["dz_um"]["fit"]
+    assert fit["family"] == "ols" and fit["prefilter_tau_s"] == 0.0
+    assert model["training"]["prefilter_s"] == PREFILTER_TAU_S  # what was asked, on record
