@@ -41,7 +41,10 @@ refitted, its own settings too, without each fold of ``fold_groups``; ``peer_val
 
 For sim_dev the bench also carries its manifest's scores of each test run (``floor_um``): the
 oracle (least squares on the true node temperatures and effect term, what a model could at
-best reach) and the probe noise floor, as its README asks ("use the oracle as the floor").
+best reach), the oracle without the hidden parts (the same on every measurable node and the
+air: what perfect sensors everywhere could give, no unmeasured shaft, no effect term) and the
+probe noise floor, as its README asks ("use the oracle as the floor"). The oracle without the
+hidden parts is given per axis: it tells an axis whose sensors limit it from one near the floor.
 
 Per case: every column's test RMSE (um), ours / best peer, ours / the peer picked by
 validation, and the error ``host train`` promised (the axis's ``metrics.promised_rmse_um``,
@@ -216,7 +219,8 @@ class CaseResult:
     n_terms: dict[str, int] = field(default_factory=dict)  # ours -> terms on this axis
     raw_um: float = math.nan  # scored error of predicting zero change
     # sim_dev only: its manifest's scores of the test run ("oracle": least squares on the true
-    # node temperatures and effect term, the floor a model could reach; "noise floor")
+    # node temperatures and effect term, the floor a model could reach; "oracle without
+    # hidden": on the measurable nodes and the air only; "noise floor")
     floor_um: dict[str, float] = field(default_factory=dict)
     peer_sensors: dict[str, int] = field(default_factory=dict)  # peer -> sensors it reads
     # peer -> its out-of-fold RMSE on the training file (peer_validation)
@@ -294,7 +298,10 @@ def manifest_floor(test_path: str, target: str) -> dict[str, float]:
     for scenario in json.loads(manifest.read_text()).get("scenarios", []):
         scores = scenario.get("rmse_um", {}).get(path.name, {}).get(axis)
         if scores:
-            return {"oracle": float(scores["oracle"]), "noise floor": float(scores["noise_floor"])}
+            out = {"oracle": float(scores["oracle"]), "noise floor": float(scores["noise_floor"])}
+            if "oracle_without_hidden" in scores:
+                out["oracle without hidden"] = float(scores["oracle_without_hidden"])
+            return out
     return {}
 
 
@@ -673,6 +680,21 @@ def summarise(cases: list[CaseResult]) -> dict:
                 "geomean oracle / noise floor": geomean(
                     [c.floor_um["oracle"] / c.floor_um["noise floor"] for c in floored]),
             })
+        visible = [c for c in cs if c.floor_um.get("oracle without hidden", 0) > 0]
+        if visible:  # per axis: is it the sensors or the model that is short of the floor?
+            out["per_source"][source]["against the oracle without hidden parts"] = {
+                target: {
+                    "cases": len(ct),
+                    "geomean default / it": geomean(
+                        [c.rmse_um["default"] / c.floor_um["oracle without hidden"]
+                         for c in ct]),
+                    "geomean best peer / it": geomean(
+                        [c.best_peer[1] / c.floor_um["oracle without hidden"] for c in ct]),
+                    "geomean it / noise floor": geomean(
+                        [c.floor_um["oracle without hidden"] / c.floor_um["noise floor"]
+                         for c in ct])}
+                for target in dict.fromkeys(c.target for c in visible)
+                for ct in [[c for c in visible if c.target == target]]}
         ratios = [c.rmse_um["default"] / c.promised_um["default"] for c in cs
                   if c.promised_um.get("default", 0) > 0]
         out["calibration"][source] = {
@@ -770,6 +792,12 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
                          f"{s['geomean default / oracle']:.2f}x, best peer "
                          f"{s['geomean best peer / oracle']:.2f}x; the oracle is "
                          f"{s['geomean oracle / noise floor']:.2f}x the probe noise floor")
+        for target, v in s.get("against the oracle without hidden parts", {}).items():
+            lines.append(f"           {target} against the oracle without hidden parts "
+                         f"(perfect sensors on every measurable node, {v['cases']} cases): "
+                         f"default {v['geomean default / it']:.2f}x, best peer "
+                         f"{v['geomean best peer / it']:.2f}x; it is "
+                         f"{v['geomean it / noise floor']:.2f}x the probe noise floor")
     worse = summary["loop_worse"]
     lines.append(f"The loop (default vs effects=False): worse by more than "
                  f"{100 * (LOOP_TOLERANCE - 1):.0f} % in {len(worse)} of {len(cases)} cases")
@@ -898,6 +926,11 @@ def summary_rows(summary: dict, n_cases: int) -> list[dict]:
                          "value": s["geomean default / oracle"], "unit": "ratio",
                          "detail": f"best peer {s['geomean best peer / oracle']:.2f}x; "
                          f"{s['cases with an oracle']} cases"})
+        for target, v in s.get("against the oracle without hidden parts", {}).items():
+            rows.append({"name": f"{source}: geomean default / oracle without hidden, {target}",
+                         "value": v["geomean default / it"], "unit": "ratio",
+                         "detail": f"best peer {v['geomean best peer / it']:.2f}x; perfect "
+                         f"sensors on every measurable node; {v['cases']} cases"})
         cal = summary["calibration"][source]
         rows.append({"name": f"{source}: promised error within 2x of test", "value":
                      cal["within factor 2"], "unit": f"of {cal['cases']}",

@@ -208,9 +208,11 @@ def test_sim_dev_floor_comes_from_the_manifest_of_the_test_run(tmp_path):
 
     (tmp_path / "manifest.json").write_text(json.dumps({"scenarios": [
         {"id": "S0", "rmse_um": {"S0_test_P3.csv": {
-            "dy": {"oracle": 0.3, "noise_floor": 0.2, "naive_ols_all_sensors": 0.8}}}}]}))
+            "dy": {"oracle": 0.3, "noise_floor": 0.2, "naive_ols_all_sensors": 0.8,
+                   "oracle_without_hidden": 0.45}}}}]}))
     run = tmp_path / "S0_test_P3.csv"
-    assert acc.manifest_floor(str(run), "dy_um") == {"oracle": 0.3, "noise floor": 0.2}
+    assert acc.manifest_floor(str(run), "dy_um") == {"oracle": 0.3, "noise floor": 0.2,
+                                                     "oracle without hidden": 0.45}
     # no score for that axis or run (a training run held out), or no manifest: no floor
     assert acc.manifest_floor(str(run), "dz_um") == {}
     assert acc.manifest_floor(str(tmp_path / "S0_train_P1.csv"), "dy_um") == {}
@@ -224,8 +226,15 @@ def test_sim_dev_floor_comes_from_the_manifest_of_the_test_run(tmp_path):
     assert s["geomean default / oracle"] == pytest.approx(3.0)
     assert s["geomean best peer / oracle"] == pytest.approx(2.0)
     assert s["geomean oracle / noise floor"] == pytest.approx(1.5)
+    visible = s["against the oracle without hidden parts"]["dy_um"]
+    assert visible["cases"] == 1
+    assert visible["geomean default / it"] == pytest.approx(2.0)
+    assert visible["geomean best peer / it"] == pytest.approx(0.6 / 0.45)
+    assert visible["geomean it / noise floor"] == pytest.approx(2.25)
     rows = {r["name"]: r["value"] for r in acc.summary_rows(summary, 1)}
     assert rows["sim_dev: geomean default / its manifest's oracle"] == pytest.approx(3.0)
+    assert rows["sim_dev: geomean default / oracle without hidden, dy_um"] == pytest.approx(2.0)
+    assert "dy_um against the oracle without hidden parts" in acc.table([c], summary)
     assert rows["sim_dev: geomean default / best peer"] == pytest.approx(1.5)
 
 
