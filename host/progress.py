@@ -10,6 +10,9 @@ from tqdm import tqdm
 
 T = TypeVar("T")
 _QUIET = False
+# no monitor thread (it only retunes refresh rates): host.parallel forks this process, and a
+# fork copies a lock a running thread may hold
+tqdm.monitor_interval = 0
 
 
 def set_quiet(quiet: bool) -> None:

@@ -146,6 +146,34 @@ def test_nested_folds_of_long_runs_train_on_the_thinned_runs(monkeypatch):
     assert res.fold_rmse_um["baseline"][0] == pytest.approx(expect, rel=1e-6)
 
 
+def test_nested_folds_in_forked_processes_give_the_serial_folds_errors(monkeypatch):
+    import host.train.next_day as next_day
+
+    runs = [_run("a", 1), _run("b", 2), _run("c", 3)]  # 1,440 samples in all
+    terms = [make_temp("T1"), make_temp("T2")]
+    asked = []
+    real = next_day.forked_map
+
+    def recorded(work, items, desc, *, workers=None, quiet=True):
+        asked.append(workers)
+        return real(work, items, desc, workers=workers, quiet=quiet)
+
+    def train_fold(sub):
+        return FoldTerms(terms + [make_lag("T1", 1800.0, PERIOD)], terms, terms, [])
+
+    monkeypatch.setattr(next_day, "forked_map", recorded)
+    kwargs = dict(aux=["spindle_rpm"], period_s=PERIOD, n_blocks=3, reference=NO_REFERENCE,
+                  max_states=4)
+    monkeypatch.setattr(next_day, "PARALLEL_MIN_ROWS", 1441)  # too short: this process
+    serial = nested_validation(runs, "dz_um", train_fold, **kwargs)
+    monkeypatch.setattr(next_day, "PARALLEL_MIN_ROWS", 1440)  # long enough: the usable cores
+    forked = next_day.nested_validation(runs, "dz_um", train_fold, **kwargs)
+    assert asked == [1, None]
+    assert forked.fold_rmse_um == serial.fold_rmse_um
+    assert all(len(v) == 3 and all(math.isfinite(x) for x in v)
+               for v in forked.fold_rmse_um.values())
+
+
 def test_ridge_basis_spends_only_the_states_it_is_given():
     terms = [make_temp("T1"), make_temp("T2")]
     full = ridge_basis(terms, ["spindle_rpm"], PERIOD, 8 * 3600.0, max_states=8)

@@ -60,7 +60,7 @@ from host.fitting import (
 )
 from host.fitting.prefilter import PREFILTER_TAU_S, prefiltered
 from host.io import Run
-from host.progress import progress
+from host.parallel import forked_map
 from host.selection import fill_free_channels, l1_ranking
 from host.train.axis_fit import axis_dict
 
@@ -75,6 +75,7 @@ EVEN_WARMING_PENALTY = 3.0
 EVEN_WARMING_KINDS = ("temp", "lag")  # a rate settles to zero: no part of the settled sum
 MIN_FOLD_SAMPLES = 8  # a training piece shorter than this is left out of a nested fold
 NESTED_MAX_ROWS = 20_000  # beyond this the nested folds train on every k-th sample
+PARALLEL_MIN_ROWS = 5_000  # from here the nested folds train in forked processes
 
 # effects whose filter the ridge leaves to its own lags of the effect's sensor (ridge_start)
 LAG_FAMILY_KINDS = ("lag", "rate")
@@ -283,9 +284,11 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
                       reference: Reference, max_states: int,
                       ridge: RidgeOptions = DEFAULT_RIDGE, quiet: bool = True) -> NestedResult:
     """Each family's held-out error with the whole pipeline refitted without each fold
-    (a progress bar over the folds: each is a whole training). The folds train one after
-    the other: they are Python-bound, and on two threads they took as long as on one
-    (3.2 s for a 24-h run's three folds either way).
+    (a progress bar over the folds: each is a whole training). The folds are Python-bound
+    (on two threads they took as long as on one: 3.2 s for a 24-h run's three folds either
+    way), so runs of at least ``PARALLEL_MIN_ROWS`` samples train them in forked processes
+    on the usable cores (host.parallel); shorter ones in this process, where a fork costs
+    more than a fold.
 
     Runs of more than ``NESTED_MAX_ROWS`` samples in all are judged on every k-th sample
     (thinned): thermal signals change over minutes, and the folds are most of the time a
@@ -316,7 +319,9 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
         return out
 
     folds = [int(f) for f in np.unique(groups)]
-    done = [fold_errors(f) for f in progress(folds, f"{target}: nested folds", quiet=quiet)]
+    heavy = sum(r.n_samples for r in runs) >= PARALLEL_MIN_ROWS
+    done = forked_map(fold_errors, folds, f"{target}: nested folds",
+                      workers=None if heavy else 1, quiet=quiet)
     errors: dict[str, list[float]] = {family: [] for family in FAMILIES}
     for result in done:
         for family in FAMILIES:
