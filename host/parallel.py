@@ -12,6 +12,7 @@ the same items are run in this process, so an error is raised as the serial run 
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import os
 from collections.abc import Callable, Sequence
@@ -38,15 +39,25 @@ def usable_cores() -> int:
     return os.cpu_count() or 1
 
 
+def default_workers(n_items: int) -> int:
+    """Processes for ``n_items`` equal pieces: all at once up to twice the usable cores. Three
+    folds on two cores finish in 1.5 folds' time when all three share them, in two when two
+    processes take turns."""
+    cores = usable_cores()
+    return 1 if cores < 2 else min(n_items, 2 * cores)
+
+
 def forked_map(work: Callable[[T], R], items: Sequence[T], desc: str, *,
                workers: int | None = None, quiet: bool = True) -> list[R]:
     """``[work(x) for x in items]`` with a progress bar, the items spread over at most
-    ``workers`` forked processes (default: usable_cores()); the results in the items' order."""
+    ``workers`` forked processes (default: default_workers); the results in the items'
+    order."""
     global _WORK
     items = list(items)
-    n = min(len(items), workers if workers is not None else usable_cores())
+    n = min(len(items), workers if workers is not None else default_workers(len(items)))
     if n >= 2 and "fork" in multiprocessing.get_all_start_methods():
         _WORK = work
+        gc.freeze()  # the collector leaves the inherited objects alone: no copy-on-write
         try:
             with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork")) as pool:
                 futures = {pool.submit(_call, x): k for k, x in enumerate(items)}
@@ -59,4 +70,5 @@ def forked_map(work: Callable[[T], R], items: Sequence[T], desc: str, *,
             pass
         finally:
             _WORK = None
+            gc.unfreeze()
     return [work(x) for x in progress(items, desc, quiet=quiet)]
