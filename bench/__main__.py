@@ -19,20 +19,26 @@ import bench
 
 def main() -> int:
     only = sys.argv[1:]
+    suites = sorted(m.name.removeprefix("bench_") for m in pkgutil.iter_modules(bench.__path__)
+                    if m.name.startswith("bench_"))
+    unknown = [a for a in only if a not in suites]
+    if unknown:  # a suite's own options go to its module: python -m bench.bench_accuracy ...
+        print(f"bench: not a suite: {' '.join(unknown)} (suites: {', '.join(suites)}; a "
+              f"suite's options: python -m bench.bench_<suite> --help)", file=sys.stderr)
+        return 2
     rows: list[dict] = []
-    for info in sorted(pkgutil.iter_modules(bench.__path__), key=lambda m: m.name):
-        if not info.name.startswith("bench_"):
+    for name in suites:
+        module = f"bench_{name}"
+        if only and name not in only:
             continue
-        if only and info.name.removeprefix("bench_") not in only:
-            continue
-        mod = importlib.import_module(f"bench.{info.name}")
+        mod = importlib.import_module(f"bench.{module}")
         t0 = time.perf_counter()
         for row in mod.run():
-            row.setdefault("suite", info.name.removeprefix("bench_"))
+            row.setdefault("suite", name)
             rows.append(row)
             print(f"  {row['suite']:<10} {row['name']:<48} {row['value']:>12.4g} {row['unit']:<10}"
                   f" {row.get('target', '')}", flush=True)
-        print(f"  ({info.name} took {time.perf_counter() - t0:.1f} s)", flush=True)
+        print(f"  ({module} took {time.perf_counter() - t0:.1f} s)", flush=True)
     out = Path(__file__).parent / "results" / "bench.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"machine": platform.platform(), "python": platform.python_version(),
