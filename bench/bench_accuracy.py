@@ -648,6 +648,19 @@ def per_peer(cs: list[CaseResult]) -> dict:
             "geomean strongest single peer / best peer": to_best.get(strongest, math.nan)}
 
 
+def against_visible_oracle(cases: list[CaseResult]) -> dict:
+    """Ours, the best peer and the oracle without hidden parts against it and the noise floor
+    (geometric means over ``cases``, all scored by the sim_dev manifest)."""
+    it = [c.floor_um["oracle without hidden"] for c in cases]
+    return {"cases": len(cases),
+            "geomean default / it": geomean(
+                [c.rmse_um["default"] / o for c, o in zip(cases, it, strict=True)]),
+            "geomean best peer / it": geomean(
+                [c.best_peer[1] / o for c, o in zip(cases, it, strict=True)]),
+            "geomean it / noise floor": geomean(
+                [o / c.floor_um["noise floor"] for c, o in zip(cases, it, strict=True)])}
+
+
 def summarise(cases: list[CaseResult]) -> dict:
     out: dict = {"per_source": {}, "loop_worse": [], "calibration": {}}
     for source in dict.fromkeys(c.source for c in cases):
@@ -683,18 +696,8 @@ def summarise(cases: list[CaseResult]) -> dict:
         visible = [c for c in cs if c.floor_um.get("oracle without hidden", 0) > 0]
         if visible:  # per axis: is it the sensors or the model that is short of the floor?
             out["per_source"][source]["against the oracle without hidden parts"] = {
-                target: {
-                    "cases": len(ct),
-                    "geomean default / it": geomean(
-                        [c.rmse_um["default"] / c.floor_um["oracle without hidden"]
-                         for c in ct]),
-                    "geomean best peer / it": geomean(
-                        [c.best_peer[1] / c.floor_um["oracle without hidden"] for c in ct]),
-                    "geomean it / noise floor": geomean(
-                        [c.floor_um["oracle without hidden"] / c.floor_um["noise floor"]
-                         for c in ct])}
-                for target in dict.fromkeys(c.target for c in visible)
-                for ct in [[c for c in visible if c.target == target]]}
+                target: against_visible_oracle([c for c in visible if c.target == target])
+                for target in dict.fromkeys(c.target for c in visible)}
         ratios = [c.rmse_um["default"] / c.promised_um["default"] for c in cs
                   if c.promised_um.get("default", 0) > 0]
         out["calibration"][source] = {

@@ -263,10 +263,11 @@ def fit_ridge_terms(runs: Sequence[Run], target: str, terms: Sequence[Term], per
     groups, scheme = penalty_groups(list(runs), n_blocks)
     st = replace(st, groups=groups, scheme=scheme)
     even = [t.kind in EVEN_WARMING_KINDS for t in terms] if ridge.bending else None
-    slow = prefiltered(st.X, st.y, [r.n_samples for r in runs], period_s, ridge.prefilter_s)
+    slow = (prefiltered(st.X, st.y, [r.n_samples for r in runs], period_s, ridge.prefilter_s)
+            if ridge.prefilter_s > 0 else None)
     return fit_ridge(st.X, st.y, st.groups, shared=[t.kind in KELVIN_KINDS for t in terms],
                      even=even, even_penalty=EVEN_WARMING_PENALTY if ridge.bending else 0.0,
-                     fit_on=slow if ridge.prefilter_s > 0 else None), st
+                     fit_on=slow), st
 
 
 def thinned(runs: Sequence[Run], period_s: float, max_rows: int = NESTED_MAX_ROWS
