@@ -168,10 +168,62 @@ def test_nested_folds_in_forked_processes_give_the_serial_folds_errors(monkeypat
     serial = nested_validation(runs, "dz_um", train_fold, **kwargs)
     monkeypatch.setattr(next_day, "PARALLEL_MIN_ROWS", 1440)  # long enough: the usable cores
     forked = next_day.nested_validation(runs, "dz_um", train_fold, **kwargs)
-    assert asked == [1, None]
-    assert forked.fold_rmse_um == serial.fold_rmse_um
+    one = next_day.nested_validation(runs, "dz_um", train_fold, jobs=1, **kwargs)  # --jobs 1
+    assert asked == [1, None, 1]
+    assert forked.fold_rmse_um == serial.fold_rmse_um == one.fold_rmse_um
     assert all(len(v) == 3 and all(math.isfinite(x) for x in v)
                for v in forked.fold_rmse_um.values())
+
+
+def test_jobs_reach_the_nested_folds_from_every_entry_and_do_not_change_the_model(
+        monkeypatch, tmp_path, capsys):
+    import host.train.next_day as next_day
+    from host.cli import main
+    from host.io import write_run
+    from host.train import TrainingError
+    from host.train.estimator import ThermalModel
+
+    asked = []
+    real = next_day.forked_map
+
+    def recorded(work, items, desc, *, workers=None, quiet=True):
+        asked.append(workers)
+        return real(work, items, desc, workers=workers, quiet=quiet)
+
+    monkeypatch.setattr(next_day, "forked_map", recorded)
+    monkeypatch.setattr(next_day, "PARALLEL_MIN_ROWS", 1)  # every run is long enough
+    runs = [_run("a", 1), _run("b", 2)]
+    kw = dict(aux=["spindle_rpm"], effects=False, groups=2, max_sensors=2)
+    default = train_model(runs, ["dz_um"], **kw)
+    one = train_model(runs, ["dz_um"], jobs=1, **kw)
+    assert asked == [None, 1]
+    assert one == default  # the processes are how, not what
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(TrainingError, match="--jobs must be a number of processes"):
+            train_model(runs, ["dz_um"], jobs=bad, **kw)
+    X = np.vstack([r.temperatures for r in runs])
+    X = np.column_stack([X, np.concatenate([r.aux[:, 0] for r in runs])])
+    y = np.concatenate([r.target("dz_um") for r in runs])
+    groups = np.repeat([0, 1], 480)
+    asked.clear()
+    for n_jobs in (None, -1, 2):
+        ThermalModel(aux_names=["spindle_rpm"], period_s=PERIOD, effects=False, n_groups=2,
+                     max_sensors=2, n_jobs=n_jobs).fit(X, y, groups)
+    assert asked == [None, None, 2]  # -1 is scikit-learn's "every processor": the default
+    csv = tmp_path / "a.csv"
+    r = runs[0]
+    write_run(csv, r.time_s, {"T1": r.temperatures[:, 0], "T2": r.temperatures[:, 1],
+                              "T3": r.temperatures[:, 2], "spindle_rpm": r.aux[:, 0],
+                              "dz_um": r.target("dz_um")})
+    asked.clear()
+    assert main(["train", str(csv), "--target", "dz_um", "--aux", "spindle_rpm",
+                 "--no-effects", "--no-codegen", "--jobs", "1",
+                 "--out", str(tmp_path / "m")]) == 0
+    assert asked == [1]
+    assert main(["train", str(csv), "--target", "dz_um", "--aux", "spindle_rpm",
+                 "--no-effects", "--no-codegen", "--jobs", "0",
+                 "--out", str(tmp_path / "m")]) == 2
+    assert "--jobs must be a number of processes, 1 or more (got 0)" in capsys.readouterr().err
 
 
 def test_ridge_basis_spends_only_the_states_it_is_given():

@@ -122,6 +122,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-nested", action="store_true",
                         help="skip nested validation (the pipeline refitted per fold: the "
                              "promised error); 3-4x faster; auto then means ols")
+    parser.add_argument("--jobs", type=int, default=None, metavar="N",
+                        help="processes that train the nested folds of a long run at once "
+                             "(default: up to twice the usable cores; 1: this process only); "
+                             "the model is the same whatever N")
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -227,7 +231,8 @@ def run(args: argparse.Namespace) -> int:
                         tc_type=args.tc_type, max_channels=args.max_channels,
                         reference=args.reference, fit=args.fit, nested=not args.no_nested,
                         fill_channels=not args.no_fill_channels, tilts=args.tilt,
-                        bending=args.bending, prefilter_s=args.prefilter_s, quiet=args.json)
+                        bending=args.bending, prefilter_s=args.prefilter_s, jobs=args.jobs,
+                        quiet=args.json)
     out = Path(args.out)
     model_path = out / "model.json"
     header = None

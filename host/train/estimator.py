@@ -38,6 +38,9 @@ class ThermalModel(RegressorMixin, BaseEstimator):
     """``host train`` as a regressor: ``fit(X, y, groups=None)``, ``predict(X, groups=None)``,
     ``to_model_json()``.
 
+    ``n_jobs``: processes for the nested folds of long runs (``host train --jobs``; None or
+    -1: up to twice the usable cores; the model does not depend on it).
+
     Fitted attributes: ``model_`` (the model.json dict), ``axes_`` (target names),
     ``sensors_`` (the thermocouples the box reads), ``n_features_in_``.
     """
@@ -50,7 +53,7 @@ class ThermalModel(RegressorMixin, BaseEstimator):
                  n_blocks: int = DEFAULT_BLOCKS, reference: str | None = None,
                  family: str = DEFAULT_FIT, fill_channels: bool = True,
                  bending: Sequence[str] = (), prefilter_s: float = PREFILTER_TAU_S,
-                 random_state: int = 0) -> None:
+                 random_state: int = 0, n_jobs: int | None = None) -> None:
         self.sensor_names = sensor_names
         self.aux_names = aux_names
         self.target_names = target_names
@@ -67,6 +70,8 @@ class ThermalModel(RegressorMixin, BaseEstimator):
         self.bending = bending  # host train --bending: targets a column's bending moves
         self.prefilter_s = prefilter_s  # host train --prefilter-s: the ridge's low-pass (s)
         self.random_state = random_state
+        # host train --jobs: None or -1 (scikit-learn's "every processor") the default
+        self.n_jobs = n_jobs
 
     # ---- helpers ---------------------------------------------------------------------------
     def _names(self, n_features: int) -> tuple[list[str], list[str]]:
@@ -123,6 +128,7 @@ class ThermalModel(RegressorMixin, BaseEstimator):
                                   max_channels=self.max_channels, fit=self.family,
                                   fill_channels=self.fill_channels,
                                   bending=list(self.bending), prefilter_s=self.prefilter_s,
+                                  jobs=None if self.n_jobs in (None, -1) else self.n_jobs,
                                   quiet=True, **kwargs)
         self.axes_ = targets
         self.sensors_ = [c["sensor"] for c in self.model_["channels"]]

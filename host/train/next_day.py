@@ -283,13 +283,14 @@ def thinned(runs: Sequence[Run], period_s: float, max_rows: int = NESTED_MAX_ROW
 def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *,
                       aux: Sequence[str], period_s: float, n_blocks: int,
                       reference: Reference, max_states: int,
-                      ridge: RidgeOptions = DEFAULT_RIDGE, quiet: bool = True) -> NestedResult:
+                      ridge: RidgeOptions = DEFAULT_RIDGE, jobs: int | None = None,
+                      quiet: bool = True) -> NestedResult:
     """Each family's held-out error with the whole pipeline refitted without each fold
     (a progress bar over the folds: each is a whole training). The folds are Python-bound
     (on two threads they took as long as on one: 3.2 s for a 24-h run's three folds either
-    way), so runs of at least ``PARALLEL_MIN_ROWS`` samples train them in forked processes
-    on the usable cores (host.parallel); shorter ones in this process, where a fork costs
-    more than a fold.
+    way), so runs of at least ``PARALLEL_MIN_ROWS`` samples train them in forked processes,
+    at most ``jobs`` (default: host.parallel.default_workers); shorter ones in this process,
+    where a fork costs more than a fold. The errors do not depend on ``jobs``.
 
     Runs of more than ``NESTED_MAX_ROWS`` samples in all are judged on every k-th sample
     (thinned): thermal signals change over minutes, and the folds are most of the time a
@@ -322,7 +323,7 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
     folds = [int(f) for f in np.unique(groups)]
     heavy = sum(r.n_samples for r in runs) >= PARALLEL_MIN_ROWS
     done = forked_map(fold_errors, folds, f"{target}: nested folds",
-                      workers=None if heavy else 1, quiet=quiet)
+                      workers=jobs if heavy else 1, quiet=quiet)
     errors: dict[str, list[float]] = {family: [] for family in FAMILIES}
     for result in done:
         for family in FAMILIES:

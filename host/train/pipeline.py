@@ -157,7 +157,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                          options: dict, period_s: float, n_blocks: int, reference: Reference,
                          max_states: int, fill: Sequence[str] = (), pool: Sequence[str] = (),
                          box: Sequence[str] = (), ridge: RidgeOptions = DEFAULT_RIDGE,
-                         quiet: bool = True) -> dict:
+                         jobs: int | None = None, quiet: bool = True) -> dict:
     """Judge the families by nested validation and keep the one for the next day
     (host.train.next_day); the axis gains ``fit`` and the promised error with its spread.
 
@@ -189,7 +189,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     if nested:
         result = nested_validation(runs, target, train_fold, aux=aux, period_s=period_s,
                                    n_blocks=n_blocks, reference=reference,
-                                   max_states=max_states, ridge=ridge, quiet=quiet)
+                                   max_states=max_states, ridge=ridge, jobs=jobs,
+                                   quiet=quiet)
     unwired = sorted(set(term_sensors(baseline_terms)) - set(box)) if box else []
     if fit == "auto" and result is not None:
         candidates = [f for f in FAMILIES if FAMILIES[f][0] or (
@@ -319,7 +320,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                 reference: str = DEFAULT_REFERENCE, fit: str = DEFAULT_FIT, nested: bool = True,
                 fill_channels: bool = True, tilts: Sequence[Tilt] = (),
                 fill_first: bool | None = None, bending: Sequence[str] = (),
-                prefilter_s: float = PREFILTER_TAU_S, quiet: bool = True) -> dict:
+                prefilter_s: float = PREFILTER_TAU_S, jobs: int | None = None,
+                quiet: bool = True) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
     ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
@@ -338,14 +340,16 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     column's bending: Y of a vertical machining center); their ridge penalises the response
     to an even warming (host.train.next_day.EVEN_WARMING_PENALTY). ``prefilter_s``: the time
     constant (s) of the low-pass the ridge's rows are fitted through (host.fitting.prefilter;
-    0: the raw rows).
+    0: the raw rows). ``jobs``: at most this many processes train the nested folds (default:
+    host.parallel.default_workers; 1: this process); the model does not depend on it.
     """
     targets = list(targets)
     aux = list(aux or [])
     bending = list(bending)
     _check_options(targets, fit=fit, selection=selection, n_blocks=n_blocks,
                    max_channels=max_channels, max_sensors=max_sensors, tc_type=tc_type,
-                   tilts=tilts, bending=bending, nested=nested, prefilter_s=prefilter_s)
+                   tilts=tilts, bending=bending, nested=nested, prefilter_s=prefilter_s,
+                   jobs=jobs)
     data = TrainingData.of(_as_runs(runs, targets, sensors, aux, fill_gaps, tilts), targets,
                            n_blocks, Reference.of_kind(reference))
     choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
@@ -372,7 +376,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
                                       fill_channels=fill_channels, max_channels=max_channels,
                                       rankings=rankings, bending=bending,
-                                      prefilter_s=prefilter_s, quiet=quiet)
+                                      prefilter_s=prefilter_s, jobs=jobs, quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
@@ -422,7 +426,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
 def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
                    max_channels: int, max_sensors: int, tc_type: str,
                    tilts: Sequence[Tilt], bending: Sequence[str] = (),
-                   nested: bool = True, prefilter_s: float = PREFILTER_TAU_S) -> None:
+                   nested: bool = True, prefilter_s: float = PREFILTER_TAU_S,
+                   jobs: int | None = None) -> None:
     """Refuse inconsistent options before any data is read, each with its reason."""
     if not targets:
         raise TrainingError("give at least one --target")
@@ -451,6 +456,8 @@ def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: in
     if not (math.isfinite(prefilter_s) and prefilter_s >= 0):
         raise TrainingError(f"--prefilter-s must be 0 (off) or a time constant in seconds "
                             f"(got {prefilter_s})")
+    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+        raise TrainingError(f"--jobs must be a number of processes, 1 or more (got {jobs!r})")
     if bending and (fit == "ols" or (fit == "auto" and not nested)):  # auto is ols then
         raise TrainingError("--bending shapes the ridge's penalty; least squares has none "
                             "(--fit ols, or --fit auto with --no-nested: use --fit ridge)")
@@ -548,7 +555,7 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
                            fit: str, nested: bool, fill_channels: bool, max_channels: int,
                            rankings: Callable[[], list[list[str]]],
                            bending: Sequence[str] = (), prefilter_s: float = PREFILTER_TAU_S,
-                           quiet: bool) -> dict[str, dict]:
+                           jobs: int | None = None, quiet: bool) -> dict[str, dict]:
     """Every axis's family for the next day (fit_for_the_next_day), reading the free
     channels: every axis's ridge reads every wired sensor, and the free channels filled by
     the axes' L1 rankings (a nested fold, trained for one axis, fills its own)."""
@@ -572,7 +579,7 @@ def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: d
                                          reference=data.ref, max_states=budget[i], fill=read,
                                          pool=pool, box=read or wired,
                                          ridge=RidgeOptions(target in bending, prefilter_s),
-                                         quiet=quiet)
+                                         jobs=jobs, quiet=quiet)
             for i, target in enumerate(progress(targets, "nested validation (the next day)",
                                                 quiet=quiet))}
 
