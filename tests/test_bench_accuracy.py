@@ -253,3 +253,16 @@ def test_fl_next_trains_on_the_recording_so_far_and_judges_the_next_cycle():
     rows = acc.summary_rows(acc.summarise([c]), 1)
     assert next(r for r in rows if r["name"] == "fl_next: geomean default / best peer"
                 )["target"] == ""
+
+
+def test_a_worker_of_a_shared_pool_trains_its_nested_folds_in_its_own_process(monkeypatch):
+    import threadpoolctl
+
+    monkeypatch.setattr(threadpoolctl, "threadpool_limits", lambda n: None)  # this process's
+    monkeypatch.setattr(acc, "_FOLD_JOBS", None)  # BLAS threads stay as they are
+    assert "jobs" not in acc.train_kwargs("start")  # the bench run alone: the default
+    acc._worker_init(shared=True)
+    assert acc.train_kwargs("start", ("dy_um",), ("dy_um",)) == {
+        "reference": "start", "bending": ["dy_um"], "jobs": 1}
+    acc._worker_init(shared=False)  # one worker: its folds may use the other cores
+    assert "jobs" not in acc.train_kwargs("start")
