@@ -27,9 +27,9 @@ from matplotlib.figure import Figure  # noqa: E402
 from bench.bench_accuracy import CALIBRATION_FACTOR, RESULTS, CaseResult  # noqa: E402
 
 SOURCES = {"sim": "project simulator", "sim_dev": "sim_dev", "fl": "FL_THERMAL",
-           "fl_next": "FL, next cycle"}
+           "fl_next": "FL, next cycle", "sim_other": "simulator, other machines"}
 COLOURS = {"sim": "tab:blue", "sim_dev": "tab:orange", "fl": "tab:green",
-           "fl_next": "tab:red"}
+           "fl_next": "tab:red", "sim_other": "tab:purple"}
 TARGET = 0.8  # issue 13: geometric mean of ours / best peer on sim_dev and FL
 
 

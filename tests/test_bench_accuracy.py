@@ -266,3 +266,24 @@ def test_a_worker_of_a_shared_pool_trains_its_nested_folds_in_its_own_process(mo
         "reference": "start", "bending": ["dy_um"], "jobs": 1}
     acc._worker_init(shared=False)  # one worker: its folds may use the other cores
     assert "jobs" not in acc.train_kwargs("start")
+
+
+def test_other_machines_are_other_simulated_machines_beside_the_target(tmp_path):
+    """sim_other: machines the defaults were not chosen on, built as sim's are, no target."""
+    from host.io import load_run
+
+    assert not set(acc.OTHER_SIM_SEEDS) & set(acc.SIM_SEEDS)
+    assert "sim_other" in acc.SOURCES and "sim_other" not in acc.TARGET_SOURCES
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    other = acc.sim_jobs(tmp_path / "a", acc.OTHER_SIM_SEEDS[:1], "sim_other")[0]
+    tuned = acc.sim_jobs(tmp_path / "b", acc.SIM_SEEDS[:1])[0]
+    assert (other.source, tuned.source) == ("sim_other", "sim")
+    assert other.group == f"machine {acc.OTHER_SIM_SEEDS[0]}"
+    assert other.bending == tuned.bending == acc.BENDING  # the same column, declared alike
+    assert [s.label for s in other.train] == [s.label for s in tuned.train]
+    # another machine: the same programme, but its sensors sit elsewhere and read otherwise
+    a = load_run(other.train[0].path, list(acc.SIM_TARGETS))
+    b = load_run(tuned.train[0].path, list(acc.SIM_TARGETS))
+    assert a.n_samples == b.n_samples
+    assert not np.allclose(a.temperatures, b.temperatures)
