@@ -48,7 +48,9 @@ def draw(cases: Sequence[CaseResult], summary: dict) -> Figure:
         geo = summary["per_source"][source]["geomean default / best peer"]
         left.hlines(geo, k - 0.3, k + 0.3, color="black", lw=2.5)
         left.annotate(f"{geo:.3f}", (k + 0.32, geo), va="center", fontsize=9)
-    left.set_xticks(range(len(sources)), [SOURCES[s] for s in sources])
+    # two lines per tick: five sources' names side by side would run into each other
+    left.set_xticks(range(len(sources)), [SOURCES[s].replace(" ", "\n", 1)
+                                          for s in sources], fontsize=9)
     left.set_xlim(-0.6, len(sources) - 0.1)  # room for the means' labels, whatever the count
     left.set_yscale("log")
     left.axhline(1.0, color="grey", lw=0.8)
