@@ -407,3 +407,68 @@ def test_a_bending_axis_kept_as_least_squares_does_not_claim_the_penalty(monkeyp
     fit = model["axes"]["dz_um"]["fit"]
     assert fit["family"] == "ols" and fit["even_warming_penalty"] == 0.0
     assert model["training"]["bending"] == ["dz_um"]  # what the user declared stays on record
+
+
+def _speed_growth_run(name: str, seed: int, growth_um: float, n: int = 720) -> Run:
+    """_run's machine at three spindle speeds, its dz growing with the speed's square at once
+    (no thermocouple sees it; the ridge's basis has the speed, not its square)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * PERIOD
+    rpm = np.array([6000.0, 0.0, 3000.0, 0.0, 4500.0, 0.0])[(t // 7200).astype(int) % 6]
+    heat = np.cumsum(rpm / 6000.0 - 0.4) * 0.002
+    t1 = 20 + heat + 0.02 * rng.standard_normal(n)
+    t2 = 20 + 0.5 * np.convolve(heat, np.ones(30) / 30, "same") + 0.02 * rng.standard_normal(n)
+    t3 = 20 + 0.3 * rng.standard_normal(n).cumsum() * 0.01
+    dz = (3.0 * (t1 - t1[0]) - 1.5 * (t2 - t2[0]) + growth_um * (rpm / 6000.0) ** 2
+          + 0.1 * rng.standard_normal(n))
+    return Run(name, t, ["T1", "T2", "T3"], np.column_stack([t1, t2, t3]), ["dz_um"],
+               dz[:, None], ["spindle_rpm"], rpm[:, None])
+
+
+def test_the_box_models_error_without_and_with_its_effects_is_reported(tmp_path, capsys):
+    """The loop's before/after on the model the box runs: its family refitted on the nested
+    folds with the effects and without them. A speed growth the basis lacks must show there."""
+    import json
+
+    from host.cli import main
+    from host.io import write_run
+    from host.train import box_effects_evidence
+
+    runs = [_speed_growth_run("a", 1, 4.0), _speed_growth_run("b", 2, 4.0)]
+    model = train_model(runs, ["dz_um"], aux=["spindle_rpm"], groups=3, max_sensors=2,
+                        reference="start")
+    axis = model["axes"]["dz_um"]
+    assert any(e["kind"] == "speed" for e in axis["effects"])
+    evidence = box_effects_evidence(axis)
+    folds = axis["fit"]["nested"]["fold_rmse_um"]
+    assert axis["fit"]["family"] == "ridge"
+    # the RMS over the held-out runs of the box's family with and without its effects
+    assert evidence["with_effects"] == pytest.approx(np.sqrt(np.mean(np.square(folds["ridge"]))))
+    assert evidence["without_effects"] == pytest.approx(
+        np.sqrt(np.mean(np.square(folds["ridge-baseline"]))))
+    # 4 um of growth at full speed, 0.1 um of gauge noise: the effect is most of the error
+    assert evidence["with_effects"] < 0.3 * evidence["without_effects"]
+    # without the growth nothing is added and nothing is claimed
+    clean = train_model([_speed_growth_run("a", 1, 0.0), _speed_growth_run("b", 2, 0.0)],
+                        ["dz_um"], aux=["spindle_rpm"], groups=3, max_sensors=2,
+                        reference="start")
+    assert not clean["axes"]["dz_um"].get("effects")
+    assert box_effects_evidence(clean["axes"]["dz_um"]) is None
+    # host train prints it beside the search's least squares, and --json carries it
+    paths = []
+    for run in runs:
+        cols = {n: run.temperatures[:, i] for i, n in enumerate(run.sensor_names)}
+        cols.update({"dz_um": run.displacements[:, 0], "spindle_rpm": run.aux[:, 0]})
+        paths.append(tmp_path / f"{run.path}.csv")
+        write_run(paths[-1], run.time_s, cols)
+    train = ["train", *map(str, paths), "--target", "dz_um", "--aux", "spindle_rpm",
+             "--groups", "3", "--max-sensors", "2", "--no-codegen"]
+    assert main([*train, "--out", str(tmp_path / "text")]) == 0
+    printed = capsys.readouterr().out
+    line = next(x for x in printed.splitlines() if "the box's model on the nested folds" in x)
+    assert "without the effects" in line and "with them" in line
+    assert main([*train, "--out", str(tmp_path / "json"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    box = doc["axes"]["dz_um"]["box_nested_rmse_um"]
+    assert box["families"] == ["ridge", "ridge-baseline"]
+    assert box["with_effects"] < 0.3 * box["without_effects"]

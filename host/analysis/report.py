@@ -36,6 +36,7 @@ from host.progress import progress
 from host.selection import default_max_lag
 from host.train import (
     TOLERANCE_SHARE,
+    box_effects_evidence,
     box_model_note,
     dropped_reason,
     input_units,
@@ -327,6 +328,8 @@ def summary_rows(model: dict) -> list[dict]:
             "baseline_validation_rmse_um": axis.get("baseline_validation_rmse_um"),
             # the effect search's own figure after its effects (least squares, its folds)
             "effects_validation_rmse_um": axis.get("validation_rmse_um"),
+            # the box's family on the nested folds, without and with its effects
+            "box_nested_rmse_um": box_effects_evidence(axis),
             "fit": fit_label(axis.get("fit") or {}),
             "effects": [e.get("name", "?") for e in axis.get("effects", [])
                         if not dropped_reason(e)],

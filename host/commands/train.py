@@ -196,6 +196,15 @@ def print_effects(doc: dict) -> None:
         elif effects:
             print(f"{name}: no effect survived the channel budget (validation RMSE "
                   f"{_fmt(after)} {u})")
+        box = a.get("box_nested_rmse_um")
+        if box and box["without_effects"]:
+            change = 100.0 * (box["with_effects"] / box["without_effects"] - 1.0)
+            print(f"  the box's model on the nested folds (the pipeline, effects search "
+                  f"included, refitted without each fold): {_fmt(box['without_effects'])} {u} "
+                  f"without the effects, {_fmt(box['with_effects'])} {u} with them "
+                  f"({change:+.0f} %); a weak guide to the next day (docs/next-day.md "
+                  "section 16): judge the effects on a run the model never saw "
+                  "(host report --runs)")
         for e in effects:
             ev = e.get("evidence") or {}
             why = dropped_reason(e)

@@ -14,6 +14,7 @@ from host.train.ranges import (
 )
 from host.train.summary import (
     axis_sensors,
+    box_effects_evidence,
     box_model_note,
     dropped_reason,
     ridge_lags_note,
@@ -21,6 +22,7 @@ from host.train.summary import (
 )
 
 __all__ = [
+    "box_effects_evidence",
     "box_model_note",
     "dropped_reason",
     "ridge_lags_note",

@@ -55,8 +55,37 @@ def summary(model: dict, model_path: str) -> dict:
             "unexplained": axis.get("unexplained"),
             # what the channel budget took away after the effects (None: nothing)
             "channel_budget_after_effects": axis.get("channel_budget_after_effects"),
+            # the loop's before/after on the model the box runs (None: no effects or no
+            # nested validation)
+            "box_nested_rmse_um": box_effects_evidence(axis),
         }
     return {"model": model_path, "axes": axes}
+
+
+# the families nested validation refits, as (with the effects, without them)
+SHRUNK_PAIR = ("ridge", "ridge-baseline")
+LEAST_SQUARES_PAIR = ("ols", "baseline")
+
+
+def box_effects_evidence(axis: dict) -> dict | None:
+    """The box's family refitted on the nested folds with its effects and without them
+    (host.train.next_day: the whole pipeline, effects search included, trained without each
+    fold and scored on it): the closed loop's before/after on the model the box runs, where
+    the effects' own before/after is least squares on the selected terms. None without
+    effects or nested validation.
+
+    A noisy judge of one training file's effects (docs/next-day.md section 16 measures how often
+    it agrees with the unseen runs), shown so a user can weigh them; it decides nothing here."""
+    fit = axis.get("fit") or {}
+    rms = (fit.get("nested") or {}).get("rmse_um") or {}
+    if not axis.get("effects"):
+        return None
+    with_key, without_key = (SHRUNK_PAIR if str(fit.get("family", "")).startswith("ridge")
+                             else LEAST_SQUARES_PAIR)
+    if with_key not in rms or without_key not in rms:
+        return None
+    return {"with_effects": rms[with_key], "without_effects": rms[without_key],
+            "families": [with_key, without_key]}
 
 
 def dropped_reason(effect: dict) -> str | None:
