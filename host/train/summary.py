@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from contract.terms import TEMPERATURE_KINDS
+from host.train.next_day import FAMILIES
 
 
 def axis_sensors(axis: dict) -> list[str]:
@@ -62,11 +63,6 @@ def summary(model: dict, model_path: str) -> dict:
     return {"model": model_path, "axes": axes}
 
 
-# the families nested validation refits, as (with the effects, without them)
-SHRUNK_PAIR = ("ridge", "ridge-baseline")
-LEAST_SQUARES_PAIR = ("ols", "baseline")
-
-
 def box_effects_evidence(axis: dict) -> dict | None:
     """The box's family refitted on the nested folds with its effects and without them
     (host.train.next_day: the whole pipeline, effects search included, trained without each
@@ -80,8 +76,12 @@ def box_effects_evidence(axis: dict) -> dict | None:
     rms = (fit.get("nested") or {}).get("rmse_um") or {}
     if not axis.get("effects"):
         return None
-    with_key, without_key = (SHRUNK_PAIR if str(fit.get("family", "")).startswith("ridge")
-                             else LEAST_SQUARES_PAIR)
+    shrunk = str(fit.get("family", "")).startswith("ridge")
+
+    def family(with_effects: bool) -> str:  # the box's kind of fit (next_day.FAMILIES)
+        return next(f for f, kind in FAMILIES.items() if kind == (with_effects, shrunk))
+
+    with_key, without_key = family(True), family(False)
     if with_key not in rms or without_key not in rms:
         return None
     return {"with_effects": rms[with_key], "without_effects": rms[without_key],
