@@ -45,6 +45,14 @@ def test_an_error_in_a_worker_is_raised_as_the_serial_run_raises_it():
         forked_map(work, range(6), "failing", workers=2)
 
 
-def test_usable_cores_is_this_process_affinity():
-    expect = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    assert usable_cores() == expect >= 1
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity here")
+def test_usable_cores_follows_this_process_affinity_not_the_machine():
+    """A container or taskset may give the process fewer cores than the machine has."""
+    before = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, {min(before)})  # one core, as `taskset -c 0` would
+        assert usable_cores() == 1
+        assert forked_map(lambda i: os.getpid(), range(3), "one core") == [os.getpid()] * 3
+    finally:
+        os.sched_setaffinity(0, before)
+    assert usable_cores() == len(before)
