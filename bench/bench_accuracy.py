@@ -562,7 +562,7 @@ def _worker_init(shared: bool = False) -> None:
 def run_job(job: Job) -> tuple[list[dict], dict]:
     """Train every column of one job and score each (variant, test run, target)."""
     from host.fitting import fold_groups
-    from host.train import train_model
+    from host.train import dropped_reason, train_model
 
     t_job = time.perf_counter()
     targets = list(job.targets)
@@ -608,7 +608,7 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
                             axis["metrics"]["validation_rmse_um"])
                         case.n_terms[column] = len(axis["terms"])
                         case.effects[column] = [e["name"] for e in axis.get("effects", [])
-                                                if not e.get("dropped_by_nested_validation")]
+                                                if not dropped_reason(e)]
 
     folds, _ = fold_groups(train)
     X = np.vstack([peer_features(r, job.reference, False) for r in train])

@@ -226,7 +226,8 @@ def test_diagnose_accuses_no_healthy_sensor(scenario, effect):
 def test_the_ridge_leaves_slow_lag_effects_to_its_own_lags(scenario, tmp_path):
     """The default fit, a ridge over lags of every sensor it reads, keeps a lag or rate
     effect's own filter only when it is faster than the ridge's fastest lag; a slower one is
-    named, its sensor read, and the ridge's lags of that sensor stand for it."""
+    named, its sensor read, and the ridge's lags of that sensor stand for it, unless the box's
+    ridge is not 10 % lower with the effects at all (then it runs without them, saying so)."""
     s = scenario("lag")
     out = tmp_path / "ridge"
     host("train", "--no-nested", str(s.train_csv), *TARGETS, "--reference", "none",
@@ -234,15 +235,22 @@ def test_the_ridge_leaves_slow_lag_effects_to_its_own_lags(scenario, tmp_path):
     model = json.loads((out / "model.json").read_text())
     slow = 0
     for spec in model["axes"].values():
-        assert spec["fit"]["family"] == "ridge"
         terms = [Term.from_json(t) for t in spec["terms"]]
+        kept = spec["fit"]["family"] == "ridge"
+        if not kept:  # the box's own ridge did not gain from the effects: none of them runs
+            assert spec["fit"]["family"] == "ridge-baseline"
+            assert spec["effects"] and all(e["dropped_by_box_ridge"] for e in spec["effects"])
+            assert "box's ridge" in spec["effects_rejected"]
         for effect in spec["effects"]:
             if effect["kind"] not in ("lag", "rate"):
                 continue
             own = [Term.from_json(t) for t in effect["added"] if t["kind"] in ("lag", "rate")]
             taus = {t.params["tau_s"] for t in own}
-            if min(taus) >= 900.0 and not all(t in terms for t in own):
+            if min(taus) >= 900.0:
                 slow += 1
+            if not kept:
+                assert "in_ridge_lags" not in effect
+            elif min(taus) >= 900.0 and not all(t in terms for t in own):
                 lags = [t.name for t in terms if t.kind == "lag"
                         and t.source in {o.source for o in own}]
                 assert lags and effect["in_ridge_lags"] == lags
@@ -250,3 +258,19 @@ def test_the_ridge_leaves_slow_lag_effects_to_its_own_lags(scenario, tmp_path):
             else:
                 assert "in_ridge_lags" not in effect and all(t in terms for t in own)
     assert slow >= 1  # the search names at least one lag slower than 900 s on this run
+
+
+def test_a_slow_lag_effect_is_marked_as_the_ridges_own_lags():
+    """_mark_lags_in_basis: a lag effect whose filter is not in the ridge's basis names the
+    ridge's lags of its sensor that stand for it; one whose filter the box runs is left as is."""
+    from host.train.pipeline import _mark_lags_in_basis
+
+    slow = Term("lag", "T03", {"tau_s": 7200.0})
+    fast = Term("lag", "T05", {"tau_s": 300.0})
+    basis = [Term("temp", "T03"), Term("lag", "T03", {"tau_s": 900.0}),
+             Term("lag", "T03", {"tau_s": 3600.0}), Term("temp", "T05"), fast]
+    axis = {"effects": [{"kind": "lag", "added": [slow.to_json()]},
+                        {"kind": "lag", "added": [fast.to_json()]}]}
+    _mark_lags_in_basis(axis, basis)
+    assert axis["effects"][0]["in_ridge_lags"] == [basis[1].name, basis[2].name]
+    assert "in_ridge_lags" not in axis["effects"][1]

@@ -37,7 +37,7 @@ from host.fitting import Reference, common_period, fit_linear, fold_groups, rmse
 from host.io import Run
 from host.progress import progress
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, GramCache, pearson_r
-from host.train import DEFAULT_REFERENCE, axis_sensors, train_model
+from host.train import DEFAULT_REFERENCE, axis_sensors, dropped_reason, train_model
 
 DEFAULT_K_CORRELATED = 4
 BOX_MODEL = "ours, as host train fits it (the box's model)"
@@ -195,8 +195,7 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
             dt = time.perf_counter() - t0
             pred = np.concatenate([predict(model, r)[target] for r in test_runs])
             axis = model["axes"][target]
-            effects = [e["name"] for e in axis.get("effects", [])
-                       if not e.get("dropped_by_nested_validation")]
+            effects = [e["name"] for e in axis.get("effects", []) if not dropped_reason(e)]
             results.append(MethodResult(
                 BOX_MODEL, axis_sensors(axis), rmse(yt - pred), float(np.max(np.abs(yt - pred))),
                 dt, f"fit {axis.get('fit', {}).get('family', '?')}"

@@ -24,6 +24,7 @@ from contract.model_file import SCHEMA
 from contract.terms import AUX_KINDS, TEMPERATURE_KINDS, Term, term_sensors
 from contract.tilt import Tilt, unit_of
 from host.effects import search_effects, sensor_reference
+from host.effects.scoring import MIN_GAIN
 from host.fitting import (
     NO_REFERENCE,
     Reference,
@@ -201,21 +202,33 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         family = "ridge" if fit == "ridge" else "ols"
     with_effects, shrunk = FAMILIES[family]
     if not with_effects and final_terms != baseline_terms:
-        axis.update(fit_axis(runs, target, baseline_terms, period_s, n_blocks, reference))
-        for effect in axis.get("effects", []):
-            effect["dropped_by_nested_validation"] = True
-        axis["effects_rejected"] = ("nested validation: the pipeline refitted without each "
-                                    "fold predicted it better without the effects")
+        _drop_effects(axis, runs, target, baseline_terms, period_s, n_blocks, reference,
+                      "dropped_by_nested_validation",
+                      "nested validation: the pipeline refitted without each fold predicted it "
+                      "better without the effects")
+
+    def fit_shrunk(start: Sequence[Term]):
+        found = None
+        for also in ([fill, ()] if fill else [()]):  # the free channels go first if need be
+            found = found or ridge_axis(runs, target, start, aux=aux, period_s=period_s,
+                                        n_blocks=n_blocks, reference=reference,
+                                        max_states=max_states, also=also, ridge=ridge)
+        return found
+
     alpha, extra = None, []
     if shrunk:
         terms = (ridge_start(final_terms, axis.get("effects", []),
                              fastest_lag_s(runs, period_s)) if with_effects
                  else baseline_terms)
-        found = None
-        for also in ([fill, ()] if fill else [()]):  # the free channels go first if need be
-            found = found or ridge_axis(runs, target, terms, aux=aux, period_s=period_s,
-                                        n_blocks=n_blocks, reference=reference,
-                                        max_states=max_states, also=also, ridge=ridge)
+        found = fit_shrunk(terms)
+        if found is not None and with_effects and final_terms != baseline_terms and not unwired:
+            plain = fit_shrunk(baseline_terms)
+            refusal = None if plain is None else ridge_refusal(found[1], plain[1])
+            if refusal:  # the box's own model does not gain from the effects: run it without
+                family = "ridge-baseline"
+                with_effects, terms, found = False, baseline_terms, plain
+                _drop_effects(axis, runs, target, baseline_terms, period_s, n_blocks,
+                              reference, "dropped_by_box_ridge", refusal)
         if found is None:  # not even the terms alone keep the fixed-point bound: no ridge
             family = family.replace("ridge-", "").replace("ridge", "ols")
         else:
@@ -245,6 +258,30 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         axis["metrics"]["promised_rmse_um"] = result.promise(family)
         axis["metrics"]["promised_fold_rmse_um"] = result.fold_rmse_um[family]
     return axis
+
+
+def ridge_refusal(with_effects, without) -> str | None:
+    """Why the box's ridge runs without the accepted effects (None: it keeps them): the ridge
+    over the basis with them must be ``MIN_GAIN`` (the search's own 10 %) lower on its
+    out-of-fold error than the ridge over the baseline's basis. The search judges an effect on
+    least squares over the selected terms; the box runs the ridge over every wired sensor and
+    its lags, which often covers what the effect adds, and there an effect that does not gain
+    hurt unseen runs (docs/next-day.md section 17)."""
+    a, b = with_effects.validation_rmse_um, without.validation_rmse_um
+    if a <= (1 - MIN_GAIN) * b:
+        return None
+    return (f"the box's ridge: {a:.3g} um out of fold with the effects, {b:.3g} um without "
+            f"them; they must be {100 * MIN_GAIN:.0f} % lower")
+
+
+def _drop_effects(axis: dict, runs: list[Run], target: str, baseline_terms: list[Term],
+                  period_s: float, n_blocks: int, reference: Reference, flag: str,
+                  why: str) -> None:
+    """Refit ``axis`` on its baseline terms; its effects stay listed, flagged ``flag``."""
+    axis.update(fit_axis(runs, target, baseline_terms, period_s, n_blocks, reference))
+    for effect in axis.get("effects", []):
+        effect[flag] = True
+    axis["effects_rejected"] = why
 
 
 def _mark_lags_in_basis(axis: dict, basis: Sequence[Term]) -> None:

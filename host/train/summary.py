@@ -51,6 +51,7 @@ def summary(model: dict, model_path: str) -> dict:
             "effects": [{k: e.get(k) for k in ("kind", "feature", "evidence", "rmse_before_um",
                                                "rmse_after_um", "dropped_for_channels",
                                                "dropped_by_nested_validation",
+                                               "dropped_by_box_ridge",
                                                "in_ridge_lags")}
                         for e in axis.get("effects", [])],
             "unexplained": axis.get("unexplained"),
@@ -94,6 +95,8 @@ def dropped_reason(effect: dict) -> str | None:
         return "no box channel left for its sensor"
     if effect.get("dropped_by_nested_validation"):
         return "nested validation predicted the unseen folds better without it"
+    if effect.get("dropped_by_box_ridge"):
+        return "the box's ridge is not 10 % lower on its own folds with the effects"
     return None
 
 
@@ -115,7 +118,10 @@ def box_model_note(axis: dict) -> str | None:
     if after:
         notes.append("the channel budget dropped " + ", ".join(after.get("dropped_terms") or []))
     if axis.get("effects_rejected"):
-        notes.append("without the effects (nested validation)")
+        notes.append("without the effects ("
+                     + ("the box's ridge" if any(e.get("dropped_by_box_ridge")
+                                                 for e in axis.get("effects", []))
+                        else "nested validation") + ")")
     if (axis.get("fit") or {}).get("family", "ols").startswith("ridge"):
         extra = free_channels(axis)
         notes.append("a ridge over the terms plus lags and speed"
