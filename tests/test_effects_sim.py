@@ -240,7 +240,7 @@ def test_the_ridge_leaves_slow_lag_effects_to_its_own_lags(scenario, tmp_path):
         if not kept:  # the box's own ridge did not gain from the effects: none of them runs
             assert spec["fit"]["family"] == "ridge-baseline"
             assert spec["effects"] and all(e["dropped_by_box_ridge"] for e in spec["effects"])
-            assert "box's ridge" in spec["effects_rejected"]
+            assert "out of fold with them" in spec["effects_rejected"]
         for effect in spec["effects"]:
             if effect["kind"] not in ("lag", "rate"):
                 continue

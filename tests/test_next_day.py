@@ -472,3 +472,52 @@ def test_the_box_models_error_without_and_with_its_effects_is_reported(tmp_path,
     box = doc["axes"]["dz_um"]["box_nested_rmse_um"]
     assert box["families"] == ["ridge", "ridge-baseline"]
     assert box["with_effects"] < 0.3 * box["without_effects"]
+
+
+def _slow_path_run(name: str, seed: int, n: int = 960) -> Run:
+    """A machine whose dz follows T1 at once and through a slow path (a 1-h first-order lag of
+    T1, as a column warming behind its skin): the ridge's own lags of T1 cover that path."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * PERIOD
+    rpm = np.array([6000.0, 0.0, 3000.0, 0.0])[(t // 10800).astype(int) % 4]
+    t1 = 20 + np.cumsum(rpm / 6000.0 - 0.45) * 0.004 + 0.02 * rng.standard_normal(n)
+    slow = np.empty(n)
+    slow[0] = t1[0]
+    k = PERIOD / 3600.0
+    for i in range(1, n):
+        slow[i] = slow[i - 1] + k * (t1[i] - slow[i - 1])
+    t2 = 20 + 0.3 * rng.standard_normal(n).cumsum() * 0.01
+    dz = 2.0 * (t1 - t1[0]) + 6.0 * (slow - slow[0]) + 0.05 * rng.standard_normal(n)
+    return Run(name, t, ["T1", "T2"], np.column_stack([t1, t2]), ["dz_um"], dz[:, None],
+               ["spindle_rpm"], rpm[:, None])
+
+
+def test_an_effect_the_box_ridge_already_covers_is_named_and_not_run(tmp_path, capsys):
+    """The search names the slow path on least squares over the selected terms, but the box's
+    ridge reads the lags of T1 already: it is not 10 % lower with the effect, so the box runs
+    the ridge trained without effects, the effect stays listed with why, and host train says so."""
+    from host.cli import main
+    from host.io import write_run
+
+    runs = [_slow_path_run("a", 1), _slow_path_run("b", 2)]
+    kw = dict(aux=["spindle_rpm"], groups=2, max_sensors=2, reference="start", nested=False)
+    axis = train_model(runs, ["dz_um"], **kw)["axes"]["dz_um"]
+    assert any(e["kind"] in ("lag", "rate") for e in axis["effects"])
+    assert axis["fit"]["family"] == "ridge-baseline"
+    assert all(e["dropped_by_box_ridge"] for e in axis["effects"])
+    assert "they must lower it by 10 %" in axis["effects_rejected"]
+    plain = train_model(runs, ["dz_um"], effects=False, **kw)["axes"]["dz_um"]
+    assert plain["fit"]["family"] == "ridge"
+    assert axis["terms"] == plain["terms"] and axis["intercept"] == plain["intercept"]
+    paths = []
+    for run in runs:
+        cols = {n: run.temperatures[:, i] for i, n in enumerate(run.sensor_names)}
+        cols.update({"dz_um": run.displacements[:, 0], "spindle_rpm": run.aux[:, 0]})
+        paths.append(tmp_path / f"{run.path}.csv")
+        write_run(paths[-1], run.time_s, cols)
+    assert main(["train", *map(str, paths), "--target", "dz_um", "--aux", "spindle_rpm",
+                 "--groups", "2", "--max-sensors", "2", "--no-codegen", "--no-nested",
+                 "--out", str(tmp_path / "m")]) == 0
+    printed = capsys.readouterr().out
+    assert "dz_um: the box's model runs without the effects: its ridge is" in printed
+    assert "DROPPED: the box's ridge is not 10 % lower" in printed

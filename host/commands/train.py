@@ -193,6 +193,9 @@ def print_effects(doc: dict) -> None:
                   f"{_fmt(searched)} {u} (least squares on the selected terms); the box's "
                   f"model ({a.get('fit') or 'ols'}) validates at {_fmt(after)} {u} on its own "
                   "folds, which do not see the next day: the promise below does")
+        elif effects and a.get("effects_rejected"):
+            print(f"{name}: the box's model runs without the effects: "
+                  f"{a['effects_rejected']}")
         elif effects:
             print(f"{name}: no effect survived the channel budget (validation RMSE "
                   f"{_fmt(after)} {u})")

@@ -270,8 +270,8 @@ def ridge_refusal(with_effects, without) -> str | None:
     a, b = with_effects.validation_rmse_um, without.validation_rmse_um
     if a <= (1 - MIN_GAIN) * b:
         return None
-    return (f"the box's ridge: {a:.3g} um out of fold with the effects, {b:.3g} um without "
-            f"them; they must be {100 * MIN_GAIN:.0f} % lower")
+    return (f"its ridge is {a:.3g} um out of fold with them and {b:.3g} um without; they "
+            f"must lower it by {100 * MIN_GAIN:.0f} %")
 
 
 def _drop_effects(axis: dict, runs: list[Run], target: str, baseline_terms: list[Term],

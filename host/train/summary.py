@@ -55,6 +55,8 @@ def summary(model: dict, model_path: str) -> dict:
                                                "in_ridge_lags")}
                         for e in axis.get("effects", [])],
             "unexplained": axis.get("unexplained"),
+            # why the box's model runs without the accepted effects (None: it runs them)
+            "effects_rejected": axis.get("effects_rejected"),
             # what the channel budget took away after the effects (None: nothing)
             "channel_budget_after_effects": axis.get("channel_budget_after_effects"),
             # the loop's before/after on the model the box runs (None: no effects or no
