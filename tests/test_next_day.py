@@ -6,6 +6,7 @@ Expectations are recomputed here with numpy and scikit-learn, never read back fr
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -425,13 +426,25 @@ def _speed_growth_run(name: str, seed: int, growth_um: float, n: int = 720) -> R
                dz[:, None], ["spindle_rpm"], rpm[:, None])
 
 
+def _write_dz_runs(runs: list[Run], folder: Path) -> list[Path]:
+    """The runs as CSV files for the CLI (temperatures, dz_um, spindle_rpm)."""
+    from host.io import write_run
+
+    paths = []
+    for run in runs:
+        cols = {n: run.temperatures[:, i] for i, n in enumerate(run.sensor_names)}
+        cols.update({"dz_um": run.displacements[:, 0], "spindle_rpm": run.aux[:, 0]})
+        paths.append(folder / f"{run.path}.csv")
+        write_run(paths[-1], run.time_s, cols)
+    return paths
+
+
 def test_the_box_models_error_without_and_with_its_effects_is_reported(tmp_path, capsys):
     """The loop's before/after on the model the box runs: its family refitted on the nested
     folds with the effects and without them. A speed growth the basis lacks must show there."""
     import json
 
     from host.cli import main
-    from host.io import write_run
     from host.train import box_effects_evidence
 
     runs = [_speed_growth_run("a", 1, 4.0), _speed_growth_run("b", 2, 4.0)]
@@ -455,12 +468,7 @@ def test_the_box_models_error_without_and_with_its_effects_is_reported(tmp_path,
     assert not clean["axes"]["dz_um"].get("effects")
     assert box_effects_evidence(clean["axes"]["dz_um"]) is None
     # host train prints it beside the search's least squares, and --json carries it
-    paths = []
-    for run in runs:
-        cols = {n: run.temperatures[:, i] for i, n in enumerate(run.sensor_names)}
-        cols.update({"dz_um": run.displacements[:, 0], "spindle_rpm": run.aux[:, 0]})
-        paths.append(tmp_path / f"{run.path}.csv")
-        write_run(paths[-1], run.time_s, cols)
+    paths = _write_dz_runs(runs, tmp_path)
     train = ["train", *map(str, paths), "--target", "dz_um", "--aux", "spindle_rpm",
              "--groups", "3", "--max-sensors", "2", "--no-codegen"]
     assert main([*train, "--out", str(tmp_path / "text")]) == 0
@@ -497,7 +505,6 @@ def test_an_effect_the_box_ridge_already_covers_is_named_and_not_run(tmp_path, c
     ridge reads the lags of T1 already: it is not 10 % lower with the effect, so the box runs
     the ridge trained without effects, the effect stays listed with why, and host train says so."""
     from host.cli import main
-    from host.io import write_run
 
     runs = [_slow_path_run("a", 1), _slow_path_run("b", 2)]
     kw = dict(aux=["spindle_rpm"], groups=2, max_sensors=2, reference="start", nested=False)
@@ -509,12 +516,7 @@ def test_an_effect_the_box_ridge_already_covers_is_named_and_not_run(tmp_path, c
     plain = train_model(runs, ["dz_um"], effects=False, **kw)["axes"]["dz_um"]
     assert plain["fit"]["family"] == "ridge"
     assert axis["terms"] == plain["terms"] and axis["intercept"] == plain["intercept"]
-    paths = []
-    for run in runs:
-        cols = {n: run.temperatures[:, i] for i, n in enumerate(run.sensor_names)}
-        cols.update({"dz_um": run.displacements[:, 0], "spindle_rpm": run.aux[:, 0]})
-        paths.append(tmp_path / f"{run.path}.csv")
-        write_run(paths[-1], run.time_s, cols)
+    paths = _write_dz_runs(runs, tmp_path)
     assert main(["train", *map(str, paths), "--target", "dz_um", "--aux", "spindle_rpm",
                  "--groups", "2", "--max-sensors", "2", "--no-codegen", "--no-nested",
                  "--out", str(tmp_path / "m")]) == 0
