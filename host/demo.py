@@ -132,8 +132,11 @@ def print_training(demo: Demo, doc: dict, model: dict) -> None:
         effects = [e.get("name", "?") + (" (box: its sensor's ridge lags)"
                                          if ridge_lags_note(e) else "")
                    for e in spec.get("effects", []) if not dropped_reason(e)]
-        dropped = [f"{e.get('name', '?')} ({dropped_reason(e)})"
-                   for e in spec.get("effects", []) if dropped_reason(e)]
+        reasons: dict[str, list[str]] = {}  # one reason, said once for its effects
+        for e in spec.get("effects", []):
+            if dropped_reason(e):
+                reasons.setdefault(dropped_reason(e), []).append(e.get("name", "?"))
+        dropped = [f"{', '.join(names)} ({why})" for why, names in reasons.items()]
         line = (f"    {axis}: sensors {', '.join(row['sensors'])}; validation RMSE "
                 f"{fmt_um(row['validation_rmse_um'])} of {fmt_um(row['raw_rms_um'])} raw"
                 f" ({row.get('fit') or 'ols'})")
@@ -143,7 +146,7 @@ def print_training(demo: Demo, doc: dict, model: dict) -> None:
         gone = [s for s in spec.get("selection", {}).get("sensors", [])
                 if s not in row["sensors"]]
         if dropped:
-            line += f"; not in the box's model: {', '.join(dropped)}"
+            line += f"; not in the box's model: {'; '.join(dropped)}"
         if gone:
             line += f"; selected but not read by the box: {', '.join(gone)}"
         demo.say(line)

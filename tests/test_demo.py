@@ -54,3 +54,21 @@ def test_outside_a_checkout_the_demo_says_what_it_needs(monkeypatch, tmp_path, c
     assert demo.main([]) == 2
     err = capsys.readouterr().err
     assert "needs a git checkout" in err and "firmware/Makefile" in err
+
+
+def test_training_line_says_each_reason_once_for_the_effects_the_box_does_not_run():
+    from host.demo import print_training
+
+    out = io.StringIO()
+    doc = {"axes": {"dz_um": {"sensors": ["T1", "T2"], "validation_rmse_um": 0.3,
+                              "raw_rms_um": 9.0, "fit": "ridge-baseline"}}}
+    model = {"axes": {"dz_um": {"effects": [
+        {"name": "lag(T1, tau=600s)", "dropped_by_box_ridge": True},
+        {"name": "rate(T2, tau=1200s)", "dropped_by_box_ridge": True},
+        {"name": "speed(spindle_rpm)", "dropped_for_channels": True}]}}}
+    print_training(Demo(out=out), doc, model)
+    line = out.getvalue()
+    assert line.count("the box's ridge is not 10 % lower") == 1
+    assert ("not in the box's model: lag(T1, tau=600s), rate(T2, tau=1200s) (the box's ridge"
+            in line)
+    assert "; speed(spindle_rpm) (no box channel left for its sensor)" in line
