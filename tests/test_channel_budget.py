@@ -122,3 +122,26 @@ def test_auto_gives_up_the_baseline_when_an_effect_rewired_its_sensors():
     assert set(term_sensors([Term.from_json(t) for t in axis["terms"]])) <= wired
     assert not axis["fit"]["family"].endswith("baseline")
     assert "T15" in axis["fit"]["baseline_not_candidate"]
+
+
+def test_effects_the_box_ridge_drops_give_back_the_channels_they_wired():
+    """FL_THERMAL's first three cycles, ch1 alone: the search re-selects T13 with its square
+    and the free channels were filled around it; the box's ridge is not 10 % lower with the
+    effects, so the box runs without them, and then it must not read T13 for them either:
+    the channels are filled again, and the model is the one trained without effects."""
+    from pathlib import Path
+
+    from host.io import load_run, window
+
+    fl = Path(__file__).resolve().parents[1] / "examples" / "fl_thermal_steps.csv"
+    run = window(load_run(fl, ["ch1_um"], "T*", ["spindle_rpm"]), None, 24 * 3600.0)
+    kw = dict(aux=["spindle_rpm"], reference="none", nested=False)
+    model = train_model([run], ["ch1_um"], **kw)
+    axis = model["axes"]["ch1_um"]
+    named = {s for e in axis["effects"] for t in e["added"] for s in [t.get("source")]}
+    assert "T13" in named and all(e["dropped_by_box_ridge"] for e in axis["effects"])
+    assert axis["fit"]["family"] == "ridge-baseline"
+    assert axis["fit"]["refilled_without_dropped_effects"]
+    plain = train_model([run], ["ch1_um"], effects=False, **kw)
+    assert model["channels"] == plain["channels"]
+    assert axis["terms"] == plain["axes"]["ch1_um"]["terms"]

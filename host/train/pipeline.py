@@ -9,6 +9,7 @@ fits the model for the next day (host.train.next_day). The dict follows docs/mod
 
 from __future__ import annotations
 
+import copy
 import fnmatch
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -66,6 +67,7 @@ from host.train.next_day import (
     shared_lag_budget,
 )
 from host.train.ranges import add_training_ranges
+from host.train.summary import dropped_reason
 from host.train.training_data import TrainingData, TrainingError
 
 DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
@@ -284,10 +286,47 @@ def _drop_effects(axis: dict, runs: list[Run], target: str, baseline_terms: list
     axis["effects_rejected"] = why
 
 
+def _refilled_without_dropped_effects(data: TrainingData, searched: dict[str, dict],
+                                      judged: dict[str, dict],
+                                      next_day: Callable[[dict[str, dict], bool],
+                                                         dict[str, dict]]) -> dict[str, dict]:
+    """The axes judged again when the box's ridge dropped an axis's effects (ridge_refusal)
+    that had wired a sensor of their own: the free channels were filled around it, so the box
+    would read that sensor for effects it does not run. The channels are filled again with
+    those axes on their baseline, and every ridge refitted on them; the nested folds stand
+    (each filled its own, whatever the final fill), so they are not run twice."""
+    dropped = [t for t, a in judged.items()
+               if any(e.get("dropped_by_box_ridge") for e in a.get("effects", []))]
+    plain = {t: copy.deepcopy(a) for t, a in searched.items()}
+    for t in dropped:
+        base = [Term.from_json(x) for x in plain[t]["baseline"]["terms"]]
+        _drop_effects(plain[t], data.runs, t, base, data.period_s, data.n_blocks, data.ref,
+                      "dropped_by_box_ridge", judged[t]["effects_rejected"])
+
+    def wired(axes: dict[str, dict]) -> set[str]:
+        return channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
+
+    if not dropped or wired(plain) == wired(searched):
+        return judged
+    again = next_day(plain, False)
+    for t, axis in again.items():
+        axis["fit"]["refilled_without_dropped_effects"] = True
+        if "nested" in judged[t]["fit"]:
+            axis["fit"]["nested"] = judged[t]["fit"]["nested"]
+        for key in ("promised_rmse_um", "promised_fold_rmse_um"):
+            if key in judged[t]["metrics"]:
+                axis["metrics"][key] = judged[t]["metrics"][key]
+        if t in dropped and axis["fit"]["family"] == "ridge":  # its effects are not run
+            axis["fit"]["family"] = "ridge-baseline"
+    return again
+
+
 def _mark_lags_in_basis(axis: dict, basis: Sequence[Term]) -> None:
     """Flag the lag and rate effects whose filter the ridge left to its own lags of the
     effect's sensor (next_day.ridge_start), with the lags that stand for it."""
     for effect in axis.get("effects", []):
+        if dropped_reason(effect):
+            continue  # the box does not run it
         own = lag_family_filters([effect])
         if all(t in basis for t in own):
             continue  # no effect of the lag family, or the box runs its own filter
@@ -410,10 +449,18 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                        max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
                        max_channels=max_channels, reference=reference,
                        fill_first=fill_first)  # a fold of one axis fills as this model did
-        axes = _axes_for_the_next_day(data, axes, options, fit=fit, nested=nested,
-                                      fill_channels=fill_channels, max_channels=max_channels,
-                                      rankings=rankings, bending=bending,
-                                      prefilter_s=prefilter_s, jobs=jobs, quiet=quiet)
+        def next_day(searched: dict[str, dict], nested: bool) -> dict[str, dict]:
+            return _axes_for_the_next_day(data, searched, options, fit=fit, nested=nested,
+                                          fill_channels=fill_channels,
+                                          max_channels=max_channels, rankings=rankings,
+                                          bending=bending, prefilter_s=prefilter_s, jobs=jobs,
+                                          quiet=quiet)
+
+        refill = fit == "ridge" and fill_channels
+        searched = copy.deepcopy(axes) if refill else axes  # the judge updates what it drops
+        axes = next_day(axes, nested)
+        if refill:
+            axes = _refilled_without_dropped_effects(data, searched, axes, next_day)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
