@@ -138,7 +138,7 @@ def test_effects_the_box_ridge_drops_give_back_the_channels_they_wired():
     kw = dict(aux=["spindle_rpm"], reference="none", nested=False)
     model = train_model([run], ["ch1_um"], **kw)
     axis = model["axes"]["ch1_um"]
-    named = {s for e in axis["effects"] for t in e["added"] for s in [t.get("source")]}
+    named = {t.get("source") for e in axis["effects"] for t in e["added"]}
     assert "T13" in named and all(e["dropped_by_box_ridge"] for e in axis["effects"])
     assert axis["fit"]["family"] == "ridge-baseline"
     assert axis["fit"]["refilled_without_dropped_effects"]

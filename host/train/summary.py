@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from contract.terms import TEMPERATURE_KINDS
+from host.effects.scoring import MIN_GAIN
 from host.train.next_day import FAMILIES
 
 
@@ -98,7 +99,8 @@ def dropped_reason(effect: dict) -> str | None:
     if effect.get("dropped_by_nested_validation"):
         return "nested validation predicted the unseen folds better without it"
     if effect.get("dropped_by_box_ridge"):
-        return "the box's ridge is not 10 % lower on its own folds with the effects"
+        return (f"the box's ridge is not {100 * MIN_GAIN:.0f} % lower on its own folds with "
+                "the effects")
     return None
 
 
