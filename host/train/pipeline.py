@@ -169,8 +169,10 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     from ``pool`` when ``fill`` is not empty (the fold's ranking, not the final one). Its basis
     has at most ``max_states`` distinct filters (next_day.shared_lag_budget). ``box``: the
     sensors the box reads; a family without the effects is no candidate when its terms read
-    another (an effect's re-selection gave that sensor's channel away). ``ridge``: how the
-    ridge is fitted beyond its basis (the bending penalty, the prefilter; next_day)."""
+    another (an effect's re-selection gave that sensor's channel away; the ridge's is judged
+    once the channels are filled again for it, _refilled_without_dropped_effects).
+    ``ridge``: how the ridge is fitted beyond its basis (the bending penalty, the prefilter;
+    next_day)."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
     baseline = axis.get("baseline")
     baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
