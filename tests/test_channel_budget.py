@@ -145,28 +145,3 @@ def test_effects_the_box_ridge_drops_give_back_the_channels_they_wired():
     plain = train_model([run], ["ch1_um"], effects=False, **kw)
     assert model["channels"] == plain["channels"]
     assert axis["terms"] == plain["axes"]["ch1_um"]["terms"]
-
-
-def test_a_reselection_is_judged_on_the_channels_it_gave_away():
-    """FL_THERMAL's first two cycles, ch3 alone: the speed family re-selects the sensors (its
-    baseline's T15 loses its channel), so the box's ridge without the effects could not be
-    fitted on the channels the effects left. It is judged once the channels are filled again
-    for the baseline: the ridge with the effects is not 10 % lower than that one, so the box
-    runs the model trained without effects, and says why."""
-    from pathlib import Path
-
-    from host.io import load_run, window
-
-    fl = Path(__file__).resolve().parents[1] / "examples" / "fl_thermal_steps.csv"
-    run = window(load_run(fl, ["ch3_um"], "T*", ["spindle_rpm"]), None, 16 * 3600.0)
-    kw = dict(aux=["spindle_rpm"], reference="none", nested=False)
-    model = train_model([run], ["ch3_um"], **kw)
-    axis = model["axes"]["ch3_um"]
-    speed = [e for e in axis["effects"] if "re-selected" in e["name"]]
-    assert speed and "T15" in speed[0]["name"]
-    assert all(e["dropped_by_box_ridge"] for e in axis["effects"])
-    assert axis["fit"]["family"] == "ridge-baseline"
-    assert "channels given back" in axis["effects_rejected"]
-    plain = train_model([run], ["ch3_um"], effects=False, **kw)
-    assert model["channels"] == plain["channels"]
-    assert axis["terms"] == plain["axes"]["ch3_um"]["terms"]

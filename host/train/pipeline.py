@@ -53,7 +53,6 @@ from host.train.next_day import (
     EVEN_WARMING_PENALTY,
     FAMILIES,
     FoldTerms,
-    NestedResult,
     RidgeOptions,
     channel_fill,
     check_fit,
@@ -169,10 +168,8 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     from ``pool`` when ``fill`` is not empty (the fold's ranking, not the final one). Its basis
     has at most ``max_states`` distinct filters (next_day.shared_lag_budget). ``box``: the
     sensors the box reads; a family without the effects is no candidate when its terms read
-    another (an effect's re-selection gave that sensor's channel away; the ridge's is judged
-    once the channels are filled again for it, _refilled_without_dropped_effects).
-    ``ridge``: how the ridge is fitted beyond its basis (the bending penalty, the prefilter;
-    next_day)."""
+    another (an effect's re-selection gave that sensor's channel away). ``ridge``: how the
+    ridge is fitted beyond its basis (the bending penalty, the prefilter; next_day)."""
     final_terms = [Term.from_json(x) for x in axis["terms"]]
     baseline = axis.get("baseline")
     baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
@@ -228,8 +225,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         found = fit_shrunk(terms)
         if found is not None and with_effects and final_terms != baseline_terms and not unwired:
             plain = fit_shrunk(baseline_terms)
-            refusal = None if plain is None else ridge_refusal(
-                found[1].validation_rmse_um, plain[1].validation_rmse_um)
+            refusal = None if plain is None else ridge_refusal(found[1], plain[1])
             if refusal:  # the box's own model does not gain from the effects: run it without
                 family = "ridge-baseline"
                 with_effects, terms, found = False, baseline_terms, plain
@@ -254,7 +250,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                    "rule": ("the family with the lowest nested error: least squares on the "
                             "selected terms with or without the effects, or a ridge over "
                             "them plus lags and speed and the sensors on the free channels")}
-    if fit != "ols" and unwired:  # a ridge's effects are judged once the channels are back
+    if fit == "auto" and unwired:
         axis["fit"]["baseline_not_candidate"] = (
             f"the baseline reads {', '.join(unwired)}, which the box no longer wires (an "
             "effect's re-selection gave the channel away)")
@@ -266,13 +262,14 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     return axis
 
 
-def ridge_refusal(a: float, b: float) -> str | None:
+def ridge_refusal(with_effects, without) -> str | None:
     """Why the box's ridge runs without the accepted effects (None: it keeps them): the ridge
-    over the basis with them (out-of-fold error ``a``) must be ``MIN_GAIN`` (the search's own
-    10 %) lower than the ridge over the baseline's basis (``b``). The search judges an effect
-    on least squares over the selected terms; the box runs the ridge over every wired sensor
-    and its lags, which often covers what the effect adds, and there an effect that does not
-    gain hurt unseen runs (docs/next-day.md section 17)."""
+    over the basis with them must be ``MIN_GAIN`` (the search's own 10 %) lower on its
+    out-of-fold error than the ridge over the baseline's basis. The search judges an effect on
+    least squares over the selected terms; the box runs the ridge over every wired sensor and
+    its lags, which often covers what the effect adds, and there an effect that does not gain
+    hurt unseen runs (docs/next-day.md section 17)."""
+    a, b = with_effects.validation_rmse_um, without.validation_rmse_um
     if a <= (1 - MIN_GAIN) * b:
         return None
     return (f"its ridge is {a:.3g} um out of fold with them and {b:.3g} um without; they "
@@ -297,43 +294,21 @@ def _refilled_without_dropped_effects(data: TrainingData, searched: dict[str, di
     that had wired a sensor of their own: the free channels were filled around it, so the box
     would read that sensor for effects it does not run. The channels are filled again with
     those axes on their baseline, and every ridge refitted on them; the nested folds stand
-    (each filled its own, whatever the final fill), so they are not run twice.
-
-    An axis whose effects gave its baseline's channels away (``baseline_not_candidate``: a
-    re-selection) could not be judged on the channels it had; its baseline is judged here, on
-    the channels filled again with it, and the effects stay only where their ridge is
-    ``MIN_GAIN`` lower than that one."""
-    dropped = {t: a["effects_rejected"] for t, a in judged.items()
-               if any(e.get("dropped_by_box_ridge") for e in a.get("effects", []))}
-    unjudged = [t for t, a in judged.items() if t not in dropped
-                and a["fit"]["family"] == "ridge" and a["fit"].get("baseline_not_candidate")]
-
-    def on_baseline(names: Sequence[str], why: Callable[[str], str]) -> dict[str, dict]:
-        plain = {t: copy.deepcopy(a) for t, a in searched.items()}
-        for t in names:
-            base = [Term.from_json(x) for x in plain[t]["baseline"]["terms"]]
-            _drop_effects(plain[t], data.runs, t, base, data.period_s, data.n_blocks,
-                          data.ref, "dropped_by_box_ridge", why(t))
-        return plain
+    (each filled its own, whatever the final fill), so they are not run twice."""
+    dropped = [t for t, a in judged.items()
+               if any(e.get("dropped_by_box_ridge") for e in a.get("effects", []))]
+    plain = {t: copy.deepcopy(a) for t, a in searched.items()}
+    for t in dropped:
+        base = [Term.from_json(x) for x in plain[t]["baseline"]["terms"]]
+        _drop_effects(plain[t], data.runs, t, base, data.period_s, data.n_blocks, data.ref,
+                      "dropped_by_box_ridge", judged[t]["effects_rejected"])
 
     def wired(axes: dict[str, dict]) -> set[str]:
         return channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
 
-    again = None
-    if unjudged:
-        trial = next_day(on_baseline([*dropped, *unjudged], lambda t: ""), False)
-        for t in unjudged:
-            why = ridge_refusal(judged[t]["metrics"]["validation_rmse_um"],
-                                trial[t]["metrics"]["validation_rmse_um"])
-            if why:
-                dropped[t] = why + " (its baseline on the channels given back)"
-        if set(unjudged) <= set(dropped):
-            again = trial  # every axis tried on its baseline stays there
-    plain = on_baseline(list(dropped), lambda t: dropped[t])
     if not dropped or wired(plain) == wired(searched):
         return judged
-    if again is None:
-        again = next_day(plain, False)
+    again = next_day(plain, False)
     for t, axis in again.items():
         axis["fit"]["refilled_without_dropped_effects"] = True
         if "nested" in judged[t]["fit"]:
@@ -341,16 +316,8 @@ def _refilled_without_dropped_effects(data: TrainingData, searched: dict[str, di
         for key in ("promised_rmse_um", "promised_fold_rmse_um"):
             if key in judged[t]["metrics"]:
                 axis["metrics"][key] = judged[t]["metrics"][key]
-        if t in dropped:
-            axis["effects_rejected"] = dropped[t]
-            if axis["fit"]["family"] == "ridge":  # its effects are not run
-                axis["fit"]["family"] = "ridge-baseline"
-        if t in dropped and t in unjudged and "nested" in judged[t]["fit"]:
-            # the promise of the family the box now runs, from the same nested folds
-            nested = judged[t]["fit"]["nested"]
-            promised = NestedResult(nested["scheme"], nested["fold_rmse_um"])
-            axis["metrics"]["promised_rmse_um"] = promised.promise("ridge-baseline")
-            axis["metrics"]["promised_fold_rmse_um"] = nested["fold_rmse_um"]["ridge-baseline"]
+        if t in dropped and axis["fit"]["family"] == "ridge":  # its effects are not run
+            axis["fit"]["family"] = "ridge-baseline"
     return again
 
 
