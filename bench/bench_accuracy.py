@@ -123,6 +123,9 @@ HGB_MAX_ROWS = 2000  # gradient boosting fits on every k-th training row beyond 
 SOURCES = ("sim", "sim_dev", "fl", "fl_next", "sim_other")
 TARGET_SOURCES = ("sim_dev", "fl")  # issue 13's <= 0.8 (FL: its cycles held out in turn)
 LOOP_TOLERANCE = 1.05
+INTERVAL = 0.90  # the geometric means' intervals: 5th to 95th percentile
+BOOTSTRAP_DRAWS = 4000
+MIN_TRAINING_SETS = 3  # fewer and a resampled interval says nothing: none is given
 CALIBRATION_FACTOR = 2.0
 
 
@@ -217,6 +220,9 @@ class CaseResult:
     test: str
     target: str
     reference: str
+    # the job's training data (Job.group): every case of one job shares its models, so the
+    # intervals resample whole training sets (clustered_interval)
+    training_set: str = ""
     rmse_um: dict[str, float] = field(default_factory=dict)  # column -> test RMSE
     promised_um: dict[str, float] = field(default_factory=dict)  # ours -> promised RMSE
     # ours -> the highest nested fold, the top of the promise's spread (highest_fold)
@@ -569,7 +575,7 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
     train = [_load(s, targets) for s in job.train]
     test = [(s, _load(s, targets)) for s in job.test]
     period = train[0].period_s
-    cases = {(g, s.name, t): CaseResult(job.source, g, s.name, t, job.reference)
+    cases = {(g, s.name, t): CaseResult(job.source, g, s.name, t, job.reference, job.group)
              for g, _ in job.ours_variants() for s, _ in test for t in targets}
     runs = {s.name: r for s, r in test}
     paths = {s.name: s.path for s, _ in test}
@@ -643,6 +649,46 @@ def geomean(values: Sequence[float]) -> float:
     return float(np.exp(np.mean(np.log(v)))) if v.size else math.nan
 
 
+def clustered_interval(cases: Sequence[CaseResult], ratio: Callable[[CaseResult], float],
+                       level: float = INTERVAL, draws: int = BOOTSTRAP_DRAWS,
+                       seed: int = 0) -> tuple[float, float]:
+    """Percentile interval of the geometric mean of ``ratio`` over ``cases`` when whole
+    training sets are drawn again with replacement (a cluster bootstrap, seeded).
+
+    The cases of one training set share its models and are not independent: the project
+    simulator's 18 cases are 3 machines, FL's 40 are 4 held-out cycles. Resampling single
+    cases would give intervals as if there were 18 or 40 independent draws. NaN, NaN with
+    fewer than MIN_TRAINING_SETS training sets."""
+    units: dict[str, list[float]] = {}
+    for c in cases:
+        r = ratio(c)
+        if r > 0 and math.isfinite(r):
+            units.setdefault(c.training_set or c.group, []).append(math.log(r))
+    if len(units) < MIN_TRAINING_SETS:
+        return math.nan, math.nan
+    sums = np.array([sum(v) for v in units.values()])
+    counts = np.array([len(v) for v in units.values()])
+    pick = np.random.default_rng(seed).integers(0, len(units), (draws, len(units)))
+    means = np.exp(sums[pick].sum(axis=1) / counts[pick].sum(axis=1))
+    tail = (1 - level) / 2
+    return float(np.quantile(means, tail)), float(np.quantile(means, 1 - tail))
+
+
+def intervals(cs: list[CaseResult]) -> dict:
+    """The target's ratio, the loop (default / no effects) and ours against paper 000's
+    method (default / paper), each a geometric mean with its clustered_interval."""
+    def over(column: str) -> Callable[[CaseResult], float]:
+        return lambda c: c.rmse_um["default"] / c.rmse_um.get(column, math.nan)
+
+    ratios: dict[str, Callable[[CaseResult], float]] = {
+        "default / best peer": lambda c: c.ratio(),
+        "default / no effects": over("no effects"), "default / paper": over("paper")}
+    return {"training sets": len({c.training_set or c.group for c in cs}),
+            **{name: {"geomean": geomean([f(c) for c in cs]),
+                      "interval": list(clustered_interval(cs, f))}
+               for name, f in ratios.items()}}
+
+
 def per_peer(cs: list[CaseResult]) -> dict:
     """Ours against each peer method on its own, and the strongest single method.
 
@@ -698,6 +744,7 @@ def summarise(cases: list[CaseResult]) -> dict:
                 {p: sum(c.validated_peer[0] == p for c in cs) for p in PEERS}.items(),
                 key=lambda kv: -kv[1])),
             **per_peer(cs),
+            "intervals": intervals(cs),
         }
         floored = [c for c in cs if c.floor_um.get("oracle", 0) > 0]
         if floored:  # sim_dev: how far from what a model could at best reach
@@ -740,6 +787,18 @@ def summarise(cases: list[CaseResult]) -> dict:
                                       "target": c.target, "default_um": d, "no_effects_um": b,
                                       "effects": c.effects.get("default", [])})
     return out
+
+
+def interval_text(iv: dict) -> str:
+    """One line: each ratio of ``intervals`` with its interval over the training sets."""
+    def one(name: str) -> str:
+        lo, hi = iv[name]["interval"]
+        span = f" ({lo:.3f}-{hi:.3f})" if math.isfinite(lo) else " (no interval)"
+        return f"{name} {iv[name]['geomean']:.3f}{span}"
+    return (f"{100 * INTERVAL:.0f} % intervals, whole training sets resampled "
+            f"({iv['training sets']} of them): "
+            + "; ".join(one(n) for n in ("default / best peer", "default / no effects",
+                                         "default / paper")))
 
 
 def _f(x: float, width: int = 6) -> str:
@@ -792,6 +851,7 @@ def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = (
                      f"{s['default beats best peer']}; default / best peer the box can run "
                      f"(<= {BOX_CHANNELS} sensors) "
                      f"{s['geomean default / best peer within the box']:.3f}")
+        lines.append("           " + interval_text(s["intervals"]))
         lines.append("           best peer: " + ", ".join(
             f"{p} {n}" for p, n in s["best peer counts"].items() if n))
         lines.append("           ours / the peer picked by validation on the training file: "
@@ -929,6 +989,14 @@ def run() -> list[dict]:
     return summary_rows(summary, len(cases)) + extra
 
 
+def interval_detail(iv: dict, name: str = "default / best peer") -> str:
+    lo, hi = iv[name]["interval"]
+    if not math.isfinite(lo):
+        return f"no interval ({iv['training sets']} training sets)"
+    return (f"{100 * INTERVAL:.0f} % interval {lo:.3f}-{hi:.3f} over "
+            f"{iv['training sets']} training sets")
+
+
 def summary_rows(summary: dict, n_cases: int) -> list[dict]:
     """The bench runner's rows (its table and bench.json) from the summary."""
     rows = []
@@ -936,7 +1004,11 @@ def summary_rows(summary: dict, n_cases: int) -> list[dict]:
         rows.append({"name": f"{source}: geomean default / best peer",
                      "value": s["geomean default / best peer"], "unit": "ratio",
                      "target": "<= 0.8" if source in TARGET_SOURCES else "",
-                     "detail": f"{s['cases']} cases"})
+                     "detail": f"{s['cases']} cases; " + interval_detail(s["intervals"])})
+        loop = s["intervals"]["default / no effects"]
+        rows.append({"name": f"{source}: geomean default / no effects (the loop)",
+                     "value": loop["geomean"], "unit": "ratio",
+                     "detail": interval_detail(s["intervals"], "default / no effects")})
         rows.append({"name": f"{source}: geomean default / strongest single peer",
                      "value": s["geomean default / strongest single peer"], "unit": "ratio",
                      "detail": f"{s['strongest single peer']}, itself "

@@ -287,3 +287,36 @@ def test_other_machines_are_other_simulated_machines_beside_the_target(tmp_path)
     b = load_run(tuned.train[0].path, list(acc.SIM_TARGETS))
     assert a.n_samples == b.n_samples
     assert not np.allclose(a.temperatures, b.temperatures)
+
+
+def test_intervals_resample_whole_training_sets():
+    import itertools
+
+    def case(unit, d, best):
+        c = acc.CaseResult("sim_dev", f"{unit} variant", "t", "dy_um", "start", unit)
+        c.rmse_um = {"default": d, "no effects": 2 * d, "paper": d, "OLS all": best}
+        return c
+
+    # three training sets: one case, two alike cases and three cases of different ratios
+    cases = [case("A", 1.0, 2.0), case("B", 3.0, 1.0), case("B", 3.0, 1.0),
+             case("C", 1.0, 1.0), case("C", 2.0, 1.0), case("C", 0.5, 1.0)]
+    lo, hi = acc.clustered_interval(cases, acc.CaseResult.ratio, draws=200_000)
+    # the exact bootstrap distribution: all 27 draws of three sets, equally likely; a draw's
+    # geometric mean weighs each set by its cases
+    logs = {"A": [math.log(0.5)], "B": [math.log(3.0)] * 2,
+            "C": [0.0, math.log(2.0), math.log(0.5)]}
+    atoms = np.sort([np.exp(np.mean([x for u in draw for x in logs[u]]))
+                     for draw in itertools.product("ABC", repeat=3)])
+    cdf = np.arange(1, 28) / 27
+    assert lo == pytest.approx(atoms[np.searchsorted(cdf, 0.05)])
+    assert hi == pytest.approx(atoms[np.searchsorted(cdf, 0.95)])
+    # one set's ratios alike everywhere: no spread, whatever is drawn
+    same = [case(u, 1.0, 2.0) for u in "ABCD"]
+    assert acc.clustered_interval(same, acc.CaseResult.ratio) == pytest.approx((0.5, 0.5))
+    # two training sets say nothing about the spread of others
+    assert all(math.isnan(x) for x in acc.clustered_interval(cases[:3], acc.CaseResult.ratio))
+    s = acc.summarise(cases)["per_source"]["sim_dev"]["intervals"]
+    assert s["training sets"] == 3
+    assert s["default / no effects"]["geomean"] == pytest.approx(0.5)
+    assert s["default / no effects"]["interval"] == pytest.approx([0.5, 0.5])
+    assert "3 of them" in acc.table(cases, acc.summarise(cases))
