@@ -241,6 +241,12 @@ class CaseResult:
     effects: dict[str, list[str]] = field(default_factory=dict)  # ours -> effects it kept
 
     @property
+    def cluster(self) -> str:
+        """The unit the intervals resample: the training set (a JSON written before the
+        bench recorded it falls back to the case's group, one per variant)."""
+        return self.training_set or self.group
+
+    @property
     def best_peer(self) -> tuple[str, float]:
         scored = [(p, self.rmse_um[p]) for p in PEERS
                   if p in self.rmse_um and not math.isnan(self.rmse_um[p])]
@@ -663,7 +669,7 @@ def clustered_interval(cases: Sequence[CaseResult], ratio: Callable[[CaseResult]
     for c in cases:
         r = ratio(c)
         if r > 0 and math.isfinite(r):
-            units.setdefault(c.training_set or c.group, []).append(math.log(r))
+            units.setdefault(c.cluster, []).append(math.log(r))
     if len(units) < MIN_TRAINING_SETS:
         return math.nan, math.nan
     sums = np.array([sum(v) for v in units.values()])
@@ -683,7 +689,7 @@ def intervals(cs: list[CaseResult]) -> dict:
     ratios: dict[str, Callable[[CaseResult], float]] = {
         "default / best peer": lambda c: c.ratio(),
         "default / no effects": over("no effects"), "default / paper": over("paper")}
-    return {"training sets": len({c.training_set or c.group for c in cs}),
+    return {"training sets": len({c.cluster for c in cs}),
             **{name: {"geomean": geomean([f(c) for c in cs]),
                       "interval": list(clustered_interval(cs, f))}
                for name, f in ratios.items()}}
