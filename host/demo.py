@@ -329,22 +329,34 @@ def step_fl(demo: Demo) -> tuple[list[Path], dict]:
     return parts, model
 
 
+def effects_on_box(row: dict) -> str:
+    """How many of the effects the loop found the box runs ("1 of 3"), from the report's
+    stages; "—" where the loop found none."""
+    found = [s for s in row.get("stages_rms_um") or [] if s["stage"].startswith("+ ")]
+    if not found:
+        return "—"
+    return f"{sum(not s.get('dropped') for s in found)} of {len(found)}"
+
+
 def print_error_table(demo: Demo, reports: list[tuple[str, dict]]) -> None:
     demo.say("\nError before and after compensation (RMS over each run; 'seen' = a training run;"
-             "\n'temps only' = the model before the close-the-loop effects were added):")
+             "\n'baseline' = least squares on the selected sensors' temperatures, where the loop"
+             " starts;\n'box' = the model the box runs: a ridge over those sensors, their lags"
+             " and the free\nchannels, with the effects it kept ('effects': kept of found)):")
     demo.say(f"    {'data':<10} {'run':<26} {'axis':<7} {'seen':<4} {'raw':>9} "
-             f"{'temps only':>11} {'compensated':>12} {'reduction':>9}")
+             f"{'baseline':>11} {'box':>12} {'reduction':>9} {'effects':>8}")
     for label, summary in reports:
         for run_name, per_axis in summary["runs"].items():
             for axis, row in per_axis.items():
                 raw = row["raw_rms_um"]
                 ours = row["residual_rms_um"]["our model"]
                 stages = row.get("stages_rms_um") or []
-                base = f"{stages[0]['rms_um']:>8.2f} µm" if stages else f"{'—':>11}"
+                before = row.get("baseline_rms_um", stages[0]["rms_um"] if stages else None)
+                base = f"{before:>8.2f} µm" if before is not None else f"{'—':>11}"
                 red = 100.0 * (1.0 - ours / raw) if raw else float("nan")
                 demo.say(f"    {label:<10} {run_name[:26]:<26} {axis:<7} "
                          f"{'yes' if row['in_training'] else 'no':<4} {raw:>6.2f} µm {base} "
-                         f"{ours:>9.2f} µm {red:>7.0f} %")
+                         f"{ours:>9.2f} µm {red:>7.0f} % {effects_on_box(row):>8}")
 
 
 def missing_checkout_parts() -> list[str]:

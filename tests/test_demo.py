@@ -30,7 +30,7 @@ def test_a_missing_program_is_a_clear_failure():
         demo.run(["no-such-tool-xyz"])
 
 
-def test_error_table_shows_raw_compensated_and_reduction():
+def test_error_table_shows_raw_baseline_box_reduction_and_effects_kept():
     out = io.StringIO()
     summary = {"runs": {"unseen_run": {"dz_um": {
         "raw_rms_um": 20.0, "in_training": False,
@@ -38,13 +38,26 @@ def test_error_table_shows_raw_compensated_and_reduction():
     print_error_table(Demo(out=out), [("simulated", summary)])
     row = [ln for ln in out.getvalue().splitlines() if "unseen_run" in ln][0]
     assert row.split() == ["simulated", "unseen_run", "dz_um", "no", "20.00", "µm", "—", "1.40",
-                           "µm", "93", "%"]  # 100 * (1 - 1.4 / 20) = 93
+                           "µm", "93", "%", "—"]  # 100 * (1 - 1.4 / 20) = 93
+    # the loop found two effects, the box kept one; the baseline is the report's own column
     summary["runs"]["unseen_run"]["dz_um"]["stages_rms_um"] = [
-        {"stage": "baseline", "rms_um": 2.5}, {"stage": "+ lag", "rms_um": 1.4}]
+        {"stage": "baseline (temperatures only)", "rms_um": 2.5, "dropped": False},
+        {"stage": "+ lag(T01, tau=600s)", "rms_um": 1.6, "dropped": False},
+        {"stage": "+ rate(T02, tau=600s) (dropped: ...)", "rms_um": 1.5, "dropped": True},
+        {"stage": "the box's model (ridge)", "rms_um": 1.4, "dropped": False}]
+    summary["runs"]["unseen_run"]["dz_um"]["baseline_rms_um"] = 2.5
     out.truncate(0)
     print_error_table(Demo(out=out), [("simulated", summary)])
     row = [ln for ln in out.getvalue().splitlines() if "unseen_run" in ln][0]
-    assert row.split()[4:9] == ["20.00", "µm", "2.50", "µm", "1.40"]
+    assert row.split()[4:] == ["20.00", "µm", "2.50", "µm", "1.40", "µm", "93", "%", "1", "of",
+                               "2"]
+    # an axis without effects still shows where the loop started
+    del summary["runs"]["unseen_run"]["dz_um"]["stages_rms_um"]
+    summary["runs"]["unseen_run"]["dz_um"]["baseline_rms_um"] = 3.25
+    out.truncate(0)
+    print_error_table(Demo(out=out), [("simulated", summary)])
+    row = [ln for ln in out.getvalue().splitlines() if "unseen_run" in ln][0]
+    assert row.split()[6:8] == ["3.25", "µm"] and row.split()[-1] == "—"
 
 
 def test_outside_a_checkout_the_demo_says_what_it_needs(monkeypatch, tmp_path, capsys):

@@ -230,6 +230,8 @@ def test_summary_numbers_match_an_independent_computation(example, rendered):
             assert [s["rms_um"] for s in row["stages_rms_um"]] == pytest.approx(
                 [np.sqrt(np.mean(before ** 2)), np.sqrt(np.mean((col[axis] - pred) ** 2))],
                 rel=1e-6)
+            assert row["baseline_rms_um"] == pytest.approx(np.sqrt(np.mean(before ** 2)),
+                                                           rel=1e-6)
     # ISO 230-3 drift of the measured ch3 on each run: its range, first hour, end - start
     for path in example["runs"]:
         table = np.loadtxt(path, delimiter=",", skiprows=1)

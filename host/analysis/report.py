@@ -458,6 +458,11 @@ def _fig_run(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
         "in_training": _in_training(inp.model, run),
         "drift": drift,
     }
+    baseline = axis.get("baseline")
+    if baseline and "terms" in baseline:  # where the loop started, so before/after is visible
+        entry[axis_name]["baseline_rms_um"] = plots.rms(
+            measured - predict(baseline["intercept"], baseline["terms"], run, inp.period,
+                               inp.ref))
     caption = ("Top: the measured displacement and what each model predicts from what "
                "the box measures. Bottom: what is left (RMS in the legend)"
                + ("; the shaded band is ± the error host train promised for an "
