@@ -273,6 +273,8 @@ def test_train_promises_a_nested_error_and_the_box_runs_either_family():
                             max_sensors=2, fit=fit, reference="start")
         axis = model["axes"]["dz_um"]
         assert axis["fit"]["requested"] == fit
+        # the rule model.json states is the one that chose: only auto compares nested errors
+        assert ("lowest nested error" in axis["fit"]["rule"]) == (fit == "auto")
         assert len(axis["metrics"]["promised_fold_rmse_um"]) == 2  # one per held-out run
         # the promise is the chosen family's lowest fold (NestedResult.promise)
         folds = axis["fit"]["nested"]["fold_rmse_um"][axis["fit"]["family"]]

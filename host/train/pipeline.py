@@ -247,9 +247,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                                             if ridge.bending and alpha is not None else 0.0),
                    # the ridge's rows low-passed for the fit (host.fitting.prefilter)
                    "prefilter_tau_s": ridge.prefilter_s if alpha is not None else 0.0,
-                   "rule": ("the family with the lowest nested error: least squares on the "
-                            "selected terms with or without the effects, or a ridge over "
-                            "them plus lags and speed and the sensors on the free channels")}
+                   "rule": FAMILY_RULES[fit]}
     if fit == "auto" and unwired:
         axis["fit"]["baseline_not_candidate"] = (
             f"the baseline reads {', '.join(unwired)}, which the box no longer wires (an "
@@ -260,6 +258,18 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         axis["metrics"]["promised_rmse_um"] = result.promise(family)
         axis["metrics"]["promised_fold_rmse_um"] = result.fold_rmse_um[family]
     return axis
+
+
+FAMILY_RULES = {  # what model.json says chose the family, per --fit
+    "auto": ("the family with the lowest nested error: least squares on the selected terms "
+             "with or without the effects, or a ridge over them plus lags and speed and the "
+             "sensors on the free channels"),
+    "ridge": ("a ridge over the selected terms plus lags and speed and the sensors on the free "
+              "channels (--fit ridge, the default), with the effects only if that ridge is "
+              f"{100 * MIN_GAIN:.0f} % lower on its own folds with them; least squares where no "
+              "ridge keeps the fixed-point bound"),
+    "ols": "least squares on the selected terms and the effects (--fit ols)",
+}
 
 
 def ridge_refusal(with_effects, without) -> str | None:
