@@ -332,7 +332,7 @@ def step_fl(demo: Demo) -> tuple[list[Path], dict]:
 def effects_on_box(row: dict) -> str:
     """How many of the effects the loop found the box runs ("1 of 3"), from the report's
     stages; "—" where the loop found none."""
-    found = [s for s in row.get("stages_rms_um") or [] if s["stage"].startswith("+ ")]
+    found = [s for s in row.get("stages_rms_um") or [] if s.get("effect")]
     if not found:
         return "—"
     return f"{sum(not s.get('dropped') for s in found)} of {len(found)}"
@@ -350,8 +350,7 @@ def print_error_table(demo: Demo, reports: list[tuple[str, dict]]) -> None:
             for axis, row in per_axis.items():
                 raw = row["raw_rms_um"]
                 ours = row["residual_rms_um"]["our model"]
-                stages = row.get("stages_rms_um") or []
-                before = row.get("baseline_rms_um", stages[0]["rms_um"] if stages else None)
+                before = row.get("baseline_rms_um")
                 base = f"{before:>8.2f} µm" if before is not None else f"{'—':>11}"
                 red = 100.0 * (1.0 - ours / raw) if raw else float("nan")
                 demo.say(f"    {label:<10} {run_name[:26]:<26} {axis:<7} "

@@ -41,10 +41,13 @@ def test_error_table_shows_raw_baseline_box_reduction_and_effects_kept():
                            "µm", "93", "%", "—"]  # 100 * (1 - 1.4 / 20) = 93
     # the loop found two effects, the box kept one; the baseline is the report's own column
     summary["runs"]["unseen_run"]["dz_um"]["stages_rms_um"] = [
-        {"stage": "baseline (temperatures only)", "rms_um": 2.5, "dropped": False},
-        {"stage": "+ lag(T01, tau=600s)", "rms_um": 1.6, "dropped": False},
-        {"stage": "+ rate(T02, tau=600s) (dropped: ...)", "rms_um": 1.5, "dropped": True},
-        {"stage": "the box's model (ridge)", "rms_um": 1.4, "dropped": False}]
+        {"stage": "baseline (temperatures only)", "rms_um": 2.5, "effect": None,
+         "dropped": False},
+        {"stage": "+ lag(T01, tau=600s)", "rms_um": 1.6, "effect": "lag(T01, tau=600s)",
+         "dropped": False},
+        {"stage": "+ rate(T02, tau=600s) (dropped: ...)", "rms_um": 1.5,
+         "effect": "rate(T02, tau=600s)", "dropped": True},
+        {"stage": "the box's model (ridge)", "rms_um": 1.4, "effect": None, "dropped": False}]
     summary["runs"]["unseen_run"]["dz_um"]["baseline_rms_um"] = 2.5
     out.truncate(0)
     print_error_table(Demo(out=out), [("simulated", summary)])

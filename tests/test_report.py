@@ -365,6 +365,9 @@ def test_report_describes_the_model_the_box_runs(example, budget_model):
         assert stages[-1]["rms_um"] == pytest.approx(
             np.sqrt(np.mean((run.target("ch5_um") - box) ** 2)), rel=1e-6)
         assert [s["dropped"] for s in stages] == [False, False, True, False]
+        # the effects by the names model.json gives them (the demo counts those kept)
+        assert [s["effect"] for s in stages] == [None, "lag(T16, tau=1800s)",
+                                                 "T05 + square(T05)", None]
         assert summary["runs"][path.stem]["ch5_um"]["residual_rms_um"]["our model"] == \
             pytest.approx(stages[-1]["rms_um"])
 

@@ -501,7 +501,7 @@ def _fig_effects(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
                                    [(s["label"], s["residual"]) for s in stages],
                                    dropped=[s["dropped"] for s in stages])
     inp.run_table[run.name][axis_name]["stages_rms_um"] = [
-        {"stage": s["label"], "rms_um": plots.rms(s["residual"]),
+        {"stage": s["label"], "rms_um": plots.rms(s["residual"]), "effect": s.get("name"),
          "dropped": s["dropped"], "box": s["box"]} for s in stages]
     kept = [s for s in stages[1:] if not s["dropped"] and s.get("name") is not None]
     gone = [s for s in stages if s["dropped"]]
