@@ -266,8 +266,9 @@ FAMILY_RULES = {  # what model.json says chose the family, per --fit
              "sensors on the free channels"),
     "ridge": ("a ridge over the selected terms plus lags and speed and the sensors on the free "
               "channels (--fit ridge), with the effects only if that ridge is "
-              f"{100 * MIN_GAIN:.0f} % lower on its own folds with them; least squares where no "
-              "ridge keeps the fixed-point bound"),
+              f"{100 * MIN_GAIN:.0f} % lower on its own folds with them (kept unjudged where "
+              "they re-selected a sensor the baseline read); least squares where no ridge "
+              "keeps the fixed-point bound"),
     "ols": "least squares on the selected terms and the effects (--fit ols)",
 }
 
