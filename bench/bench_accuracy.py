@@ -571,10 +571,26 @@ def _worker_init(shared: bool = False) -> None:
     _FOLD_JOBS = 1 if shared else None
 
 
+def ours_models(job: Job, train: list, variant: str, column: str, nested: bool = True):
+    """Each model of our ``column`` (OURS) for one way of training on ``job``'s runs
+    (``variant``, Job.ours_variants): (its targets, the model.json dict, seconds to train).
+    ``nested=False`` skips nested validation, which gives the promise, not the model."""
+    from host.train import train_model
+
+    per_target = dict(job.ours_variants())[variant]
+    targets = list(job.targets)
+    for group in ([[t] for t in targets] if per_target else [targets]):
+        t0 = time.perf_counter()
+        kwargs = train_kwargs(job.reference, () if column == "undeclared" else job.bending,
+                              group) | OURS[column] | ({} if nested else {"nested": False})
+        model = train_model(train, group, aux=AUX, **kwargs)
+        yield group, model, time.perf_counter() - t0
+
+
 def run_job(job: Job) -> tuple[list[dict], dict]:
     """Train every column of one job and score each (variant, test run, target)."""
     from host.fitting import fold_groups
-    from host.train import dropped_reason, train_model
+    from host.train import dropped_reason
 
     t_job = time.perf_counter()
     targets = list(job.targets)
@@ -592,7 +608,7 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
             case.floor_um = manifest_floor(paths[name], t)
     timings: dict[str, float] = {}
     for variant, per_target in job.ours_variants():
-        for column, kwargs in OURS.items():
+        for column in OURS:
             if column == "undeclared" and not job.bending:
                 for case in cases.values():  # the same model as the default's
                     for part in (case.rmse_um, case.promised_um, case.highest_fold_um,
@@ -600,13 +616,9 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
                         if "default" in part:
                             part[column] = part["default"]
                 continue
-            for group in ([[t] for t in targets] if per_target else [targets]):
-                t0 = time.perf_counter()
-                ref_kw = train_kwargs(job.reference,
-                                      () if column == "undeclared" else job.bending, group)
-                model = train_model(train, group, aux=AUX, **ref_kw, **kwargs)
+            for group, model, seconds in ours_models(job, train, variant, column):
                 key = f"train {column}" + (", per target" if per_target else "")
-                timings[key] = timings.get(key, 0.0) + time.perf_counter() - t0
+                timings[key] = timings.get(key, 0.0) + seconds
                 for s, run in test:
                     pred = raw_prediction(model, run)
                     for t in group:
@@ -928,23 +940,30 @@ def _log(msg: str) -> None:
     print(f"[accuracy] {msg}", file=sys.stderr, flush=True)
 
 
+def jobs_for(sources: Sequence[str], tmp: Path, big: bool = True) -> list[Job]:
+    """Every job of the chosen sources, in a fixed order (the simulated runs written to
+    ``tmp``, which must outlive the jobs)."""
+    todo: list[Job] = []
+    if "sim" in sources:
+        _log("simulating the project's runs")
+        todo += sim_jobs(tmp)
+    if "sim_dev" in sources:
+        todo += dev_jobs(big)
+    if "fl" in sources:
+        todo += fl_jobs()
+    if "fl_next" in sources:
+        todo += fl_next_jobs()
+    if "sim_other" in sources:
+        _log("simulating the project's other machines")
+        todo += sim_jobs(tmp, OTHER_SIM_SEEDS, "sim_other")
+    return todo
+
+
 def evaluate(sources: Sequence[str] = SOURCES, jobs: int | None = None,
              big: bool = True) -> tuple[list[CaseResult], list[dict]]:
     """Run every job of the chosen sources (in parallel processes); cases in a fixed order."""
     with tempfile.TemporaryDirectory() as tmp:
-        todo: list[Job] = []
-        if "sim" in sources:
-            _log("simulating the project's runs")
-            todo += sim_jobs(Path(tmp))
-        if "sim_dev" in sources:
-            todo += dev_jobs(big)
-        if "fl" in sources:
-            todo += fl_jobs()
-        if "fl_next" in sources:
-            todo += fl_next_jobs()
-        if "sim_other" in sources:
-            _log("simulating the project's other machines")
-            todo += sim_jobs(Path(tmp), OTHER_SIM_SEEDS, "sim_other")
+        todo = jobs_for(sources, Path(tmp), big)
         n_workers = jobs or min(2, os.cpu_count() or 1)
         results: dict[int, tuple[list[dict], dict]] = {}
         # the 64-sensor jobs first: they are the longest

@@ -525,3 +525,17 @@ def test_an_effect_the_box_ridge_already_covers_is_named_and_not_run(tmp_path, c
     printed = capsys.readouterr().out
     assert "dz_um: the box's model runs without the effects: its ridge is" in printed
     assert "DROPPED: the box's ridge is not 10 % lower" in printed
+
+
+def test_nested_validation_gives_the_promise_not_the_model():
+    """The model the box runs is the same with and without nested validation (it only adds the
+    promise): what bench.quick_accuracy, which trains without it, rests on."""
+    runs = [_run("a", 1), _run("b", 2)]
+    kw = dict(aux=["spindle_rpm"], groups=3, max_sensors=3, reference="start")
+    with_nested = train_model(runs, ["dz_um"], **kw)["axes"]["dz_um"]
+    without = train_model(runs, ["dz_um"], nested=False, **kw)["axes"]["dz_um"]
+    assert "promised_rmse_um" in with_nested["metrics"]
+    assert "promised_rmse_um" not in without["metrics"]
+    assert with_nested["fit"]["family"] == without["fit"]["family"] == "ridge"
+    assert with_nested["terms"] == without["terms"]
+    assert with_nested["intercept"] == without["intercept"]
