@@ -73,7 +73,7 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -571,7 +571,8 @@ def _worker_init(shared: bool = False) -> None:
     _FOLD_JOBS = 1 if shared else None
 
 
-def ours_models(job: Job, train: list, variant: str, column: str, nested: bool = True):
+def ours_models(job: Job, train: list, variant: str, column: str, nested: bool = True
+                ) -> Iterator[tuple[list[str], dict, float]]:
     """Each model of our ``column`` (OURS) for one way of training on ``job``'s runs
     (``variant``, Job.ours_variants): (its targets, the model.json dict, seconds to train).
     ``nested=False`` skips nested validation, which gives the promise, not the model."""

@@ -91,9 +91,9 @@ def moved_most(before: dict[Key, acc.CaseResult], after: dict[Key, acc.CaseResul
     return "\n".join(lines)
 
 
-def run(saved_path: Path, sources: Sequence[str], column: str, workers: int
+def run(saved: dict[Key, acc.CaseResult], sources: Sequence[str], column: str, workers: int
         ) -> list[acc.CaseResult]:
-    saved = cmp.load(saved_path)
+    """``column`` trained on every job of ``sources``, merged with the ``saved`` peers."""
     with tempfile.TemporaryDirectory() as tmp:
         todo = acc.jobs_for(sources, Path(tmp))
         order = sorted(todo, key=lambda j: "S0_64" not in j.group)  # the longest first
@@ -116,7 +116,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--source", action="append", choices=acc.SOURCES,
                     help="only these sources (repeatable; default all)")
     ap.add_argument("--column", default="default",
-                    choices=[c for c in acc.OURS if c != "undeclared"],
+                    choices=list(acc.OURS),
                     help="which of ours to train (default: default)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("-o", "--out", type=Path, default=DEFAULT_OUT,
@@ -124,10 +124,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error("--jobs must be at least 1")
-    cases = run(args.saved, args.source or acc.SOURCES, args.column, args.jobs)
+    saved = cmp.load(args.saved)  # before the work: a wrong file fails at once
+    cases = run(saved, args.source or acc.SOURCES, args.column, args.jobs)
     args.out.write_text(json.dumps({"quick": {"saved": str(args.saved), "column": args.column},
                                     "cases": [asdict(c) for c in cases]}, indent=1))
-    saved = cmp.load(args.saved)
     after = {(c.source, c.group, c.test, c.target): c for c in cases}
     print(cmp.table(cmp.compare(saved, after, args.column), args.column, None))
     print(moved_most(saved, after, args.column))
