@@ -20,7 +20,7 @@ from contract.errors import InputError
 
 CMD_MAX_LEN = 64
 RATE_MIN, RATE_MAX = 1, 3600
-ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG")
+ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG", "HOLDING")  # HOLDING: ZERO refused
 TC_TYPES = ("K", "J")
 
 
@@ -40,6 +40,8 @@ class Status(IntFlag):
     EXTRAP = 1 << 10  # a valid reading beyond its training window: advice, still corrected
     REFERENCED = 1 << 11  # a ZERO reference is in force: corrections are the change since it
     IMPLAUSIBLE = 1 << 12  # a reading changed faster than its channel can: the model held it
+    NO_REF = 1 << 13  # a start-referenced model after a cold power-up: every axis holds until ZERO
+    BEYOND = 1 << 14  # a reading beyond what training supports (runaway/stuck): its axes hold
 
 
 STATUS_BITS = tuple(s.name for s in Status)  # bit order: STATUS_BITS[i] is bit i
@@ -59,6 +61,7 @@ class ChannelFault(IntFlag):
     RANGE = 1 << 8  # code outside the channel's valid range
     NO_RESPONSE = 1 << 9  # bus error or the chip did not read its configuration back
     IMPLAUSIBLE = 1 << 10  # the plausibility guard rejected the reading (held or faulted)
+    BEYOND = 1 << 11  # beyond the trained range plus its margin: a channel fault, axes hold
 
 
 class ProtocolError(InputError):

@@ -17,6 +17,8 @@
 #define STATUS_EXTRAP ((uint16_t)1u << 10) /* a valid reading beyond its training window */
 #define STATUS_REFERENCED ((uint16_t)1u << 11) /* a ZERO reference is in force */
 #define STATUS_IMPLAUSIBLE ((uint16_t)1u << 12) /* a reading changed faster than physics allows */
+#define STATUS_NO_REF ((uint16_t)1u << 13) /* start-referenced model, cold power-up: hold until ZERO */
+#define STATUS_BEYOND ((uint16_t)1u << 14) /* a reading beyond what training supports: axes hold */
 
 /* Per-channel fault word reported by STATUS: bits 0-7 are the MAX31856 fault status register
  * as last read, then the box's own findings. */
@@ -24,5 +26,6 @@
 #define CHFAULT_RANGE ((uint16_t)1u << 8)       /* code outside the channel's valid range */
 #define CHFAULT_NO_RESPONSE ((uint16_t)1u << 9) /* bus error or configuration not read back */
 #define CHFAULT_IMPLAUSIBLE ((uint16_t)1u << 10) /* reading rejected by the plausibility guard */
+#define CHFAULT_BEYOND ((uint16_t)1u << 11)      /* beyond the trained range plus its margin */
 
 #endif
