@@ -170,6 +170,9 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
     # the replay runs in compressed time: the stale clock counts wall-clock sample periods
     conf = conf.replace("# period_s = 60", f"period_s = {scenario.stale_period_s}")
     conf = conf.replace("stale_periods = 3", f"stale_periods = {scenario.stale_periods:g}")
+    # the model the box carries: the component drives only from it (hash, step limits)
+    (cfg / "model.json").write_text(json.dumps(setup.model, indent=1))
+    conf = conf.replace("# model = /home/cnc/thermal/build/model.json", "model = model.json")
     (cfg / "thermalcomp-session.conf").write_text(conf)
     ini = (cfg / "thermal_sim.ini").read_text()
     ini = ini.replace("DISPLAY = axis", f"DISPLAY = {stage_dir / 'cnc' / 'driver.py'}")

@@ -6,26 +6,41 @@ It reads the box's serial stream (docs/protocol.md) from a serial port (/dev/tty
 machine, a pseudo-terminal in the tests), checks every line's CRC and sequence number with the
 project's own decoder, maps box axes to LinuxCNC axes with the sign and count size of a small
 config file (cnc/config/thermalcomp.conf) and drives ``axis.L.eoffset-counts/-scale/-enable/
--clear``. Rules, in the order they apply to each axis:
+-clear``. Rules (issue 41: no single event may make the tool error worse than the clean run by
+more than one step limit of an axis; where the component cannot know, it holds and says why):
 
-- **hold**: while the box reports a fault (MODEL_BAD, HOLD, NO_DATA, IMPLAUSIBLE), while the
-  stream is stale (no sample line for ``stale_periods`` sample periods) and on a line that
-  fails its CRC or does not decode, every axis keeps the offset it has.
-- **never jump**: the offset moves towards the box's value by at most ``slew_nm_per_s`` times
-  the sample period per sample line (the box's own walk-back rate by default), so resuming
-  after a hold, or following a box that restarted, is a walk, not a step. While the box
-  tracks normally it moves far less than that per sample and the offset equals its value.
+- **the expected model**: the config names the box's model (``[box] model = model.json``, or
+  ``model_hash`` with a ``max_step_um`` per axis). Until the box's INFO reports that hash, and
+  whenever it reports another one (or the config names none), every axis holds, ``fault`` and
+  ``model-mismatch`` say so and the log names both hashes.
+- **hold**: while the box reports MODEL_BAD, HOLD, CLAMP, NO_DATA, IMPLAUSIBLE, NO_REF or BEYOND,
+  while the stream is stale (no sample line for ``stale_periods`` sample periods), on a line
+  that fails its CRC or does not decode, on an over-long line (``MAX_LINE_BYTES`` without a
+  newline) and on a line whose ``seq`` goes back until a second line confirms a restart, every
+  axis keeps the offset it has.
+- **bounded moves**: per sample line an axis offset moves by at most min(the model's step
+  limit of that axis, ``slew_nm_per_s`` x the sample period), and never beyond
+  ``max_abs_um`` (the box's clamp, 200 um). A forged or damaged-but-CRC-valid line therefore
+  moves the tool by one step limit at most, and the next good line moves it back. The only
+  exception is the datum change right after the box acknowledges a ZERO the component sent,
+  which still stays within ``max_abs_um``.
 - **machine off**: LinuxCNC drops the external offset (and its ``eoffset-request``) when the
   machine goes off but keeps the counts pin, because it reads counts as a change; when the
-  machine is on and homed again the component resynchronises: it adds (wanted −
+  machine is on and homed again the component resynchronises: it adds (wanted -
   round(request / scale)) to its counts, so the offset lands on the box's value, not on the
   value before plus the change. The same resync runs after ``enable`` comes back (while
   ``enable`` is false it asserts ``eoffset-clear``: LinuxCNC ramps the offset to 0).
-- **box restart** (``seq`` goes back): the box walks from 0 at its slew limit (SLEW); the
-  component holds until the box tracks again, then walks to it.
+- **box restart** (``seq`` goes back, confirmed by the next line): the component asks INFO
+  again and holds until it matches. A box without a reference walks from 0 at its slew
+  limit (SLEW): the component holds until the box tracks again, then walks to it. A box that
+  comes back without its reference (NO_REF, or REFERENCED from a new power-up datum) while
+  offsets are applied: the component holds its last offsets (never walks to 0) until ZERO;
+  after that ZERO it applies held offset + the box's change since then (a per-axis base).
+  A warm reset of the box (seq continues, WDT_RESET) is followed like any line.
 - ``zero`` (rising edge, e.g. from the touch-off macro) sends the box ``ZERO``: from the next
   sample the box outputs the change since then; that first value is a new datum and
-  is applied without the walk limit (LinuxCNC still ramps it at OFFSET_AV_RATIO).
+  is applied without the step limit (LinuxCNC still ramps it at OFFSET_AV_RATIO). An
+  ``$OK,ZERO`` the component did not ask for changes nothing.
 
 Runs under Debian's /usr/bin/python3 (where LinuxCNC's ``hal`` module lives); needs only the
 standard library and the project's stdlib-only wire-protocol decoder, found next to this file
@@ -47,15 +62,27 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from contract import protocol  # noqa: E402  (stdlib only: docs/architecture.md, floor 0)
+from contract import model_file, protocol  # noqa: E402  (stdlib only: docs/architecture.md)
+from contract.box import DEFAULT_AXIS_STEP_UM_PER_S  # noqa: E402
+from contract.errors import InputError  # noqa: E402
 from contract.tilt import unit_of  # noqa: E402
 
 NAME = "thermalcomp"
-MODEL_BAD, HOLD, SLEW, NO_DATA, EXTRAP = 1 << 0, 1 << 1, 1 << 2, 1 << 9, 1 << 10
-REFERENCED, IMPLAUSIBLE = 1 << 11, 1 << 12
-HOLD_BITS = MODEL_BAD | HOLD | NO_DATA | IMPLAUSIBLE  # the box says: do not trust this sample
+_S = protocol.Status  # the status bits have one home: contract/protocol.py
+MODEL_BAD, HOLD, SLEW, CLAMP = int(_S.MODEL_BAD), int(_S.HOLD), int(_S.SLEW), int(_S.CLAMP)
+NO_DATA, EXTRAP, REFERENCED = int(_S.NO_DATA), int(_S.EXTRAP), int(_S.REFERENCED)
+IMPLAUSIBLE, NO_REF, BEYOND = int(_S.IMPLAUSIBLE), int(_S.NO_REF), int(_S.BEYOND)
+# the box says: do not trust this sample. CLAMP: the box's value is not the model's.
+HOLD_BITS = MODEL_BAD | HOLD | CLAMP | NO_DATA | IMPLAUSIBLE | NO_REF | BEYOND
 UNITS_MM = {"mm": 1.0, "inch": 25.4}
 SEQ_MOD = 1 << 32
+# The box's clamp, BOX_MAX_CORRECTION_NM in firmware/include/box_config.h (checked by
+# tests/test_thermalcomp.py): the default of [box] max_abs_um.
+DEFAULT_MAX_ABS_UM = 200.0
+# A receive buffer this long without a newline is discarded up to the next newline (a box line
+# is at most a few hundred bytes): a stream without newlines must not grow memory or read time.
+MAX_LINE_BYTES = 4096
+OVERLONG = b"<over-long line>"  # what Port.read_lines returns for a discarded over-long line
 
 
 class ConfigError(ValueError):
@@ -70,7 +97,9 @@ class AxisMap:
     box_axis: str  # name in the box's INFO axis list (the model's target, e.g. dz_um)
     sign: int  # +1: LinuxCNC offset = +correction; -1: offset = -correction
     nm_per_count: float  # size of one eoffset count in nanometres
+    step_nm: float | None = None  # the model's step limit of this axis per sample line (nm)
     index: int | None = None  # position in the box's sample line (from INFO)
+    base: int = 0  # counts added to the box's value: the offset held over a cold box restart
     want: int = 0  # offset the component wants, in counts
     sent: int = 0  # the offset LinuxCNC has been told (counts) since the last resync
     seen: bool = False  # a value from the box has been applied since start
@@ -88,6 +117,9 @@ class Config:
     settle_s: float = 0.05  # wait after machine-on/enable before reading eoffset-request
     poll_s: float = 0.002
     axes: list[AxisMap] = field(default_factory=list)
+    model_hash: str | None = None  # the hash the box's INFO must report (None: refuse to drive)
+    model_path: Path | None = None  # where model_hash and the step limits came from
+    max_abs_um: float = DEFAULT_MAX_ABS_UM  # no offset ever beyond this (the box's clamp)
 
 
 def load_config(path: str | Path) -> Config:
@@ -129,6 +161,28 @@ def load_config(path: str | Path) -> Config:
             raise ConfigError(f"{path}: [box] {name} = {value:g} must be at least {lo:g}")
     if cfg.period_s is not None and not cfg.period_s > 0:
         raise ConfigError(f"{path}: [box] period_s = {cfg.period_s:g} must be positive")
+    cfg.max_abs_um = float(get("box", "max_abs_um", float, DEFAULT_MAX_ABS_UM))
+    if not (math.isfinite(cfg.max_abs_um) and cfg.max_abs_um > 0):
+        raise ConfigError(f"{path}: [box] max_abs_um = {cfg.max_abs_um:g} must be positive")
+    model: dict | None = None
+    if parser.has_option("box", "model"):
+        model_path = Path(parser.get("box", "model").strip())
+        if not model_path.is_absolute():
+            model_path = path.resolve().parent / model_path  # relative to this file
+        try:
+            model = model_file.read_model(model_path)
+        except (InputError, OSError) as exc:
+            raise ConfigError(f"{path}: [box] model = {model_path}: {exc}") from None
+        cfg.model_path = model_path
+        cfg.model_hash = model_file.model_hash(model)
+    if parser.has_option("box", "model_hash"):
+        given = parser.get("box", "model_hash").strip()
+        if not given:
+            raise ConfigError(f"{path}: [box] model_hash is empty")
+        if cfg.model_hash is not None and given != cfg.model_hash:
+            raise ConfigError(f"{path}: [box] model_hash = {given} but the model "
+                              f"{cfg.model_path} has hash {cfg.model_hash}: which one is it?")
+        cfg.model_hash = given
     for section in parser.sections():
         if not section.startswith("axis."):
             continue
@@ -145,14 +199,47 @@ def load_config(path: str | Path) -> Config:
         if unit_of(box_axis) != "um":
             raise ConfigError(f"{path}: [{section}] box_axis = {box_axis}: a tilt axis (urad) "
                               "is not a linear offset; only axes in um drive external offsets")
+        given = (float(get(section, "max_step_um", float))
+                 if parser.has_option(section, "max_step_um") else None)
+        step_nm = _axis_step_nm(path, section, box_axis, model, given,
+                                cfg.model_hash is not None)
+        if step_nm is not None and nm > step_nm:
+            raise ConfigError(f"{path}: [{section}] nm_per_count = {nm:g} is larger than the "
+                              f"axis's step limit ({step_nm:g} nm per sample): one count "
+                              "would already be more than the step limit")
         cfg.axes.append(AxisMap(letter, box_axis,
-                                -1 if sign_text.startswith("-") else 1, nm))
+                                -1 if sign_text.startswith("-") else 1, nm, step_nm))
     if not cfg.axes:
         raise ConfigError(f"{path}: no [axis.<letter>] section: nothing to drive")
     letters = [a.letter for a in cfg.axes]
     if len(set(letters)) != len(letters):
         raise ConfigError(f"{path}: an axis letter appears twice ({', '.join(letters)})")
     return cfg
+
+
+def _axis_step_nm(path: Path, section: str, box_axis: str, model: dict | None,
+                  given_um: float | None, need: bool) -> float | None:
+    """An axis's step limit per sample line in nm: the model's ``axes.<name>.max_step_um``
+    rounded up to nm as codegen does for the box (a model without it: codegen's default, the
+    box's walk-back rate x its period), or ``max_step_um`` in the axis section (the smaller
+    of the two when both are given). None when neither exists and no hash is expected."""
+    if given_um is not None and not (math.isfinite(given_um) and given_um > 0):
+        raise ConfigError(f"{path}: [{section}] max_step_um = {given_um:g} must be positive")
+    steps = [given_um * 1000.0] if given_um is not None else []
+    if model is not None:
+        axes = model.get("axes", {})
+        if box_axis not in axes:
+            raise ConfigError(f"{path}: [{section}] box_axis = {box_axis}: the model has axes "
+                              f"{', '.join(axes) or '(none)'}")
+        ax = axes[box_axis]
+        step_um = ax["max_step_um"] if "max_step_um" in ax else (
+            DEFAULT_AXIS_STEP_UM_PER_S * float(model["sample_period_s"]))
+        steps.append(float(math.ceil(float(step_um) * 1000.0)))
+    if not steps and need:
+        raise ConfigError(f"{path}: [{section}] needs 'max_step_um' (the model's "
+                          f"axes.{box_axis}.max_step_um) when [box] gives model_hash without "
+                          "model = <model.json>")
+    return min(steps) if steps else None
 
 
 class Port:
@@ -163,6 +250,7 @@ class Port:
         self.fd: int | None = None
         self.buf = bytearray()
         self.synced = False  # the bytes before the first newline after opening are dropped
+        self.discarding = False  # an over-long line is being dropped up to its newline
 
     def open(self) -> bool:
         try:
@@ -181,7 +269,7 @@ class Port:
             termios.tcsetattr(fd, termios.TCSANOW, attrs)
         except termios.error:
             pass  # not a tty (a FIFO in a bench): read it as it is
-        self.fd, self.buf, self.synced = fd, bytearray(), False
+        self.fd, self.buf, self.synced, self.discarding = fd, bytearray(), False, False
         return True
 
     def close(self) -> None:
@@ -193,7 +281,10 @@ class Port:
         self.fd = None
 
     def read_lines(self) -> list[bytes] | None:
-        """Complete lines received so far (without CR LF); None when the port went away."""
+        """Complete lines received so far (without CR LF); None when the port went away.
+
+        A line that grows beyond MAX_LINE_BYTES without a newline comes out once as OVERLONG
+        (as soon as it is that long) and the rest of it, up to the next newline, is dropped."""
         assert self.fd is not None
         try:
             data = os.read(self.fd, 65536)
@@ -203,12 +294,33 @@ class Port:
             return None  # EIO: the other side (box, USB adapter) is gone
         if not data:
             return None
-        self.buf += data
-        *complete, rest = bytes(self.buf).split(b"\n")
-        self.buf = bytearray(rest)
-        if not self.synced and complete:
-            complete, self.synced = complete[1:], True
-        return [line.rstrip(b"\r") for line in complete]
+        return self.feed(data)
+
+    def feed(self, data: bytes) -> list[bytes]:
+        """Split received bytes into lines (read_lines without the port, for the tests)."""
+        out: list[bytes] = []
+        start = 0
+        while (nl := data.find(b"\n", start)) >= 0:
+            chunk = data[start:nl]
+            start = nl + 1
+            if self.discarding:
+                self.discarding, self.synced = False, True
+            elif not self.synced:
+                self.synced = True  # the bytes before the first newline after opening
+            elif len(self.buf) + len(chunk) > MAX_LINE_BYTES:
+                out.append(OVERLONG)
+            else:
+                out.append((bytes(self.buf) + chunk).rstrip(b"\r"))
+            self.buf.clear()
+        rest = data[start:]
+        if not self.discarding:
+            if len(self.buf) + len(rest) > MAX_LINE_BYTES:
+                self.discarding = True
+                self.buf.clear()
+                out.append(OVERLONG)
+            else:
+                self.buf += rest
+        return out
 
     def write(self, data: bytes) -> bool:
         if self.fd is None:
@@ -227,7 +339,11 @@ class Compensator:
         self.cfg = cfg
         self.log = log or (lambda msg: print(f"{NAME}: {msg}", file=sys.stderr, flush=True))
         self.info: protocol.Info | None = None
+        self.info_fresh = False  # INFO answered since the port opened / the box restarted
         self.last_seq: int | None = None
+        self.prev_seq: int | None = None  # the seq before last_seq (to spot a stray line)
+        self.last_lost = 0  # lines counted lost when last_seq arrived
+        self.suspect_seq: int | None = None  # a seq that went back, not yet confirmed
         self.last_line_t: float | None = None
         self.status = 0
         self.bad_lines = 0
@@ -235,18 +351,42 @@ class Compensator:
         self.restarts = 0
         self.holds = 0  # sample lines on which the offsets were held
         self.rebooted = False  # the box restarted and is still walking from 0 (SLEW)
+        self.await_zero = False  # the box came back without its datum: hold until ZERO
+        self.zero_pending = False  # ZERO sent, not acknowledged yet
         self.rezero = False  # ZERO acknowledged: the next value is a new datum, not a move
         self.zero_acks = 0
         self.zero_seq = -1
         self.stale = False
-        self.fault = False
+        self.fault = False  # the box's last line carried a hold bit
         self.walking = False
+        self.hold_reason = ""  # why the last sample line was held ("" when it was applied)
+        self._warned_hash: str | None = None
+        if cfg.model_hash is None:
+            self.log("no expected model hash in the config ([box] model = <model.json> or "
+                     "model_hash): every axis holds; docs/linuxcnc.md")
 
     def period_s(self) -> float | None:
         """The sample period the stale check counts in (wall-clock seconds)."""
         if self.cfg.period_s is not None:
             return self.cfg.period_s
         return self.info.period_ms / 1000.0 if self.info is not None else None
+
+    @property
+    def model_mismatch(self) -> bool:
+        """No expected hash, or the box's INFO reported another model (or a bad model CRC)."""
+        if self.cfg.model_hash is None:
+            return True
+        return self.info is not None and (self.info.model_hash != self.cfg.model_hash
+                                          or not self.info.crc_ok)
+
+    def needs_info(self) -> bool:
+        """Ask the box INFO (again): none yet, not since a restart, or another model."""
+        return self.info is None or not self.info_fresh or self.model_mismatch
+
+    @property
+    def holding(self) -> bool:
+        return bool(self.fault or self.stale or self.rebooted or self.await_zero
+                    or self.suspect_seq is not None or self.needs_info())
 
     def take_info(self, info: protocol.Info) -> None:
         missing = [a.box_axis for a in self.cfg.axes if a.box_axis not in info.axes]
@@ -259,57 +399,174 @@ class Compensator:
             self.log(f"box {info.fw_version}, model {info.model_hash} (CRC "
                      f"{'OK' if info.crc_ok else 'BAD'}), {info.period_ms} ms, axes "
                      f"{';'.join(info.axes)}")
-        self.info = info
+        self.info, self.info_fresh = info, True
+        expected = self.cfg.model_hash
+        if expected is not None and info.model_hash != expected:
+            if self._warned_hash != info.model_hash:
+                source = f" ({self.cfg.model_path})" if self.cfg.model_path else ""
+                self.log(f"the box carries model {info.model_hash}, the config expects "
+                         f"{expected}{source}: every axis holds until the box reports "
+                         f"{expected}")
+            self._warned_hash = info.model_hash
+        else:
+            self._warned_hash = None
 
-    def take_sample(self, s: protocol.Sample, now: float) -> None:
-        if self.last_seq is not None:
-            gap = (s.seq - self.last_seq) % SEQ_MOD
-            if gap == 0 or gap >= SEQ_MOD // 2:
-                self.restarts += 1
-                self.rebooted = True
-                self.log(f"sequence went from {self.last_seq} to {s.seq}: the box restarted; "
-                         "holding until it has walked back from 0")
-            elif gap > 1:
+    def _sequence(self, seq: int) -> str:
+        """Judge a sample line's seq: "ok" (in order, maybe after lost lines), "suspect"
+        (went back: held until the next line says whether it was a restart), "restart" (a
+        second line confirms it)."""
+        last = self.last_seq
+        if last is None:
+            self.last_seq, self.last_lost = seq, 0
+            return "ok"
+        gap = (seq - last) % SEQ_MOD
+        if 0 < gap < SEQ_MOD // 2:
+            if self.suspect_seq is not None:
+                self._stray(self.suspect_seq, f"seq {self.suspect_seq} went back")
+                self.suspect_seq = None
+            if gap > 1:
                 self.lost_lines += gap - 1
-                self.log(f"{gap - 1} sample line(s) lost before seq {s.seq}")
-        self.last_seq, self.last_line_t, self.status = s.seq, now, s.status
-        self.stale = False
+                self.log(f"{gap - 1} sample line(s) lost before seq {seq}")
+            self.prev_seq, self.last_seq, self.last_lost = last, seq, gap - 1
+            return "ok"
+        if self.prev_seq is not None and 1 <= (seq - self.prev_seq) % SEQ_MOD <= 2:
+            # the line before jumped ahead and this one continues the one before it: that
+            # line was a stray (forged, or damaged and still CRC-valid); it moved one step
+            self.lost_lines -= self.last_lost
+            self._stray(last, f"seq {last} jumped ahead of {self.prev_seq}, {seq} follows")
+            self.suspect_seq, self.last_seq, self.last_lost = None, seq, 0
+            return "ok"
+        if self.suspect_seq is not None and 1 <= (seq - self.suspect_seq) % SEQ_MOD <= 2:
+            self.prev_seq, self.last_seq, self.last_lost = self.suspect_seq, seq, 0
+            self.suspect_seq = None
+            return "restart"
+        self.suspect_seq = seq
+        return "suspect"
+
+    def _stray(self, seq: int, why: str) -> None:
+        self.bad_lines += 1
+        self.log(f"sample line seq {seq} out of sequence ({why}): taken as a stray line")
+
+    def take_sample(self, s: protocol.Sample, now: float) -> bool:
+        """Apply one sample line; True when it confirmed a box restart (ask INFO again)."""
+        self.last_line_t, self.status, self.stale = now, s.status, False
+        verdict = self._sequence(s.seq)
+        if verdict == "restart":
+            self.restarts += 1
+            self.rebooted, self.info_fresh, self.rezero = True, False, False
+            applied = any(a.seen and a.want != 0 for a in self.cfg.axes)
+            if applied and s.status & (NO_REF | REFERENCED):
+                self.await_zero = True  # its datum is a new power-up's, or none
+                self.log(f"the box restarted (seq {s.seq}) without the reference the offsets "
+                         "were taken in: holding the last offsets until ZERO")
+            else:
+                self.log(f"the box restarted (seq {s.seq}): holding until it has walked back "
+                         "from 0 and INFO confirms its model")
         self.fault = bool(s.status & HOLD_BITS)
         if self.rebooted and not s.status & SLEW:
             self.rebooted = False  # the box tracks again: walk to it from the held offset
-        if self.fault or self.info is None or self.rebooted:
+        reason = self._hold_reason(s.status, verdict)
+        if reason:
             # (a restarted box walks from 0 at its slew limit: following it would pull the
             # axis towards 0 and back)
             self.holds += 1
-            return
-        # the walk limit is per sample period of the box (its INFO), whatever the wall clock
-        step_nm = self.cfg.slew_nm_per_s * self.info.period_ms / 1000.0
+            if reason != self.hold_reason:
+                self.log(f"offsets held: {reason}")
+            self.hold_reason = reason
+            return verdict == "restart"
+        if self.hold_reason:
+            self.log("offsets follow the box again")
+        self.hold_reason = ""
+        self._apply(s)
+        return False
+
+    def _hold_reason(self, status: int, verdict: str) -> str:
+        if self.cfg.model_hash is None:
+            return "no expected model hash in the config"
+        if self.info is None or not self.info_fresh:
+            return "waiting for the box's INFO"
+        if self.model_mismatch:
+            return (f"the box carries model {self.info.model_hash}"
+                    f"{'' if self.info.crc_ok else ' (CRC BAD)'}, expected "
+                    f"{self.cfg.model_hash}")
+        if verdict == "suspect":
+            return f"seq went back to {self.suspect_seq}"
+        if status & HOLD_BITS:
+            return "box status " + "|".join(protocol.status_names(status & HOLD_BITS))
+        if self.rebooted:
+            return "the box restarted and walks from 0 (SLEW)"
+        if self.await_zero:
+            return "the box restarted without its reference: waiting for ZERO"
+        return ""
+
+    def _apply(self, s: protocol.Sample) -> None:
+        assert self.info is not None
+        # the slew limit is per sample period of the box (its INFO), whatever the wall clock
+        slew_nm = self.cfg.slew_nm_per_s * self.info.period_ms / 1000.0
+        max_abs_nm = self.cfg.max_abs_um * 1000.0
         self.walking = False
         datum, self.rezero = self.rezero, False
         for a in self.cfg.axes:
             if a.index is None or a.index >= len(s.corrections_nm):
                 continue
             a.box_nm = s.corrections_nm[a.index]
-            target = round(a.sign * a.box_nm / a.nm_per_count)
-            # after ZERO the value changes datum (to ~0) at once: the operator touches off
-            # once the offset is 0 (LinuxCNC ramps it at OFFSET_AV_RATIO), docs/linuxcnc.md
-            step = abs(target - a.want) if datum else max(1, math.floor(step_nm / a.nm_per_count))
-            delta = max(-step, min(step, target - a.want))
-            a.want += delta
+            bound = math.floor(max_abs_nm / a.nm_per_count + 1e-9)
+            target = a.base + round(a.sign * a.box_nm / a.nm_per_count)
+            target = max(-bound, min(bound, target))
+            if datum:
+                # after ZERO the value changes datum (to ~0) at once: the operator touches off
+                # once the offset is 0 (LinuxCNC ramps it at OFFSET_AV_RATIO), docs/linuxcnc.md
+                a.want = target
+            else:
+                assert a.step_nm is not None  # load_config: a hash comes with step limits
+                step = max(1, math.floor(min(a.step_nm, slew_nm) / a.nm_per_count + 1e-9))
+                a.want = max(-bound, min(bound, a.want + max(-step, min(step, target - a.want))))
             a.seen = True
             if a.want != target:
                 self.walking = True
 
+    def zero_sent(self) -> None:
+        """ZERO went to the box: its ``$OK,ZERO`` is expected."""
+        self.zero_pending = True
+
     def zeroed(self, seq: int) -> None:
-        """The box acknowledged ZERO (``$OK,ZERO,<seq>``): the next value is a new datum."""
+        """The box acknowledged ZERO (``$OK,ZERO,<seq>``).
+
+        After a restart without the reference (or while the box says NO_REF) the offsets held
+        become each axis's base and the box's change since then is added to them: the tool
+        does not move and the drift keeps being corrected. Otherwise the next value is a new
+        datum (base 0), applied at once."""
+        if not self.zero_pending:
+            self.log(f"$OK,ZERO,{seq} without a ZERO sent: ignored (no datum change)")
+            return
+        self.zero_pending = False
         self.zero_acks += 1
         self.zero_seq = seq
-        self.rezero = True
-        self.log(f"box zeroed at seq {seq}")
+        if self.await_zero or self.status & NO_REF:
+            for a in self.cfg.axes:
+                a.base = a.want
+            self.await_zero, self.rezero = False, False
+            self.log(f"box zeroed at seq {seq}: the held offsets ("
+                     + ", ".join(f"{a.letter.upper()} {a.want}" for a in self.cfg.axes)
+                     + " counts) carry on as base; the box's change since then is added")
+        else:
+            for a in self.cfg.axes:
+                a.base = 0
+            self.rezero = True
+            self.log(f"box zeroed at seq {seq}: the next value is the new datum")
 
-    def bad_line(self, raw: bytes, err: Exception) -> None:
+    def refused(self, reason: str) -> None:
+        """``$E,<reason>`` from the box."""
+        if reason == "HOLDING" and self.zero_pending:
+            self.zero_pending = False
+            self.log("the box refused ZERO while an axis holds (HOLDING): pulse zero again "
+                     "once the fault is gone")
+        else:
+            self.log(f"box refused a command: {reason}")
+
+    def bad_line(self, raw: bytes, err: Exception | str) -> None:
         self.bad_lines += 1
-        self.holds += 1 if raw.startswith(b"$C,") else 0
+        self.holds += 1 if raw.startswith(b"$C,") or raw is OVERLONG else 0
         if self.bad_lines <= 10 or self.bad_lines % 100 == 0:
             self.log(f"bad line #{self.bad_lines} (offsets held): {err}")
 
@@ -346,7 +603,9 @@ class HalDriver:
                 ("status", hal.HAL_S32, hal.HAL_OUT), ("seq", hal.HAL_S32, hal.HAL_OUT),
                 ("bad-lines", hal.HAL_S32, hal.HAL_OUT), ("lost-lines", hal.HAL_S32, hal.HAL_OUT),
                 ("holds", hal.HAL_S32, hal.HAL_OUT), ("restarts", hal.HAL_S32, hal.HAL_OUT),
-                ("zero-acks", hal.HAL_S32, hal.HAL_OUT), ("zero-seq", hal.HAL_S32, hal.HAL_OUT)):
+                ("zero-acks", hal.HAL_S32, hal.HAL_OUT), ("zero-seq", hal.HAL_S32, hal.HAL_OUT),
+                ("model-mismatch", hal.HAL_BIT, hal.HAL_OUT),
+                ("awaiting-zero", hal.HAL_BIT, hal.HAL_OUT)):
             h.newpin(pin, kind, direction)
         for a in cfg.axes:
             p = a.letter
@@ -403,16 +662,21 @@ class HalDriver:
                 self.last_write, self.need_sync = now, False
         zero = bool(h["zero"])
         if zero and not self.zero_was:
-            comp.log("zero: sending ZERO" if port.write(b"ZERO\r\n")
-                     else "zero: box not connected, ZERO not sent")
+            if port.write(b"ZERO\r\n"):
+                comp.zero_sent()
+                comp.log("zero: sending ZERO")
+            else:
+                comp.log("zero: box not connected, ZERO not sent")
         self.zero_was = zero
         comp.check_stale(now)
         status = comp.status
         h["connected"] = port.fd is not None and comp.info is not None
         h["active"] = self.live_since is not None and not self.need_sync and enabled
-        h["fault"] = comp.fault
+        h["fault"] = comp.fault or comp.model_mismatch
+        h["model-mismatch"] = comp.model_mismatch
+        h["awaiting-zero"] = comp.await_zero
         h["stale"] = comp.stale
-        h["holding"] = comp.fault or comp.stale or comp.rebooted or comp.info is None
+        h["holding"] = comp.holding
         h["walking"] = comp.walking
         h["extrapolating"] = bool(status & EXTRAP)
         h["referenced"] = bool(status & REFERENCED)
@@ -435,21 +699,24 @@ def _s32(value: int) -> int:
 def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
     if not raw:
         return
+    if raw is OVERLONG:
+        comp.bad_line(raw, f"more than {MAX_LINE_BYTES} bytes without a newline: discarded "
+                      "up to the next newline")
+        return
     try:
         msg = protocol.decode(raw)
     except protocol.ProtocolError as exc:
         comp.bad_line(raw, exc)
         return
     if isinstance(msg, protocol.Sample):
-        comp.take_sample(msg, now)
-        if comp.restarts and comp.info is not None and msg.seq == 0:
+        if comp.take_sample(msg, now):
             port.write(b"INFO\r\n")  # a restarted box may carry another model
     elif isinstance(msg, protocol.Info):
         comp.take_info(msg)
     elif isinstance(msg, protocol.Ack) and msg.command == "ZERO":
         comp.zeroed(msg.value)
     elif isinstance(msg, protocol.ErrorReply):
-        comp.log(f"box refused a command: {msg.reason}")
+        comp.refused(msg.reason)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -479,8 +746,8 @@ def main(argv: list[str] | None = None) -> int:
                     next_info = now
                 else:
                     next_open = now + 0.5
-            if port.fd is not None and comp.info is None and now >= next_info:
-                port.write(b"INFO\r\n")  # ask rather than wait for a banner
+            if port.fd is not None and comp.needs_info() and now >= next_info:
+                port.write(b"INFO\r\n")  # ask rather than wait for a banner (and again)
                 next_info = now + 1.0
             if port.fd is not None:
                 ready, _, _ = select.select([port.fd], [], [], cfg.poll_s)
@@ -489,7 +756,7 @@ def main(argv: list[str] | None = None) -> int:
                     if lines is None:
                         comp.log(f"{cfg.port} closed: offsets held, reopening")
                         port.close()
-                        comp.info = None
+                        comp.info_fresh = False
                         next_open = time.monotonic() + 0.2
                     else:
                         t = time.monotonic()

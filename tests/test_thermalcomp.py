@@ -1,43 +1,79 @@
 """thermalcomp's rules without HAL: config errors, hold, walk, sequence, stale (cnc/thermalcomp.py).
 
 The LinuxCNC side (pins, resync) is exercised on a real LinuxCNC by tests/test_cnc.py; here the
-lines come from the project's encoder, as the box writes them.
+lines come from the project's encoder, as the box writes them. Issue 41's rules (no single event
+makes the tool error worse than the clean run by more than one step limit; where the component
+cannot know, it holds and says why) each have a test below; their expectations come from the
+rules (step limits, bounds, held values), not from the component's output.
 """
 
 from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
 
 import pytest
 
 from cnc import thermalcomp as tc
 from cnc.thermalcomp import protocol
+from contract import model_file
 
-CONF = """
+ROOT = Path(__file__).resolve().parents[1]
+HASH = "0123456789abcdef"
+# z: the step limit (250 nm) is above the walk-back slew (100 nm/s x 1 s) in CONF, so walks go
+# at 100 nm per line; x: 80 nm = 8 counts of 10 nm.
+CONF = f"""
 [box]
 port = /dev/null
 stale_periods = 3
 slew_nm_per_s = 100
+model_hash = {HASH}
 [axis.z]
 box_axis = dz_um
 sign = -1
 nm_per_count = 1
+max_step_um = 0.25
 [axis.x]
 box_axis = dx_um
 sign = +1
 nm_per_count = 10
+max_step_um = 0.08
 """
+# the step limits bind, not the slew (10000 nm per line)
+FAST = CONF.replace("slew_nm_per_s = 100", "slew_nm_per_s = 10000")
+Z_STEP, X_STEP = 250, 8  # counts per line under FAST
 
 
-def _comp(tmp_path, text: str = CONF) -> tc.Compensator:
+def _info(model_hash: str = HASH) -> protocol.Info:
+    return protocol.Info("0.1.0", model_hash, True, 1000, ("dx_um", "dz_um"), ())
+
+
+def _comp(tmp_path, text: str = CONF, logs: list[str] | None = None) -> tc.Compensator:
     path = tmp_path / "thermalcomp.conf"
     path.write_text(text)
-    comp = tc.Compensator(tc.load_config(path), log=lambda msg: None)
-    comp.take_info(protocol.Info("0.1.0", "abc", True, 1000, ("dx_um", "dz_um"), ()))
+    comp = tc.Compensator(tc.load_config(path),
+                          log=(lambda msg: logs.append(msg)) if logs is not None else
+                          (lambda msg: None))
+    comp.take_info(_info())
     return comp
 
 
+def _raw(seq: int, dx: int, dz: int, status: int = 0) -> bytes:
+    return protocol.encode_sample(seq, status, [dx, dz], [2560]).rstrip(b"\r\n")
+
+
 def _line(comp, seq: int, dx: int, dz: int, status: int = 0, now: float = 0.0) -> None:
-    raw = protocol.encode_sample(seq, status, [dx, dz], [2560]).rstrip(b"\r\n")
-    tc.handle_line(comp, tc.Port("/dev/null", 115200), raw, now)
+    tc.handle_line(comp, tc.Port("/dev/null", 115200), _raw(seq, dx, dz, status), now)
+
+
+def _track(comp, dz_values, dx: int = 0, first_seq: int = 0) -> int:
+    """Feed in-order lines (each change within the step limits); returns the next seq."""
+    seq = first_seq
+    for dz in dz_values:
+        _line(comp, seq, dx, dz)
+        seq += 1
+    return seq
 
 
 def _want(comp) -> dict[str, int]:
@@ -92,6 +128,8 @@ def test_a_box_restart_holds_while_the_box_walks_from_0(tmp_path):
     _line(comp, 0, 0, 100, status=slew)  # rebooted box: seq 0, walking up from 0 itself
     _line(comp, 1, 0, 200, status=slew)
     assert comp.restarts == 1 and _want(comp)["z"] == -300 and comp.holds == 2
+    assert comp.needs_info()  # a restarted box may carry another model: asked again
+    comp.take_info(_info())
     _line(comp, 2, 0, 310)  # tracking again: the offset follows
     assert _want(comp)["z"] == -310
 
@@ -101,6 +139,9 @@ def test_a_box_restart_without_cold_start_walk_is_walked_to(tmp_path):
     for seq, dz in enumerate([0, 100, 200, 300]):
         _line(comp, seq, 0, dz)
     _line(comp, 0, 0, 0)  # no SLEW: a box built with BOX_COLD_START_SLEW=0
+    _line(comp, 1, 0, 0)  # the second line confirms the restart
+    comp.take_info(_info())  # the component asked INFO again: the same model
+    _line(comp, 2, 0, 0)
     assert comp.restarts == 1 and _want(comp)["z"] == -200  # one 100 nm step, not to 0
 
 
@@ -121,12 +162,19 @@ def test_config_errors_name_the_file_section_and_key(tmp_path, text, needle):
     assert needle in str(err.value) and str(path) in str(err.value)
 
 
-def test_the_shipped_config_loads():
-    cfg = tc.load_config(tc.Path(__file__).resolve().parents[1] / "cnc" / "config"
-                         / "thermalcomp.conf")
+def test_the_shipped_config_loads_and_refuses_to_drive_without_a_model():
+    cfg = tc.load_config(ROOT / "cnc" / "config" / "thermalcomp.conf")
     assert [(a.letter, a.box_axis, a.sign) for a in cfg.axes] == [
         ("x", "dx_um", -1), ("y", "dy_um", -1), ("z", "dz_um", -1)]
     assert cfg.port == "/dev/ttyUSB0" and cfg.period_s is None
+    assert cfg.model_hash is None and cfg.max_abs_um == 200.0  # `model =` is to be filled in
+    logs: list[str] = []
+    comp = tc.Compensator(cfg, log=logs.append)
+    comp.take_info(protocol.Info("0.1.0", HASH, True, 1000, ("dx_um", "dy_um", "dz_um"), ()))
+    raw = protocol.encode_sample(0, 0, [500, 500, 500], [2560]).rstrip(b"\r\n")
+    tc.handle_line(comp, tc.Port("/dev/null", 115200), raw, 0.0)
+    assert all(a.want == 0 for a in cfg.axes) and comp.holding and comp.model_mismatch
+    assert any("no expected model hash" in m for m in logs)
 
 
 def test_zero_changes_the_datum_at_once(tmp_path):
@@ -134,9 +182,271 @@ def test_zero_changes_the_datum_at_once(tmp_path):
     for seq in range(3):
         _line(comp, seq, 0, 100 * (seq + 1))
     assert _want(comp)["z"] == -300
+    comp.zero_sent()  # the zero pin's rising edge
     comp.zeroed(2)  # what handle_line does with $OK,ZERO,2 (decoded by contract.protocol)
     assert comp.zero_acks == 1 and comp.zero_seq == 2
     _line(comp, 3, 0, 0, status=tc.REFERENCED)
     assert _want(comp)["z"] == 0 and not comp.walking  # not 100 nm a line: a datum change
     _line(comp, 4, 0, 250, status=tc.REFERENCED)
     assert _want(comp)["z"] == -100  # after it, the walk limit again
+
+
+# ---- issue 41: never worse than no compensation ------------------------------------------
+
+def test_a_forged_line_moves_each_axis_by_one_step_limit_at_most(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, [0, 100, 200], dx=50)
+    before = _want(comp)
+    assert before == {"z": -200, "x": 5}
+    # CRC-valid, in sequence, 60 um on both axes (the line of the issue)
+    _line(comp, seq, 60_000, 60_200)
+    after = _want(comp)
+    assert after["z"] == before["z"] - Z_STEP and after["x"] == before["x"] + X_STEP
+    _line(comp, seq + 1, 50, 200)  # the next good line puts it back
+    assert _want(comp) == before and not comp.walking
+
+
+def test_a_forged_seq_jump_is_taken_as_a_stray_not_a_restart(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, [0, 100, 200])
+    _line(comp, seq + 5000, 0, -60_000)  # forged: far ahead, another value
+    assert _want(comp)["z"] == -200 + Z_STEP
+    _line(comp, seq, 0, 210)  # the box's own next line: behind the forged one
+    _line(comp, seq + 1, 0, 220)
+    assert comp.restarts == 0 and comp.lost_lines == 0 and comp.bad_lines == 1
+    assert _want(comp)["z"] == -220 and not comp.holding
+
+
+def test_a_forged_line_going_back_is_held_and_not_a_restart(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, [0, 100, 200])
+    _line(comp, 0, 0, -60_000)  # forged seq 0: held until the next line says what it was
+    assert _want(comp)["z"] == -200 and comp.holding
+    _line(comp, seq, 0, 210)  # the stream goes on: the forged line was a stray
+    assert comp.restarts == 0 and comp.bad_lines == 1 and _want(comp)["z"] == -210
+    assert not comp.holding
+
+
+def test_a_model_hash_mismatch_holds_every_axis_and_names_both_hashes(tmp_path):
+    logs: list[str] = []
+    comp = _comp(tmp_path, FAST, logs)
+    seq = _track(comp, [0, 100], dx=40)
+    held = _want(comp)
+    comp.take_info(_info("fedcba9876543210"))  # another model on the box
+    seq = _track(comp, [150, 200], dx=60, first_seq=seq)
+    assert _want(comp) == held and comp.holding and comp.model_mismatch
+    assert comp.needs_info()  # asked again: a forged INFO costs a second, not the shift
+    assert any("fedcba9876543210" in m and HASH in m for m in logs)
+    comp.take_info(_info())  # the right model again: follow, within the step limits
+    _track(comp, [200], dx=60, first_seq=seq)
+    assert _want(comp) == {"z": -200, "x": 6} and not comp.model_mismatch
+
+
+def test_before_any_info_every_axis_holds(tmp_path):
+    path = tmp_path / "thermalcomp.conf"
+    path.write_text(FAST)
+    comp = tc.Compensator(tc.load_config(path), log=lambda msg: None)
+    _track(comp, [0, 100])
+    assert _want(comp) == {"z": 0, "x": 0} and comp.holding and comp.needs_info()
+
+
+def test_model_path_gives_the_hash_and_the_step_limits(tmp_path):
+    model = _model_dict()
+    model_file.write_model(model, tmp_path / "model.json")
+    text = FAST.replace(f"model_hash = {HASH}", "model = model.json")  # relative to the conf
+    text = text.replace("max_step_um = 0.25\n", "").replace("max_step_um = 0.08\n", "")
+    path = tmp_path / "thermalcomp.conf"
+    path.write_text(text)
+    cfg = tc.load_config(path)
+    assert cfg.model_hash == model_file.model_hash(model) == model["model_hash"]
+    steps = {a.box_axis: a.step_nm for a in cfg.axes}
+    # dz_um: 0.3125 um rounded up to nm as codegen does; dx_um has none: 1 um/s x 2 s
+    assert steps == {"dz_um": 313, "dx_um": 2000}
+    # a step limit in the config can only tighten the model's
+    path.write_text(text.replace("nm_per_count = 1\n", "nm_per_count = 1\nmax_step_um = 0.1\n"))
+    assert {a.box_axis: a.step_nm for a in tc.load_config(path).axes}["dz_um"] == 100
+
+
+def _model_dict() -> dict:
+    return {
+        "schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": 2.0,
+        "channels": [{"channel": 0, "sensor": "T01", "tc_type": "K", "min_c": -40.0,
+                      "max_c": 200.0}],
+        "aux": [],
+        "axes": {"dx_um": {"unit": "um", "intercept": 0.0,
+                           "terms": [{"kind": "temp", "source": "T01", "coef": 1.0}]},
+                 "dz_um": {"unit": "um", "intercept": 1.0, "max_step_um": 0.3125,
+                           "terms": [{"kind": "temp", "source": "T01", "coef": 2.0}]}},
+        "training": {"runs": ["run.csv"], "targets": ["dx_um", "dz_um"], "sensors": "T*",
+                     "aux": []},
+    }
+
+
+@pytest.mark.parametrize("change, needle", [
+    (lambda t: t.replace("max_step_um = 0.08\n", ""), "needs 'max_step_um'"),
+    (lambda t: t.replace("max_step_um = 0.08", "max_step_um = 0.005"), "larger than the axis"),
+    (lambda t: t.replace("max_step_um = 0.08", "max_step_um = -1"), "must be positive"),
+    (lambda t: t.replace("slew_nm_per_s = 10000", "slew_nm_per_s = 10000\nmax_abs_um = 0"),
+     "max_abs_um = 0 must be positive"),
+    (lambda t: t.replace(f"model_hash = {HASH}", "model = nowhere.json"), "model = "),
+])
+def test_step_limit_and_model_config_errors(tmp_path, change, needle):
+    path = tmp_path / "thermalcomp.conf"
+    path.write_text(change(FAST))
+    with pytest.raises(tc.ConfigError) as err:
+        tc.load_config(path)
+    assert needle in str(err.value) and str(path) in str(err.value)
+
+
+def test_a_model_and_a_hash_that_disagree_are_refused(tmp_path):
+    model_file.write_model(_model_dict(), tmp_path / "model.json")
+    path = tmp_path / "thermalcomp.conf"
+    path.write_text(FAST.replace(f"model_hash = {HASH}",
+                                 f"model = {tmp_path / 'model.json'}\nmodel_hash = {HASH}"))
+    with pytest.raises(tc.ConfigError, match="which one is it"):
+        tc.load_config(path)
+
+
+def test_walking_back_after_a_hold_keeps_to_min_of_step_limit_and_slew(tmp_path):
+    hold = int(protocol.Status.HOLD | protocol.Status.OPEN)
+    for text, z_step in ((CONF, 100), (FAST, Z_STEP)):  # slew 100 nm/line; step 250 nm/line
+        comp = _comp(tmp_path, text)
+        seq = _track(comp, [0, 40])
+        for k in range(10):
+            _line(comp, seq, 0, 40 + 500 * k, status=hold)
+            seq += 1
+        assert _want(comp)["z"] == -40
+        wants = [-40]
+        for _ in range(60):
+            _line(comp, seq, 0, 5000)
+            seq += 1
+            wants.append(_want(comp)["z"])
+        steps = [abs(b - a) for a, b in zip(wants, wants[1:], strict=False)]
+        assert max(steps) == z_step and wants[-1] == -5000
+
+
+@pytest.mark.parametrize("bit", ["CLAMP", "NO_REF", "BEYOND", "NO_DATA", "IMPLAUSIBLE",
+                                 "MODEL_BAD"])
+def test_each_hold_bit_holds_every_axis(tmp_path, bit):
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, [0, 100], dx=30)
+    held = _want(comp)
+    _line(comp, seq, 500, 300, status=int(protocol.Status[bit]))
+    assert _want(comp) == held and comp.fault and comp.holding
+
+
+def test_the_hold_bits_come_from_the_contract():
+    assert tc.HOLD_BITS == int(protocol.Status.MODEL_BAD | protocol.Status.HOLD
+                               | protocol.Status.CLAMP | protocol.Status.NO_DATA
+                               | protocol.Status.IMPLAUSIBLE | protocol.Status.NO_REF
+                               | protocol.Status.BEYOND)
+
+
+def test_the_offset_never_exceeds_the_absolute_bound(tmp_path):
+    text = FAST.replace("slew_nm_per_s = 10000", "slew_nm_per_s = 10000\nmax_abs_um = 1")
+    comp = _comp(tmp_path, text)
+    seq = _track(comp, range(0, 3001, 200), dx=-20_000)  # the box's value reaches 3 um
+    assert _want(comp)["z"] == -1000 and _want(comp)["x"] == -100  # 1 um, in 10 nm counts
+    comp.zero_sent()
+    comp.zeroed(seq - 1)
+    _line(comp, seq, 0, 2500, status=tc.REFERENCED)  # a datum change, bounded all the same
+    assert _want(comp)["z"] == -1000
+
+
+def test_the_default_absolute_bound_is_the_boxs_clamp():
+    header = (ROOT / "firmware" / "include" / "box_config.h").read_text()
+    clamp_nm = int(re.search(r"#define BOX_MAX_CORRECTION_NM (\d+)", header).group(1))
+    assert tc.DEFAULT_MAX_ABS_UM * 1000 == clamp_nm
+
+
+def test_a_cold_restart_holds_the_offsets_until_zero_then_carries_them(tmp_path):
+    logs: list[str] = []
+    comp = _comp(tmp_path, FAST, logs)
+    seq = _track(comp, range(0, 3001, 200), dx=400)
+    assert _want(comp) == {"z": -3000, "x": 40}
+    no_ref = int(protocol.Status.NO_REF)
+    # cold power-up of a start-referenced model: seq from 0, NO_REF, the box holds at 0
+    for k in range(4):
+        _line(comp, k, 0, 0, status=no_ref)
+    assert comp.restarts == 1 and comp.await_zero and comp.holding
+    comp.take_info(_info())  # INFO asked again: the same model
+    for k in range(4, 40):  # however long it takes: never walks to 0
+        _line(comp, k, 0, 0, status=no_ref)
+    assert _want(comp) == {"z": -3000, "x": 40}
+    comp.zero_sent()
+    comp.zeroed(39)  # $OK,ZERO,39
+    referenced = int(protocol.Status.REFERENCED)
+    _line(comp, 40, 0, 0, status=referenced)  # the change since ZERO: 0
+    assert _want(comp) == {"z": -3000, "x": 40} and not comp.holding
+    _line(comp, 41, 30, 150, status=referenced)  # the drift goes on: held offset + change
+    assert _want(comp) == {"z": -3150, "x": 43}
+    assert any("until ZERO" in m for m in logs)
+    del seq
+
+
+def test_a_restart_while_the_box_reports_referenced_also_waits_for_zero(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    _track(comp, range(0, 1001, 200))
+    referenced = int(protocol.Status.REFERENCED)  # an old box zeroing at power-up
+    _line(comp, 0, 0, 0, status=referenced)
+    _line(comp, 1, 0, 10, status=referenced)
+    comp.take_info(_info())
+    _line(comp, 2, 0, 20, status=referenced)
+    assert comp.await_zero and _want(comp)["z"] == -1000
+
+
+def test_a_normal_zero_is_a_new_datum_with_base_0(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, range(0, 1001, 200))
+    comp.zero_sent()
+    comp.zeroed(seq - 1)
+    _line(comp, seq, 0, 0, status=tc.REFERENCED)
+    _line(comp, seq + 1, 0, 120, status=tc.REFERENCED)
+    assert _want(comp)["z"] == -120 and all(a.base == 0 for a in comp.cfg.axes)
+
+
+def test_an_unsolicited_zero_ack_changes_nothing(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, range(0, 1001, 200))
+    comp.zeroed(seq - 1)  # forged $OK,ZERO: no ZERO was sent
+    _line(comp, seq, 0, 0, status=tc.REFERENCED)
+    assert comp.zero_acks == 0 and _want(comp)["z"] == -1000 + Z_STEP
+
+
+def test_a_warm_reset_keeps_following(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, range(0, 1001, 200))
+    wdt = int(protocol.Status.WDT_RESET | protocol.Status.REFERENCED)
+    _line(comp, seq, 0, 1100, status=wdt)  # seq continues: the box kept its state
+    assert comp.restarts == 0 and not comp.holding and _want(comp)["z"] == -1100
+
+
+def test_the_receive_buffer_is_bounded(tmp_path):
+    port = tc.Port("/dev/null", 115200)
+    port.synced = True
+    out: list[bytes] = []
+    chunk = b"7" * 65536
+    for _ in range(256):  # 16 MiB without a newline
+        out += port.feed(chunk)
+        assert len(port.buf) <= tc.MAX_LINE_BYTES
+    assert out == [tc.OVERLONG]  # reported once, as soon as it was too long
+    good = _raw(0, 0, 40)
+    out = port.feed(b"123\n" + good + b"\r\n")  # the rest up to the newline is dropped
+    assert out == [good]
+    comp = _comp(tmp_path)
+    tc.handle_line(comp, port, tc.OVERLONG, 0.0)
+    assert comp.bad_lines == 1 and comp.holds == 1
+    tc.handle_line(comp, port, good, 0.0)
+    assert _want(comp)["z"] == -40
+
+
+def test_the_frame_escape_script_counts_a_line_that_still_decodes(tmp_path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("frame_escape",
+                                                  ROOT / "scripts" / "frame_escape.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    row = mod.measure("bitflip", 2000, seed=1)  # CRC-16 catches 1-3 bit flips: none escape
+    assert row["trials"] == 2000 and row["escape_value"] == 0
+    json.dumps(row)
