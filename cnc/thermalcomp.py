@@ -346,6 +346,7 @@ class Compensator:
         self.suspect_seq: int | None = None  # a seq that went back, not yet confirmed
         self.last_line_t: float | None = None
         self.status = 0
+        self.stream_status = 0  # status of the last in-sequence line (before a restart)
         self.bad_lines = 0
         self.lost_lines = 0
         self.restarts = 0
@@ -455,13 +456,18 @@ class Compensator:
             self.restarts += 1
             self.rebooted, self.info_fresh, self.rezero = True, False, False
             applied = any(a.seen and a.want != 0 for a in self.cfg.axes)
-            if applied and s.status & (NO_REF | REFERENCED):
-                self.await_zero = True  # its datum is a new power-up's, or none
+            # the datum the offsets were taken in is gone: the box has none (NO_REF), a new
+            # power-up's (REFERENCED at once), or it had a ZERO's, which a power cycle forgets
+            datum_lost = s.status & (NO_REF | REFERENCED) or self.stream_status & REFERENCED
+            if applied and datum_lost:
+                self.await_zero = True
                 self.log(f"the box restarted (seq {s.seq}) without the reference the offsets "
                          "were taken in: holding the last offsets until ZERO")
             else:
                 self.log(f"the box restarted (seq {s.seq}): holding until it has walked back "
                          "from 0 and INFO confirms its model")
+        if verdict != "suspect":
+            self.stream_status = s.status
         self.fault = bool(s.status & HOLD_BITS)
         if self.rebooted and not s.status & SLEW:
             self.rebooted = False  # the box tracks again: walk to it from the held offset
@@ -670,7 +676,7 @@ class HalDriver:
         self.zero_was = zero
         comp.check_stale(now)
         status = comp.status
-        h["connected"] = port.fd is not None and comp.info is not None
+        h["connected"] = port.fd is not None and comp.info is not None and comp.info_fresh
         h["active"] = self.live_since is not None and not self.need_sync and enabled
         h["fault"] = comp.fault or comp.model_mismatch
         h["model-mismatch"] = comp.model_mismatch

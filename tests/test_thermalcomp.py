@@ -395,6 +395,23 @@ def test_a_restart_while_the_box_reports_referenced_also_waits_for_zero(tmp_path
     assert comp.await_zero and _want(comp)["z"] == -1000
 
 
+def test_a_restart_that_forgets_an_operators_zero_waits_for_zero(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, range(0, 1001, 200))
+    comp.zero_sent()
+    comp.zeroed(seq - 1)
+    for k in range(5):  # the new datum, then drift in it
+        _line(comp, seq + k, 0, 100 * k, status=tc.REFERENCED)
+    assert _want(comp)["z"] == -400
+    # a model without a start reference: after a power cycle the box outputs the whole drift
+    # again, unreferenced, not the drift since the operator's ZERO the offsets are in
+    _line(comp, 0, 0, 900)
+    _line(comp, 1, 0, 910)
+    comp.take_info(_info())
+    _line(comp, 2, 0, 920)
+    assert comp.await_zero and _want(comp)["z"] == -400
+
+
 def test_a_normal_zero_is_a_new_datum_with_base_0(tmp_path):
     comp = _comp(tmp_path, FAST)
     seq = _track(comp, range(0, 1001, 200))
