@@ -260,38 +260,68 @@ class FixedModel:
 GUARD_OK, GUARD_HELD, GUARD_FAULT = 0, 1, 2
 
 
+GUARD_RUNAWAY_SAMPLES = 4  # channel_guard.h: readings of the runaway check
+
+
 class ChannelGuard:
     """Twin of channel_guard.c: one channel's plausibility guard (docs/firmware.md)."""
 
     def __init__(self) -> None:
-        self.lost()
+        self.last_good, self.prev, self.since, self.bad_run, self.calm = 0, 0, 0, 0, 0
+        self.has_ref, self.faulted = False, False
+        self.run: list[int] = []  # the latest consecutive readings, oldest first
+
+    def _tick(self) -> None:
+        self.since = min(self.since + 1, 65535)
 
     def lost(self) -> None:
         """The channel had no usable reading (chip fault, no answer, out of range)."""
-        self.last_good, self.prev, self.bad_run, self.calm = 0, 0, 0, 0
-        self.has_ref, self.faulted = False, False
+        if self.has_ref:
+            self._tick()
+        self.run, self.calm = [], 0
+
+    def _push(self, code: int) -> None:
+        self.run = (self.run + [code])[-GUARD_RUNAWAY_SAMPLES:]
+
+    def _runaway(self, code: int, max_step: int) -> bool:
+        return (len(self.run) == GUARD_RUNAWAY_SAMPLES
+                and abs(code - self.run[0]) > max_step * (GUARD_RUNAWAY_SAMPLES // 2 + 1))
 
     def _accept(self, code: int) -> tuple[int, int]:
-        self.last_good, self.has_ref, self.faulted, self.bad_run, self.calm = \
-            code, True, False, 0, 0
+        self.last_good, self.has_ref, self.faulted = code, True, False
+        self.since, self.bad_run, self.calm = 0, 0, 0
+        self._push(code)
         return GUARD_OK, code
+
+    def _fault(self, code: int) -> tuple[int, int]:
+        self.faulted, self.calm, self.prev = True, 0, code
+        self._push(code)  # a runaway's readings stay: it must stop before recovery
+        return GUARD_FAULT, code
 
     def check(self, code: int, max_step: int, fault_after: int) -> tuple[int, int]:
         """(verdict, code the model gets) for a reading that passed chip and range checks."""
         if max_step <= 0 or not self.has_ref:
             return self._accept(code)
+        self._tick()
+        allowed = max_step * self.since
         if self.faulted:
-            self.calm = min(self.calm + 1, 255) if abs(code - self.prev) <= max_step else 0
+            self.calm = (min(self.calm + 1, 255) if self.run and abs(code - self.prev) <= max_step
+                         else 0)
+            ok = (self.calm >= fault_after and abs(code - self.last_good) <= allowed
+                  and not self._runaway(code, max_step))
             self.prev = code
-            if self.calm >= fault_after:
-                return self._accept(code)
-            return GUARD_FAULT, code
-        if abs(code - self.last_good) <= max_step * (self.bad_run + 1):
+            self._push(code)
+            return self._accept(code) if ok else (GUARD_FAULT, code)
+        if abs(code - self.last_good) <= allowed:
+            if self._runaway(code, max_step):
+                self.last_good, self.since, self.bad_run = \
+                    self.run[0], GUARD_RUNAWAY_SAMPLES, 0
+                return self._fault(code)
             return self._accept(code)
+        self.run = []
         self.bad_run += 1
         if self.bad_run >= fault_after:
-            self.faulted, self.calm, self.prev = True, 0, code
-            return GUARD_FAULT, code
+            return self._fault(code)
         return GUARD_HELD, self.last_good
 
 

@@ -12,13 +12,16 @@ displacement, per axis, RMS and peak. The lines are decoded with contract/protoc
 And the judgement (``Judging``): a box that matches its twin can still be useless
 or alarming: it fails when it held (HOLD/NO_DATA) or limited (SLEW) more than a stated share
 of the samples, or never corrected at all (a model trained in Kelvin: every reading out of
-range, every sample held).
+range, every sample held); and (issue 41, "never worse than no compensation") when an axis's
+compensated error is larger than its raw error (RMS or peak), when the clamp (CLAMP) engaged on
+more than a stated share of the samples, or when the output stepped by more than the axis's
+step limit between two consecutive lines of a power-up.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +48,14 @@ class Judging:
     max_held_fraction: float = 0.10
     max_limited_fraction: float = 0.10
     require_correction: bool = True
+    # The clamp (BOX_MAX_CORRECTION_NM, 200 um) is the box's last resort: a sound model stays
+    # far inside it. 1 % lets a short excursion be clamped (the output stays bounded, which is
+    # the clamp's job) but not a model that lives at the bound (x50 coefficients: 99 %).
+    max_clamped_fraction: float = 0.01
+    # Compensation must not leave a larger error than no compensation (RMS or peak, per axis
+    # with a measured displacement), and no output step may exceed the axis's step limit.
+    require_no_worse: bool = True
+    require_step_limit: bool = True
 
 
 @dataclass
@@ -59,9 +70,24 @@ class AxisReport:
     float_max_diff_um: float | None = None
     float_samples: int = 0
     bound_um: float | None = None
+    max_step_nm: int | None = None  # the axis's step limit (header), None when unknown
+    largest_step_nm: int | None = None  # largest output step between consecutive lines
+    steps_over_limit: int = 0  # consecutive-line steps beyond max_step_nm
+    first_step_over: int | None = None  # sample of the first of them
 
     def to_json(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if k != "name"}
+
+    def worse_than_raw(self) -> list[str]:
+        """Which of RMS and peak the compensation made worse than the raw drift."""
+        out = []
+        if self.raw_rms_um is not None and self.compensated_rms_um is not None \
+                and self.compensated_rms_um > self.raw_rms_um:
+            out.append(f"RMS {self.compensated_rms_um:.3f} > raw {self.raw_rms_um:.3f}")
+        if self.raw_peak_um is not None and self.compensated_peak_um is not None \
+                and self.compensated_peak_um > self.raw_peak_um:
+            out.append(f"peak {self.compensated_peak_um:.3f} > raw {self.raw_peak_um:.3f}")
+        return out
 
 
 @dataclass
@@ -121,6 +147,20 @@ class ReplayReport:
         return self._share(SLEW)
 
     @property
+    def clamped_fraction(self) -> float:
+        return self._share(CLAMP)
+
+    @property
+    def worse_axes(self) -> dict[str, list[str]]:
+        """Axes whose compensated error exceeds the raw one, with what exceeds."""
+        return {name: w for name, a in self.axes.items() if (w := a.worse_than_raw())}
+
+    @property
+    def step_axes(self) -> dict[str, AxisReport]:
+        """Axes whose output stepped beyond their step limit between consecutive lines."""
+        return {name: a for name, a in self.axes.items() if a.steps_over_limit}
+
+    @property
     def corrected_samples(self) -> int:
         """Received samples on which every axis had its correction (no HOLD, NO_DATA or
         MODEL_BAD)."""
@@ -135,9 +175,14 @@ class ReplayReport:
         if j is None:
             return {}
         out = {"held_within_limit": self.held_fraction <= j.max_held_fraction,
-               "limited_within_limit": self.limited_fraction <= j.max_limited_fraction}
+               "limited_within_limit": self.limited_fraction <= j.max_limited_fraction,
+               "clamped_within_limit": self.clamped_fraction <= j.max_clamped_fraction}
         if j.require_correction:
             out["corrected"] = self.corrected_samples > 0
+        if j.require_no_worse:
+            out["no_worse_than_uncompensated"] = not self.worse_axes
+        if j.require_step_limit:
+            out["steps_within_limit"] = not self.step_axes
         return out
 
     @property
@@ -176,6 +221,21 @@ class ReplayReport:
                        f"of the samples (SLEW; limit {100 * j.max_limited_fraction:g} %, "
                        "--max-limited-fraction): the model output changes faster than its "
                        "step limit")
+        if self.clamped_fraction > j.max_clamped_fraction:
+            out.append(f"the box clamped its output on {100 * self.clamped_fraction:.1f} % of "
+                       f"the samples (CLAMP; limit {100 * j.max_clamped_fraction:g} %, "
+                       "--max-clamped-fraction): the model asks for more than the box's "
+                       "maximum correction; its coefficients or units are wrong")
+        if j.require_no_worse:
+            for name, what in self.worse_axes.items():
+                out.append(f"axis {name}: the compensated error is worse than no compensation "
+                           f"({', '.join(what)} um): the box makes this axis less accurate")
+        if j.require_step_limit:
+            for name, a in self.step_axes.items():
+                out.append(f"axis {name}: the output stepped by up to {a.largest_step_nm} nm "
+                           f"between consecutive samples, beyond its step limit "
+                           f"{a.max_step_nm} nm ({a.steps_over_limit} times, first at sample "
+                           f"{a.first_step_over}; a ZERO's change of datum not counted)")
         return out
 
     @property
@@ -208,6 +268,7 @@ class ReplayReport:
             "status_counts": self.status_counts,
             "held_fraction": round(self.held_fraction, 6),
             "limited_fraction": round(self.limited_fraction, 6),
+            "clamped_fraction": round(self.clamped_fraction, 6),
             "corrected_samples": self.corrected_samples,
             "judging": None if self.judging is None else dict(self.judging.__dict__),
             "judgement_problems": self.judgement_reasons(),
@@ -306,12 +367,17 @@ def _session_health(rep: ReplayReport, s_index: int, session: Session) -> None:
 
 
 def _zero_replies(rep: ReplayReport, s_index: int, session: Session,
-                  zero_at: Sequence[int]) -> None:
-    """Each ZERO sent in this session was answered with the sample before it."""
+                  zero_at: Sequence[int], refused: Sequence[int] = ()) -> None:
+    """Each ZERO sent in this session was answered with the sample before it, or refused
+    (HOLDING) where the twin says an axis held at that sample."""
     zs = [z for z in zero_at if session.first_sample <= z < session.first_sample +
           max(session.n_fed, 1)]
-    acks = [decode(a).value for a in session.zero_acks]
-    want_acks = [max(z - session.first_sample - 1, 0) for z in zs]
+    replies = [decode(a) for a in session.zero_acks]
+    acks = [r.reason if isinstance(r, ErrorReply) else r.value - session.seq0
+            for r in replies]
+    want_acks = ["HOLDING" if z in refused else
+                 (z - session.first_sample - 1 if session.seq0 + z - session.first_sample > 0
+                  else 0) for z in zs]
     if acks != want_acks:
         rep.status_mismatches += 1
         rep.note(f"session {s_index}: ZERO replies name samples {acks}, expected "
@@ -389,6 +455,48 @@ def _float_differences(session: Session, exp: Expected, model: dict, feed: Feed,
     return d.max(axis=0), int(direct.sum())
 
 
+def _steps(rep: ReplayReport, s_index: int, session: Session, exp: Expected,
+           axes: Sequence[str], rx: _Received) -> None:
+    """The output's steps between consecutive sample lines of one power-up, per axis, against
+    the axis's step limit (``AxisReport.max_step_nm``).
+
+    A ZERO moves the output by the change of datum (the new reference), which is no step of
+    the correction: the step judged is that of output + reference, the reference in force as
+    the twin computes it (the box does not send it; check 1 holds the box to the twin's
+    output). A line lost in between allows one limit per missing period."""
+    n_axes = len(axes)
+    if not (n_axes and session.n_fed and exp.out_nm.shape[1] == n_axes):
+        return
+    rows = np.arange(session.first_sample, session.first_sample + session.n_fed)
+    rows = rows[rx.got[rows] & (rx.session[rows] == s_index)]
+    if rows.size < 2:
+        return
+    seq = rx.seq[rows]
+    ref = exp.ref_nm[seq] if exp.ref_nm is not None else 0
+    value = rx.out_nm[rows] + ref
+    gap = np.diff(seq)[:, None]
+    step = -(-np.abs(np.diff(value, axis=0)) // gap)  # per period, rounded up
+    for a, name in enumerate(axes):
+        ax = rep.axes[name]
+        col = step[:, a]
+        ax.largest_step_nm = max(ax.largest_step_nm or 0, int(col.max()))
+        if ax.max_step_nm is None:
+            continue
+        over = np.flatnonzero(col > ax.max_step_nm)
+        if over.size:
+            ax.steps_over_limit += int(over.size)
+            first = int(rows[over[0] + 1])
+            ax.first_step_over = first if ax.first_step_over is None else \
+                min(ax.first_step_over, first)
+
+
+def step_limits_nm(model: dict) -> dict[str, int]:
+    """Each axis's output step limit as the header carries it (codegen's quantisation)."""
+    from codegen.quantise import quantise
+
+    return {ax.name: ax.max_step_nm for ax in quantise(model).axes}
+
+
 def _residuals(rep: ReplayReport, feed: Feed, rx: _Received, zeroed: bool) -> None:
     """3. What the box's corrections leave of the measured drift, per axis. When the box
     zeroes (at power-up, or by ZERO) its output is already the change since then; otherwise
@@ -410,17 +518,21 @@ def _residuals(rep: ReplayReport, feed: Feed, rx: _Received, zeroed: bool) -> No
 
 def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
           bounds_um: dict[str, float], judging: Judging | None = None,
-          zero_at: Sequence[int] = (), box_zeroes: bool = False) -> ReplayReport:
+          zero_at: Sequence[int] = (), box_zeroes: bool = False,
+          step_limits: dict[str, int] | None = None) -> ReplayReport:
     """Compare every session's lines with its expectation and compute the residuals.
 
     ``zero_at``: samples before which ZERO was sent (each reply must name the sample before).
     ``box_zeroes``: the header was built with TCM_ZERO_AT_POWERUP (the box's output is already
-    the change since its start).
+    the change since its start). ``step_limits``: each axis's output step limit in nm
+    (default: the model's, as codegen puts it into the header).
     """
     n = capture.n_samples
     n_axes = len(feed.axes)
     rep = ReplayReport(samples=n, sessions=len(capture.sessions), judging=judging)
-    rep.axes = {a: AxisReport(a, bound_um=bounds_um.get(a)) for a in feed.axes}
+    limits = step_limits_nm(model) if step_limits is None else step_limits
+    rep.axes = {a: AxisReport(a, bound_um=bounds_um.get(a), max_step_nm=limits.get(a))
+                for a in feed.axes}
     rx = _Received.empty(n, n_axes)
     codes_fed = np.asarray(capture.codes_fed, dtype=np.int64)
     float_diff = np.zeros(n_axes)
@@ -433,7 +545,9 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
         for b in lines.bad:
             rep.note(f"session {s_index}: undecodable line: {b}")
         rep.errors += [e.reason for e in lines.errors]
-        _zero_replies(rep, s_index, session, zero_at)
+        _zero_replies(rep, s_index, session, zero_at, exp.zero_refused)
+        if session.seq0:  # resumed after a warm reset: seq counts on from before it
+            lines.samples = [replace(s, seq=s.seq - session.seq0) for s in lines.samples]
         lost, dup, reord = sequence_problems([s.seq for s in lines.samples], session.n_fed)
         rep.lost += lost
         rep.duplicated += dup
@@ -442,6 +556,7 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
             rep.note(f"session {s_index}: {lost} lost, {dup} duplicated, {reord} reordered "
                      f"sample lines")
         _check_lines(rep, s_index, session, lines, exp, feed.axes, rx)
+        _steps(rep, s_index, session, exp, feed.axes, rx)
         found = _float_differences(session, exp, model, feed, codes_fed, rx)
         if found is not None:
             float_diff = np.maximum(float_diff, found[0])
@@ -454,8 +569,6 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
     rep.received = int(rx.got.sum())
     rep.fw_out_nm, rep.fw_status = rx.out_nm, rx.status
     rep.fw_seq, rep.fw_session = rx.seq, rx.session
-    for reason in rep.judgement_reasons():
-        rep.note(reason)
     for a, name in enumerate(feed.axes):
         ax = rep.axes[name]
         if float_count:
@@ -464,6 +577,8 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
                 rep.note(f"axis {name}: float model differs by {ax.float_max_diff_um:.6g} um, "
                          f"bound {ax.bound_um:.6g} um")
     _residuals(rep, feed, rx, box_zeroes or bool(zero_at))
+    for reason in rep.judgement_reasons():  # after the residuals: they are judged too
+        rep.note(reason)
     return rep
 
 

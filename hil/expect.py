@@ -21,7 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from codegen.fixed import GUARD_FAULT, GUARD_HELD, AxisOutput, ChannelGuard, FixedModel
+from codegen.fixed import (
+    GUARD_FAULT,
+    GUARD_HELD,
+    GUARD_RUNAWAY_SAMPLES,
+    AxisOutput,
+    ChannelGuard,
+    FixedModel,
+)
 from contract.errors import InputError
 from contract.protocol import STATUS_BITS, ChannelFault, Status, status_names
 from contract.terms import AUX_KINDS, TEMPERATURE_KINDS
@@ -31,6 +38,7 @@ MODEL_BAD, HOLD, SLEW, CLAMP = Status.MODEL_BAD, Status.HOLD, Status.SLEW, Statu
 RANGE, OPEN, TC_FAULT, AUX_FAULT = Status.RANGE, Status.OPEN, Status.TC_FAULT, Status.AUX_FAULT
 WDT_RESET, NO_DATA, EXTRAP = Status.WDT_RESET, Status.NO_DATA, Status.EXTRAP
 REFERENCED, IMPLAUSIBLE = Status.REFERENCED, Status.IMPLAUSIBLE
+NO_REF, BEYOND = Status.NO_REF, Status.BEYOND
 STATUS_NAMES = STATUS_BITS
 SR_OPEN = int(ChannelFault.OPEN)  # MAX31856 fault status register bit OPEN
 
@@ -54,6 +62,13 @@ class OutputConfig:
     max_aux: int = 2
     implausible_after: int = 3  # BOX_IMPLAUSIBLE_FAULT_SAMPLES
     zero_samples: int = 8  # BOX_ZERO_SAMPLES
+    beyond_span_percent: int = 50  # BOX_BEYOND_SPAN_PERCENT
+    beyond_min_codes: int = 640  # BOX_BEYOND_MIN_CODES
+
+    def beyond_limits(self, wlo: np.ndarray, whi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per channel, the codes beyond which a reading is BEYOND (box_config.h)."""
+        margin = np.maximum((whi - wlo) * self.beyond_span_percent // 100, self.beyond_min_codes)
+        return wlo - margin, whi + margin
 
     def step_nm(self, period_ms: int) -> int:
         """Slew step per sample period, as axis_output_step_nm: rounded, at least 1 nm."""
@@ -66,7 +81,8 @@ class OutputConfig:
         values: dict[str, int] = {}
         for name in ("BOX_SLEW_NM_PER_S", "BOX_MAX_CORRECTION_NM", "BOX_COLD_START_SLEW",
                      "BOX_MAX_CHANNELS", "BOX_MAX_AXES", "BOX_MAX_AUX",
-                     "BOX_IMPLAUSIBLE_FAULT_SAMPLES", "BOX_ZERO_SAMPLES"):
+                     "BOX_IMPLAUSIBLE_FAULT_SAMPLES", "BOX_ZERO_SAMPLES",
+                     "BOX_BEYOND_SPAN_PERCENT", "BOX_BEYOND_MIN_CODES"):
             m = re.search(rf"^#define {name} (\d+)\s*$", text, re.M)
             if m is None:
                 raise InputError(f"{config_h}: no '#define {name} <number>' default")
@@ -77,7 +93,8 @@ class OutputConfig:
         return cls(values["BOX_SLEW_NM_PER_S"], values["BOX_MAX_CORRECTION_NM"],
                    bool(values["BOX_COLD_START_SLEW"]), values["BOX_MAX_CHANNELS"],
                    values["BOX_MAX_AXES"], values["BOX_MAX_AUX"],
-                   values["BOX_IMPLAUSIBLE_FAULT_SAMPLES"], values["BOX_ZERO_SAMPLES"])
+                   values["BOX_IMPLAUSIBLE_FAULT_SAMPLES"], values["BOX_ZERO_SAMPLES"],
+                   values["BOX_BEYOND_SPAN_PERCENT"], values["BOX_BEYOND_MIN_CODES"])
 
     def check_fits(self, n_channels: int, n_axes: int, n_aux: int, what: str) -> None:
         """The firmware refuses (MODEL_BAD) a model larger than its build-time capacity."""
@@ -99,7 +116,8 @@ class Expected:
     status: np.ndarray  # (n,) int: expected status word
     codes: np.ndarray  # (n, n_channels): the codes the chips report (echoed in the line)
     model_codes: np.ndarray | None = None  # (n, n_channels): what the model got (guarded)
-    ref_nm: np.ndarray | None = None  # (n, n_axes): the ZERO reference in force (0 without)
+    ref_nm: np.ndarray | None = None  # (n, axes): the ZERO reference in force (0 without)
+    zero_refused: tuple[int, ...] = ()  # samples before which ZERO was refused (HOLDING)
 
 
 def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
@@ -138,9 +156,13 @@ def guard_channels(codes: np.ndarray, in_range: np.ndarray, max_step: Sequence[i
     valid = in_range.copy()
     implausible = np.zeros(codes.shape, dtype=bool)
     for c in range(codes.shape[1]):
-        if in_range[:, c].all() and (codes.shape[0] < 2 or
-                                     np.abs(np.diff(codes[:, c])).max() <= max_step[c]):
-            continue  # every change plausible and no fault: the guard never acts (fast path)
+        w = GUARD_RUNAWAY_SAMPLES
+        col_c = codes[:, c]
+        if in_range[:, c].all() and (codes.shape[0] < 2 or (
+                np.abs(np.diff(col_c)).max() <= max_step[c] and (
+                    codes.shape[0] <= w or np.abs(col_c[w:] - col_c[:-w]).max()
+                    <= max_step[c] * (w // 2 + 1)))):
+            continue  # every change plausible, no runaway, no fault: the guard never acts
         g = ChannelGuard()
         col, ok = codes[:, c].tolist(), in_range[:, c].tolist()
         for i in range(len(col)):
@@ -159,50 +181,66 @@ def guard_channels(codes: np.ndarray, in_range: np.ndarray, max_step: Sequence[i
 
 def output_stage_ref(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
                      step: int, track: Sequence[int] | None = None,
-                     zero_before: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray,
-                                                               np.ndarray]:
+                     zero_before: Sequence[int] = (), needs_ref: bool = False,
+                     resets: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                          list[int]]:
     """The axis output stage over a session (codegen.fixed.AxisOutput per axis):
-    (out_nm [n, axes], status bits [n], reference [n, axes]).
+    (out_nm [n, axes], status bits [n], reference [n, axes], accepted ZEROs).
 
     ``step``: the walk-back step (BOX_SLEW_NM_PER_S per period); ``track``: each axis's
     step limit from the header (None: unlimited while tracking); ``zero_before``: samples
-    before which ZERO is received (0 = at power-up)."""
+    before which ZERO is sent (0 = before the first); the box refuses one (HOLDING) when an
+    axis's inputs were faulted at the sample before it (not after a reset: nothing sampled).
+    ``needs_ref``: a start-referenced model after a cold power-up: until the first accepted
+    ZERO every axis holds (NO_REF). ``resets``: samples before which a warm reset happened."""
     n, n_axes = computed_nm.shape
     out = np.zeros((n, n_axes), dtype=np.int64)
     ref = np.zeros((n, n_axes), dtype=np.int64)
     bits = np.zeros(n, dtype=np.int64)
-    zeros = set(zero_before)
-    for a in range(n_axes):
-        lim = (2**31 - 1) if track is None else int(track[a])
-        ax = AxisOutput(cfg.max_abs_nm, step, lim, cfg.zero_samples, cfg.cold_start_slew)
-        col_v = computed_nm[:, a].tolist()
-        col_ok = computed[:, a].tolist()
-        for i in range(n):
-            if i in zeros:
+    zeros, warm = set(zero_before), set(resets)
+    axes = [AxisOutput(cfg.max_abs_nm, step, (2**31 - 1) if track is None else int(track[a]),
+                       cfg.zero_samples, cfg.cold_start_slew) for a in range(n_axes)]
+    accepted: list[int] = []
+    referenced = False
+    ok_rows = computed.tolist()
+    val_rows = computed_nm.tolist()
+    for i in range(n):
+        if i in zeros and (i == 0 or i in warm or all(ok_rows[i - 1])):
+            accepted.append(i)
+            referenced = True
+            for ax in axes:
                 ax.zero()
-            for name in ax.update(bool(col_ok[i]), int(col_v[i])):
+        no_ref = needs_ref and not referenced
+        if no_ref:
+            bits[i] |= NO_REF
+        for a, ax in enumerate(axes):
+            for name in ax.update(bool(ok_rows[i][a]) and not no_ref, int(val_rows[i][a])):
                 bits[i] |= Status[name]
             out[i, a], ref[i, a] = ax.out_nm, ax.ref_nm
-    return out, bits, ref
+    return out, bits, ref, accepted
 
 
 def output_stage(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
                  step: int, track: Sequence[int] | None = None,
                  zero_before: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray]:
     """The axis output logic over a session: (out_nm [n, axes], status bits [n])."""
-    out, bits, _ = output_stage_ref(computed_nm, computed, cfg, step, track, zero_before)
+    out, bits, _, _ = output_stage_ref(computed_nm, computed, cfg, step, track, zero_before)
     return out, bits
 
 
 def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.ndarray,
                    cfg: OutputConfig, wdt_reset: bool = False,
                    model_bad: bool = False, zero_before: Sequence[int] = (),
-                   zero_at_powerup: bool = False) -> Expected:
-    """Expected lines for samples fed to one freshly powered-up box.
+                   zero_at_powerup: bool = False, warm_resets: Sequence[int] = ()) -> Expected:
+    """Expected lines for samples fed to one box from a cold power-up, through any number of
+    warm resets (which it survives: docs/firmware.md, "Restart").
 
     ``codes`` [n, ch] are the chips' readings, ``sr`` [n, ch] their fault status registers,
     ``aux`` [n, n_aux] the aux inputs; ``zero_before``: local sample indices before which the
-    CNC side sends ZERO; ``zero_at_powerup``: the header's TCM_ZERO_AT_POWERUP.
+    CNC side sends ZERO; ``zero_at_powerup``: the header's TCM_ZERO_AT_POWERUP (a
+    start-referenced model: NO_REF until a ZERO); ``wdt_reset``: the power-up itself was a
+    watchdog reset; ``warm_resets``: samples before which the box reset by its watchdog and
+    resumed (WDT_RESET from then on).
     """
     m = twin.model
     n = codes.shape[0]
@@ -211,29 +249,40 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
     wlo = np.array([c.window_lo_code for c in m.channels], dtype=np.int64)
     whi = np.array([c.window_hi_code for c in m.channels], dtype=np.int64)
     in_range, bits = channel_faults(codes, sr, lo, hi)
-    zeros = sorted({0} | set(zero_before) if zero_at_powerup else set(zero_before))
-    if zeros:  # REFERENCED from the first sample of the first reference on
-        bits |= np.where(np.arange(n) >= zeros[0], int(REFERENCED), 0)
+    zeros = sorted(set(zero_before))
     if m.aux:
         alo = np.array([a.min for a in m.aux], dtype=np.int64)
         ahi = np.array([a.max for a in m.aux], dtype=np.int64)
         bits |= np.where(((aux < alo) | (aux > ahi)).any(axis=1), AUX_FAULT, 0)
     sticky = (WDT_RESET if wdt_reset else 0) | (MODEL_BAD if model_bad else 0)
     bits |= sticky
+    if warm_resets:
+        bits |= np.where(np.arange(n) >= min(warm_resets), int(WDT_RESET), 0)
     if model_bad:  # no corrections at all, no guard, temperatures still reported
+        if zeros:  # REFERENCED from the first sample of the first reference on
+            bits |= np.where(np.arange(n) >= zeros[0], int(REFERENCED), 0)
         bits |= np.where((in_range & ((codes < wlo) | (codes > whi))).any(axis=1), EXTRAP, 0)
         empty = np.zeros((n, 0), dtype=np.int64)
         return Expected(empty, empty, empty.astype(bool), bits, codes, codes, empty)
     model_codes, valid, implausible = guard_channels(
         codes, in_range, [c.max_step_code for c in m.channels], cfg.implausible_after)
     bits |= np.where(implausible.any(axis=1), int(IMPLAUSIBLE), 0)
-    beyond = valid & ((model_codes < wlo) | (model_codes > whi))
-    bits |= np.where(beyond.any(axis=1), EXTRAP, 0)
+    far_lo, far_hi = cfg.beyond_limits(wlo, whi)
+    far = valid & ((model_codes < far_lo) | (model_codes > far_hi))
+    bits |= np.where(far.any(axis=1), int(BEYOND), 0)
+    valid &= ~far  # beyond what training supports: a channel fault, its axes hold
+    window = valid & ((model_codes < wlo) | (model_codes > whi))
+    bits |= np.where(window.any(axis=1), EXTRAP, 0)
     computed_nm, computed = twin.evaluate_run(model_codes, aux if m.aux else None, valid,
                                               return_mask=True)
-    out, out_bits, ref = output_stage_ref(computed_nm, computed, cfg, cfg.step_nm(m.period_ms),
-                                          [ax.max_step_nm for ax in m.axes], zeros)
-    return Expected(out, computed_nm, computed, bits | out_bits, codes, model_codes, ref)
+    out, out_bits, ref, accepted = output_stage_ref(
+        computed_nm, computed, cfg, cfg.step_nm(m.period_ms), [ax.max_step_nm for ax in m.axes],
+        zeros, zero_at_powerup, warm_resets)
+    if accepted:  # REFERENCED from the first sample of the first accepted reference on
+        bits |= np.where(np.arange(n) >= accepted[0], int(REFERENCED), 0)
+    refused = tuple(z for z in zeros if z not in accepted)
+    return Expected(out, computed_nm, computed, bits | out_bits, codes, model_codes, ref,
+                    refused)
 
 
 def axis_inputs(twin: FixedModel) -> list[tuple[set[int], set[int]]]:

@@ -33,7 +33,7 @@ class NativeBox:
     """One running native firmware process: ``feed`` goes to stdin, ``link`` is its UART."""
 
     def __init__(self, binary: str | Path, wdt_reset: bool = False,
-                 start_timeout: float = 10.0) -> None:
+                 start_timeout: float = 10.0, retain: str | Path | None = None) -> None:
         self.binary = Path(binary)
         if not self.binary.is_file():
             raise BoxStartError(f"{self.binary}: firmware binary not found (build it first)")
@@ -44,6 +44,8 @@ class NativeBox:
             args = [str(self.binary), "--pty-fd", str(master)]
             if wdt_reset:
                 args.append("--wdt-reset")
+            if retain is not None:  # the backup SRAM, kept across a warm reset
+                args += ["--retain", str(retain)]
             # stderr goes to a file, not a pipe nobody drains (a chatty binary would block).
             self._stderr = tempfile.TemporaryFile()
             self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,

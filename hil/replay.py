@@ -7,6 +7,7 @@ the firmware only ever supplies the lines being judged.
 
 from __future__ import annotations
 
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -84,25 +85,56 @@ def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],
     faults = [(e.at, e.channel, e.sr) for e in events if isinstance(e, ChipFault)]
     sr = sr_timeline(capture.n_samples, codes.shape[1], faults)
     zeros = [e.at for e in events if isinstance(e, Zero)]
-    out = []
-    for s in capture.sessions:
-        rows = slice(s.first_sample, s.first_sample + s.n_fed)
-        local = [z - s.first_sample for z in zeros
-                 if s.first_sample <= z < s.first_sample + s.n_fed]
-        out.append(expect_session(setup.twin, codes[rows], setup.feed.aux[rows], sr[rows],
-                                  setup.output, wdt_reset=s.wdt_reset, model_bad=model_bad,
-                                  zero_before=local,
-                                  zero_at_powerup=setup.build.zero_at_powerup))
+    # A warm reset (wdt_reset) resumes the box where it was: its session continues the one
+    # before it, so the expectation runs over every session since the last cold boot.
+    spans: list[list[int]] = []
+    for k, s in enumerate(capture.sessions):
+        if k > 0 and s.wdt_reset and not model_bad:
+            spans[-1].append(k)
+        else:
+            spans.append([k])
+    out: list[Expected] = []
+    for span in spans:
+        first = capture.sessions[span[0]]
+        last = capture.sessions[span[-1]]
+        start, stop = first.first_sample, last.first_sample + last.n_fed
+        rows = slice(start, stop)
+        local = [z - start for z in zeros if start <= z < stop]
+        warm = [capture.sessions[k].first_sample - start for k in span[1:]]
+        exp = expect_session(setup.twin, codes[rows], setup.feed.aux[rows], sr[rows],
+                             setup.output, wdt_reset=first.wdt_reset, model_bad=model_bad,
+                             zero_before=local, zero_at_powerup=setup.build.zero_at_powerup,
+                             warm_resets=warm)
+        for k in span:
+            s = capture.sessions[k]
+            out.append(_rows(exp, s.first_sample - start, s.n_fed, start))
     return out
+
+
+def _rows(exp: Expected, lo: int, n: int, start: int) -> Expected:
+    """One session's part of an expectation over several (a warm reset in between)."""
+    sl = slice(lo, lo + n)
+    return Expected(exp.out_nm[sl], exp.computed_nm[sl], exp.computed[sl], exp.status[sl],
+                    exp.codes[sl], None if exp.model_codes is None else exp.model_codes[sl],
+                    None if exp.ref_nm is None else exp.ref_nm[sl],
+                    tuple(z + start for z in exp.zero_refused))
 
 
 def run(setup: ReplaySetup, events: Sequence[Event] = (), model_bad: bool = False,
         quiet: bool = True, window: int = 256,
         start_box: Callable[[bool], Box] | None = None) -> tuple[ReplayReport, Capture]:
     """Replay the setup's run through the firmware and judge it."""
-    def native(wdt: bool) -> Box:
-        return NativeBox(setup.binary, wdt_reset=wdt)
+    retain = Path(tempfile.mkdtemp(prefix="hil-retain-")) / "bkpsram"
 
+    def native(wdt: bool) -> Box:
+        if not wdt:  # a cold boot: a power cut took the backup SRAM with it
+            retain.unlink(missing_ok=True)
+        return NativeBox(setup.binary, wdt_reset=wdt, retain=retain)
+
+    if setup.build.zero_at_powerup and not any(isinstance(e, Zero) and e.at == 0
+                                               for e in events):
+        # a start-referenced box holds (NO_REF) until the CNC side sends ZERO: as at a job start
+        events = [Zero(0), *events]
     t0 = time.perf_counter()
     capture = replay(setup.feed, start_box or native, events, window=window, quiet=quiet)
     elapsed = time.perf_counter() - t0

@@ -102,7 +102,10 @@ class Zero:
 
 @dataclass(frozen=True)
 class Restart:
-    """Before sample ``at``: the box loses power (process killed) and boots again."""
+    """Before sample ``at``: the box resets and boots again (the process is killed and
+    started). ``wdt_reset``: a warm reset (watchdog, brown-out): the retained memory survives
+    and the box resumes where it was; otherwise a power cut without a backup battery: it
+    boots cold."""
 
     at: int
     wdt_reset: bool = False
@@ -124,7 +127,8 @@ class Session:
     error: str = ""  # why the session ended early (timeout, crash), empty if it did not
     exit_code: int | None = None
     power_cut: bool = False  # ended by the runner (Restart, or after a timeout), not by Q
-    zero_acks: list[bytes] = field(default_factory=list)  # the $OK,ZERO replies, in order
+    zero_acks: list[bytes] = field(default_factory=list)  # replies to ZERO ($OK or $E), in order
+    seq0: int = 0  # seq of its first sample line: 0 after a cold boot, kept after a warm one
 
 
 @dataclass
@@ -242,7 +246,15 @@ class _Replay:
                                 f"{e.replies} replies to serial noise before sample {point}")
         elif isinstance(e, Zero):
             self.sync()
-            self.session.zero_acks.append(box.link.command("ZERO", b"$OK,ZERO,", timeout))
+            start = box.link.count()
+            box.link.write(b"ZERO\r\n")
+
+            def replied(lines: list[bytes]) -> bool:
+                return any(ln.startswith((b"$OK,ZERO,", b"$E,")) for ln in lines[start:])
+
+            box.link.wait_for(replied, timeout, f"reply to ZERO before sample {point}")
+            self.session.zero_acks.append(next(
+                ln for ln in box.link.lines[start:] if ln.startswith((b"$OK,ZERO,", b"$E,"))))
         elif isinstance(e, Restart):
             self.sync()  # the power cut falls between two samples, not inside one
             self.restart(point, e.wdt_reset)
@@ -251,7 +263,7 @@ class _Replay:
         """Power cut and boot: a new session; the chips' faults are still there."""
         self.finish(kill=True)
         self.box = self.start_box(wdt_reset)
-        self.session = Session(point, wdt_reset)
+        self.session = Session(point, wdt_reset, seq0=point if wdt_reset else 0)
         self.sessions.append(self.session)
         self.session.info = self.box.link.command("INFO", b"$I,", self.timeout)
         for ch, value in sorted(self.sr_now.items()):

@@ -54,7 +54,10 @@ CH1, CH3 = 0, 1  # axis indices: ch1_um uses T10, T07, T04 + spindle; ch3_um T11
 
 # The scenarios fault channels on purpose and walk back slowly: holding and limiting are what
 # they test, so the share of HOLD/SLEW samples is not judged here (tests/test_hil_safety.py is).
-LOOSE = Judging(max_held_fraction=1.0, max_limited_fraction=1.0)
+# Nor is the error left against the raw drift (tests/test_hil_judging.py): at 20 nm/s the
+# cold start walk alone takes hundreds of samples, so this model (fitted on the whole 24 h
+# run) leaves more than the raw drift on these 1200 samples, faults or not.
+LOOSE = Judging(max_held_fraction=1.0, max_limited_fraction=1.0, require_no_worse=False)
 
 
 @pytest.fixture(scope="module")
@@ -164,7 +167,7 @@ def test_garbage_and_overlong_lines_are_refused_without_disturbing_the_samples(s
     sessions_exit_cleanly(capture)
 
 
-def test_restart_mid_run_starts_over_and_keeps_a_lasting_fault(setup):
+def test_warm_restart_resumes_where_it_was_and_keeps_a_lasting_fault(setup):
     ch = CH["T04"]
     events = [ChipFault(600, ch, 0x01), Restart(650, wdt_reset=True), ChipFault(700, ch, 0x00)]
     report, capture = hil_replay.run(setup, events)
@@ -175,14 +178,16 @@ def test_restart_mid_run_starts_over_and_keeps_a_lasting_fault(setup):
     assert report.received == N and report.sessions == 2
     st, out = report.fw_status, report.fw_out_nm
     assert not np.any(st[:650] & WDT_RESET) and np.all(st[650:] & WDT_RESET)
-    # after the restart ch1_um has never had a valid sample while T04 is still open
-    assert np.all(st[650:700] & (NO_DATA | HOLD | OPEN) == NO_DATA | HOLD | OPEN)
-    assert np.all(out[650:700, CH1] == 0)
-    assert not np.any(st[700:] & NO_DATA)
-    # both axes walk from 0 after the power-up (cold-start slew), never stepping
-    assert st[650] & SLEW
-    assert fault_jumps(setup, capture, events, report, CH3, 651, N).max() <= STEP_NM
-    assert fault_jumps(setup, capture, events, report, CH1, 651, 800).max() <= STEP_NM
+    # the backup SRAM kept everything: seq counts on, ch1_um still holds its value from
+    # before the reset (no NO_DATA, no walk from 0), the other axis goes on tracking
+    first = next(ln for ln in capture.sessions[1].lines if ln.startswith(b"$C,"))
+    assert first.split(b",")[1] == b"650"
+    assert np.all(st[650:700] & (HOLD | OPEN) == HOLD | OPEN)
+    assert not np.any(st[650:] & NO_DATA)
+    assert np.all(out[650:700, CH1] == out[649, CH1])
+    # and the same run without the reset sends the very same corrections
+    clean, _ = hil_replay.run(setup, [ChipFault(600, ch, 0x01), ChipFault(700, ch, 0x00)])
+    assert np.array_equal(clean.fw_out_nm, out)
 
 
 def test_restart_without_watchdog_has_no_wdt_flag(setup):

@@ -39,9 +39,12 @@ pytestmark = pytest.mark.skipif(
     reason="gcc/make not installed: the native firmware cannot be built")
 
 
-def t05_model(min_c: float = -40.0, max_c: float = 200.0) -> dict:
+def t05_model(data: Path, min_c: float = -40.0, max_c: float = 200.0) -> dict:
+    """Fitted on the run it is replayed on (the first N samples): a model that compensates
+    that run, as the judgement requires (issue 41: never worse than no compensation; fitted
+    on the whole 24 h run it left 3.6 um RMS on ch1_um where the raw drift is 2.4 um)."""
     p = 15.0
-    return fit_example_model(FL, {
+    return fit_example_model(data, {
         "ch1_um": [make_temp("T05"), make_lag("T05", 1800, p), make_temp("T10"),
                    make_speed("spindle_rpm")],
         "ch3_um": [make_temp("T11"), make_rate("T05", 600, p)],
@@ -58,8 +61,9 @@ def fl_head(d: Path) -> Path:
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     d = tmp_path_factory.mktemp("hil_safety")
-    model = write_model(t05_model(), d / "model.json")
-    return hil_replay.prepare(model, fl_head(d), d / "hil")
+    head = fl_head(d)
+    model = write_model(t05_model(head), d / "model.json")
+    return hil_replay.prepare(model, head, d / "hil")
 
 
 def ch(setup, sensor: str) -> int:
@@ -76,10 +80,14 @@ def steps(out: np.ndarray) -> np.ndarray:
 
 def test_the_model_carries_limits_from_its_training_run(setup):
     """max_step_c / max_step_um as host train derives them: 4x the fastest change per sample
-    of the run (FL: T05 at most 0.235 degC per 15 s), at least the floors."""
+    of the run (the first N samples of FL: T05 at most 0.187 degC per 15 s), at least the
+    floors."""
     m = setup.model
     t05 = next(c for c in m["channels"] if c["sensor"] == "T05")
-    assert t05["max_step_c"] == pytest.approx(4 * 0.235, abs=0.004)
+    run = load_run(setup.feed.run.path, targets=["ch1_um"], sensors=["T05"])
+    fastest = np.abs(np.diff(run.columns()["T05"]))
+    assert fastest.max() == pytest.approx(0.187, abs=0.001)
+    assert t05["max_step_c"] == pytest.approx(4 * fastest.max(), abs=0.004)
     q = setup.twin.model.channels[ch(setup, "T05")]
     assert q.max_step_code == int(np.ceil(t05["max_step_c"] * 128)) and q.max_step_source == "model"
     for ax, qa in zip(m["axes"].values(), setup.twin.model.axes, strict=True):
@@ -136,16 +144,27 @@ def test_swapped_sensors_become_a_fault_then_settle(setup):
     c5, c10 = ch(setup, "T05"), ch(setup, "T10")
     assert abs(setup.feed.codes[AT, c5] - setup.feed.codes[AT, c10]) > 3 * 128  # ~4 degC
     report, _ = hil_replay.run(setup, [ChannelSwap(AT, N, c5, c10)])
-    assert report.ok, report.problems
+    assert report.checks["twin_bit_exact"], report.problems
+    # the box does what it should, and the judgement says what that leaves: from 605 on it
+    # compensates ch1_um with T10's temperature in T05's terms, far worse than nothing
+    assert report.judgement["no_worse_than_uncompensated"] is False
+    assert list(report.worse_axes) == ["ch1_um"]
+    assert report.axes["ch1_um"].compensated_rms_um > 5 * report.axes["ch1_um"].raw_rms_um
     st = report.fw_status
     # The rule (docs/firmware.md), with BOX_IMPLAUSIBLE_FAULT_SAMPLES = 3: two readings held
-    # (600, 601), the third a fault (602: HOLD), then three plausible changes in a row
-    # (603, 604, 605) and the channel is back at its new level on 605.
-    assert np.flatnonzero(st & IMPLAUSIBLE).tolist() == [600, 601, 602, 603, 604]
-    assert np.flatnonzero(st & HOLD).tolist() == [602, 603, 604]
+    # (600, 601), the third a fault (602: HOLD); the channel stays a fault until the time
+    # since its last good reading makes the ~4 degC jump plausible (max_step per sample),
+    # however calm the new readings are; then it is accepted and the output walks back.
+    implausible = np.flatnonzero(st & IMPLAUSIBLE)
+    back = int(implausible[-1]) + 1
+    assert implausible.tolist() == list(range(600, back)) and back > 605
+    assert np.flatnonzero(st & HOLD).tolist() == list(range(602, back))
+    c = ch(setup, "T05")
+    jump = abs(int(setup.feed.codes[AT, c10]) - int(setup.feed.codes[AT - 1, c]))
+    assert setup.twin.model.channels[c].max_step_code * (back - AT + 1) >= jump - 64
     assert not np.any(st[:AT] & (IMPLAUSIBLE | HOLD))
     # the output walks back after the hold, one limited step at a time
-    assert st[605] & SLEW
+    assert st[back] & SLEW
     assert np.all(steps(report.fw_out_nm) <= limits(setup))
 
 
@@ -158,7 +177,11 @@ def zero_reference(computed: np.ndarray, start: int, k: int = 8) -> np.ndarray:
 
 def test_zero_mid_run_matches_the_twin_line_by_line(setup):
     events = [Zero(500), Zero(900)]
-    report, capture = hil_replay.run(setup, events)
+    # the residual compares the box's output (referenced at each ZERO) with the measured drift
+    # since the run's start, so the error against the raw drift is not judged here
+    zs = hil_replay.ReplaySetup(setup.build, setup.feed, setup.twin, setup.binary,
+                                setup.output, Judging(require_no_worse=False))
+    report, capture = hil_replay.run(zs, events)
     assert report.ok, report.problems  # every line (corrections, status) = the twin
     st, out = report.fw_status, report.fw_out_nm
     assert not np.any(st[:500] & REFERENCED) and np.all(st[500:] & REFERENCED)
@@ -202,8 +225,8 @@ def test_a_model_in_kelvin_never_corrects_and_fails_with_a_reason(tmp_path):
     """Every reading (degC from the chips) is outside a channel range declared in Kelvin:
     every sample held, and the replay says so instead of PASS."""
     d = tmp_path
-    model = write_model(t05_model(min_c=233.15, max_c=473.15), d / "model.json")
     head = fl_head(d)
+    model = write_model(t05_model(head, min_c=233.15, max_c=473.15), d / "model.json")
     setup = hil_replay.prepare(model, head, d / "hil")
     report, _ = hil_replay.run(setup)
     assert report.checks["twin_bit_exact"]  # the box does what it should: hold

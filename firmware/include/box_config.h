@@ -46,6 +46,17 @@
 #define BOX_IMPLAUSIBLE_FAULT_SAMPLES 3
 #endif
 
+/* Extrapolation bound: a valid reading beyond its channel's training window (the training
+ * range +- 5 %, EXTRAP) by more than this share of the window's span, and at least
+ * BOX_BEYOND_MIN_CODES (1/128 degC), is beyond what training supports: the channel is a fault
+ * (BEYOND) and the axes that read it hold. docs/firmware.md has the measurement behind it. */
+#ifndef BOX_BEYOND_SPAN_PERCENT
+#define BOX_BEYOND_SPAN_PERCENT 50
+#endif
+#ifndef BOX_BEYOND_MIN_CODES
+#define BOX_BEYOND_MIN_CODES 640
+#endif
+
 /* ZERO: the reference of each axis is the mean model correction of this many samples (valid
  * for that axis) starting with the first sample after the command. */
 #ifndef BOX_ZERO_SAMPLES
@@ -81,6 +92,8 @@ _Static_assert(BOX_WATCHDOG_MS >= 10 && BOX_WATCHDOG_MS <= 4000, "IWDG range at 
 _Static_assert(BOX_IMPLAUSIBLE_FAULT_SAMPLES >= 1 && BOX_IMPLAUSIBLE_FAULT_SAMPLES <= 255,
                "implausible readings before a fault: 1..255");
 _Static_assert(BOX_ZERO_SAMPLES >= 1 && BOX_ZERO_SAMPLES <= 3600, "ZERO reference samples: 1..3600");
+_Static_assert(BOX_BEYOND_SPAN_PERCENT >= 0 && BOX_BEYOND_SPAN_PERCENT <= 100000, "beyond margin");
+_Static_assert(BOX_BEYOND_MIN_CODES >= 0 && BOX_BEYOND_MIN_CODES <= 524288, "beyond margin");
 _Static_assert(BOX_TC_AVGSEL >= 0 && BOX_TC_AVGSEL <= 4, "AVGSEL code 0..4");
 
 #endif

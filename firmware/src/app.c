@@ -10,6 +10,7 @@
 #include "cmd.h"
 #include "hal_aux.h"
 #include "hal_board.h"
+#include "hal_retain.h"
 #include "hal_time.h"
 #include "hal_uart.h"
 #include "hal_watchdog.h"
@@ -52,9 +53,11 @@ typedef struct {
     uint32_t rate;
     uint32_t rate_left; /* samples until the next emitted line */
 
-    bool zero_pending; /* ZERO received (or at power-up): the next sample starts a reference */
+    bool zero_pending; /* ZERO received: the next sample starts a reference */
     bool referenced;   /* a ZERO reference is in force (REFERENCED) */
     uint32_t zero_seq; /* seq of the first sample of that reference */
+    bool needs_ref;    /* TCM_ZERO_AT_POWERUP: no correction without a reference (NO_REF) */
+    bool zero_blocked; /* an axis held at the latest sample (input fault): ZERO is refused */
 
     tcm_state_t tcm;
     int32_t codes[BOX_MAX_CHANNELS];       /* as read (sent on the line) */
@@ -71,6 +74,115 @@ typedef struct {
 } app_t;
 
 static app_t app;
+
+/* ---- retained state (hal_retain.h) -------------------------------------------------------
+ * Everything that makes the next sample line what it would have been without a reset: the
+ * sequence, the reference, the filters, the guards and the output stage. Written after every
+ * sample; trusted at boot only after a warm reset, for the same model, with a valid CRC. */
+#define RETAIN_MAGIC UINT32_C(0x54434d52) /* "TCMR" */
+
+typedef struct {
+    uint32_t magic;
+    uint32_t size;
+    uint32_t model_crc;
+    uint32_t seq;
+    uint32_t rate;
+    uint32_t rate_left;
+    uint32_t zero_seq;
+    uint8_t referenced;
+    uint8_t zero_pending;
+    uint8_t sampled;
+    tcm_state_t tcm;
+    channel_guard_t guards[BOX_MAX_CHANNELS];
+    axis_output_t axes[BOX_MAX_AXES];
+    uint32_t crc; /* CRC-32 of every byte before it */
+} retained_t;
+
+static retained_t snap;
+
+static uint32_t crc32_bytes(const uint8_t *p, size_t n)
+{
+    uint32_t crc = 0xFFFFFFFFu;
+    for (size_t i = 0; i < n; i++) {
+        crc ^= p[i];
+        for (int b = 0; b < 8; b++) {
+            crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
+        }
+    }
+    return ~crc;
+}
+
+static uint32_t snap_crc(void)
+{
+    return crc32_bytes((const uint8_t *)&snap, offsetof(retained_t, crc));
+}
+
+static void retain_save(void)
+{
+    if (!app.model_ok || hal_retain_size() < sizeof snap) {
+        return;
+    }
+    snap.magic = RETAIN_MAGIC;
+    snap.size = (uint32_t)sizeof snap;
+    snap.model_crc = model_binding_expected_crc();
+    snap.seq = app.seq;
+    snap.rate = app.rate;
+    snap.rate_left = app.rate_left;
+    snap.zero_seq = app.zero_seq;
+    snap.referenced = app.referenced;
+    snap.zero_pending = app.zero_pending;
+    snap.sampled = app.sampled;
+    snap.tcm = app.tcm;
+    for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
+        snap.guards[ch] = app.guards[ch];
+    }
+    for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
+        snap.axes[a] = app.axes[a];
+    }
+    snap.crc = snap_crc();
+    hal_retain_write(&snap, sizeof snap);
+}
+
+/* After a warm reset: resume from the retained state if it is this model's and intact. */
+static bool retain_restore(void)
+{
+    if (!app.model_ok || !hal_reset_was_warm() || hal_retain_size() < sizeof snap) {
+        return false;
+    }
+    hal_retain_read(&snap, sizeof snap);
+    if (snap.magic != RETAIN_MAGIC || snap.size != (uint32_t)sizeof snap ||
+        snap.model_crc != model_binding_expected_crc() || snap.crc != snap_crc() ||
+        snap.rate < 1u || snap.rate > 3600u || snap.rate_left < 1u || snap.rate_left > snap.rate) {
+        return false;
+    }
+    app.seq = snap.seq;
+    app.rate = snap.rate;
+    app.rate_left = snap.rate_left;
+    app.zero_seq = snap.zero_seq;
+    app.referenced = snap.referenced != 0u;
+    app.zero_pending = snap.zero_pending != 0u;
+    app.sampled = snap.sampled != 0u;
+    app.tcm = snap.tcm;
+    for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
+        app.guards[ch] = snap.guards[ch];
+    }
+    for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
+        app.axes[a] = snap.axes[a];
+    }
+    return true;
+}
+
+/* Beyond what training supports: the training window widened by BOX_BEYOND_SPAN_PERCENT of
+ * its span, at least BOX_BEYOND_MIN_CODES (docs/firmware.md, "Extrapolation"). */
+static bool beyond_training(const tcm_channel_t *c, int32_t code)
+{
+    int64_t span = (int64_t)c->window_hi_code - c->window_lo_code;
+    int64_t margin = span * BOX_BEYOND_SPAN_PERCENT / 100;
+    if (margin < BOX_BEYOND_MIN_CODES) {
+        margin = BOX_BEYOND_MIN_CODES;
+    }
+    return code < (int64_t)c->window_lo_code - margin || code > (int64_t)c->window_hi_code + margin;
+}
 
 static uint32_t min_u32(uint32_t a, uint32_t b)
 {
@@ -142,11 +254,15 @@ void app_init(void)
         cfg->zero_samples = BOX_ZERO_SAMPLES;
         cfg->cold_start_slew = BOX_COLD_START_SLEW != 0;
     }
-    app.zero_pending = model_binding_zero_at_powerup() != 0;
+    /* A start-referenced model corrects the change since a reference: after a cold power-up
+     * there is none until the CNC side sends ZERO (NO_REF, every axis holds). */
+    app.needs_ref = model_binding_zero_at_powerup() != 0;
 
-    app.status = app.sticky | (app.n_axes > 0u ? STATUS_NO_DATA : 0u);
     app.rate = 1u;
     app.rate_left = 1u;
+    bool resumed = retain_restore();
+    app.status = app.sticky | (app.n_axes > 0u && !resumed ? STATUS_NO_DATA : 0u) |
+                 (app.needs_ref && !app.referenced ? STATUS_NO_REF : 0u);
     cmd_reader_init(&app.reader);
     app.next_sample_ms = hal_millis() + app.period_ms;
     hal_watchdog_start(BOX_WATCHDOG_MS);
@@ -188,7 +304,10 @@ static uint16_t sample_channels(uint32_t *valid_mask)
                 fault |= CHFAULT_IMPLAUSIBLE;
                 st |= STATUS_IMPLAUSIBLE;
             }
-            if (g != GUARD_FAULT) {
+            if (g != GUARD_FAULT && app.model_ok && beyond_training(c, use)) {
+                fault |= CHFAULT_BEYOND; /* runaway, stuck far off, or a day far outside */
+                st |= STATUS_BEYOND;
+            } else if (g != GUARD_FAULT) {
                 *valid_mask |= (uint32_t)1u << ch;
                 if (use < c->window_lo_code || use > c->window_hi_code) {
                     st |= STATUS_EXTRAP; /* still corrected: advice, not a fault */
@@ -196,7 +315,7 @@ static uint16_t sample_channels(uint32_t *valid_mask)
             }
             app.model_codes[ch] = use;
         }
-        if (fault & (uint16_t)~CHFAULT_IMPLAUSIBLE) {
+        if (fault & (uint16_t)~(CHFAULT_IMPLAUSIBLE | CHFAULT_BEYOND)) {
             channel_guard_lost(&app.guards[ch]); /* accepted afresh when it comes back */
             app.model_codes[ch] = r.code;
         }
@@ -266,13 +385,23 @@ static void take_sample(void)
     }
     st |= sample_channels(&valid_mask);
     st |= sample_aux();
+    app.zero_blocked = false;
     if (app.model_ok) {
         /* Called every period, also with every channel faulted, so the time term counts. */
         uint32_t ok = tcm_step(app.model, &app.tcm, app.model_codes, valid_mask,
                                app.n_aux > 0u ? app.aux : NULL, app.computed_nm);
+        bool no_ref = app.needs_ref && !app.referenced;
+        if (no_ref) {
+            st |= STATUS_NO_REF; /* the filters run; no axis moves until ZERO */
+        }
         for (uint32_t a = 0; a < app.n_axes; a++) {
-            st |= axis_output_update(&app.axes[a], &app.out_cfg[a], ((ok >> a) & 1u) != 0u,
-                                     app.computed_nm[a]);
+            bool valid = ((ok >> a) & 1u) != 0u;
+            uint16_t f = axis_output_update(&app.axes[a], &app.out_cfg[a], valid && !no_ref,
+                                            app.computed_nm[a]);
+            if (!valid) {
+                app.zero_blocked = true;
+            }
+            st |= f;
         }
     }
     app.status = st;
@@ -281,6 +410,7 @@ static void take_sample(void)
         app.rate_left = app.rate;
         send_sample_line(seq);
     }
+    retain_save();
 }
 
 /* ---- commands -------------------------------------------------------------------------- */
@@ -375,8 +505,15 @@ static void handle_command(const cmd_t *c)
         send_ok("RATE", c->arg);
         break;
     case CMD_ZERO:
+        if (app.zero_blocked) {
+            /* A new datum taken while an axis holds is not the
+             * healthy box's: refuse, the CNC side asks again once the box tracks. */
+            send_error("HOLDING");
+            break;
+        }
         app.zero_pending = true; /* the reference starts with the next sample */
         send_ok("ZERO", app.sampled ? app.seq - 1u : 0u);
+        retain_save();
         break;
     case CMD_ERROR:
     default:

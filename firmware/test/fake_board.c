@@ -4,6 +4,7 @@
 
 #include "hal_aux.h"
 #include "hal_board.h"
+#include "hal_retain.h"
 #include "hal_spi.h"
 #include "hal_time.h"
 #include "hal_uart.h"
@@ -32,6 +33,7 @@ void fake_board_reset(void)
     fake_aux = 0;
     fake_aux_ok = true;
     fake_reset_by_watchdog = false;
+    fake_retain_clear();
     fake_watchdog_timeout_ms = 0;
     fake_watchdog_kicks = 0;
     fake_board_inits = 0;
@@ -114,6 +116,11 @@ bool hal_reset_was_watchdog(void)
     return fake_reset_by_watchdog;
 }
 
+bool hal_reset_was_warm(void)
+{
+    return fake_reset_by_watchdog;
+}
+
 bool hal_aux_read(uint8_t index, int32_t *value)
 {
     if (index != 0u || !fake_aux_ok) {
@@ -126,4 +133,27 @@ bool hal_aux_read(uint8_t index, int32_t *value)
 void hal_board_init(void)
 {
     fake_board_inits++;
+}
+
+/* Retained memory (backup SRAM): kept across fake resets until fake_retain_clear(). */
+uint8_t fake_retained[1024];
+
+void fake_retain_clear(void)
+{
+    memset(fake_retained, 0xA5, sizeof fake_retained); /* a power cut leaves garbage */
+}
+
+size_t hal_retain_size(void)
+{
+    return sizeof fake_retained;
+}
+
+void hal_retain_read(void *dst, size_t n)
+{
+    memcpy(dst, fake_retained, n);
+}
+
+void hal_retain_write(const void *src, size_t n)
+{
+    memcpy(fake_retained, src, n);
 }

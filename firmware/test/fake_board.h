@@ -28,4 +28,7 @@ void fake_uart_send(const char *s);
 /* Everything the box wrote since the last take, NUL-terminated; clears the buffer. */
 const char *fake_uart_take(void);
 
+/* Retained memory: a power cut without backup battery (garbage, boots cold). */
+void fake_retain_clear(void);
+
 #endif

@@ -36,8 +36,10 @@ SEED = 20240605
 
 # docs/protocol.md status bits
 (MODEL_BAD, HOLD, SLEW, CLAMP, RANGE, OPEN, TC_FAULT, AUX_FAULT, WDT_RESET, NO_DATA, EXTRAP,
- REFERENCED, IMPLAUSIBLE) = (1 << i for i in range(13))
-ZERO_BEFORE = (120, 331)  # the CNC side sends ZERO before these samples
+ REFERENCED, IMPLAUSIBLE, NO_REF, BEYOND) = (1 << i for i in range(15))
+RUNAWAY_N = 4  # docs/firmware.md: the runaway check looks 4 readings back
+BEYOND_SPAN, BEYOND_MIN_CODES = Fraction(1, 2), 640  # box_config.h defaults
+ZERO_BEFORE = (125, 331)  # the CNC side sends ZERO before these samples (no axis holds)
 SR_OPEN = 0x01
 
 
@@ -139,6 +141,9 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
     calm = [0] * len(chans)
     has_ref = [False] * len(chans)
     faulted = [False] * len(chans)
+    since = [0] * len(chans)  # samples since the last good reading
+    recent: list[list[int]] = [[] for _ in chans]  # the latest consecutive readings
+    blocked = False  # an axis held at the previous sample (input fault): ZERO refused
     referenced = False
     aux_lo, aux_hi = twin.model.aux[0].min, twin.model.aux[0].max
     n_axes = twin.n_axes
@@ -155,6 +160,9 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
     for i in range(N_SAMPLES):
         bits = 0
         if i in ZERO_BEFORE:
+            if blocked:
+                raise SystemExit(f"gen_test_model: ZERO before sample {i} would be refused "
+                                 "(an axis holds): move it")
             referenced = True
             zero_n = [0] * n_axes
             zero_sum = [0] * n_axes
@@ -172,31 +180,46 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
                 bits |= RANGE
             else:
                 in_range = True
-            if not in_range:  # any other fault: the guard forgets its reference
-                has_ref[c], faulted[c], bad[c], calm[c] = False, False, 0, 0
+            if not in_range:  # any other fault: one more sample since the last good reading
+                since[c] += 1 if has_ref[c] else 0
+                recent[c], calm[c] = [], 0
                 continue
-            # the plausibility guard (docs/firmware.md)
+            # the plausibility guard (docs/firmware.md): the allowance grows with the time
+            # since the last good reading; 4 readings may move at most 3 limits
             verdict = "ok"
-            if not has_ref[c]:
-                pass
-            elif faulted[c]:
-                calm[c] = calm[c] + 1 if abs(code - prev[c]) <= max_step[c] else 0
-                prev[c] = code
-                verdict = "ok" if calm[c] >= fault_after else "fault"
-            elif abs(code - last[c]) > max_step[c] * (bad[c] + 1):
-                bad[c] += 1
-                verdict = "fault" if bad[c] >= fault_after else "held"
-                if verdict == "fault":
+            run_away = len(recent[c]) == RUNAWAY_N and \
+                abs(code - recent[c][0]) > max_step[c] * (RUNAWAY_N // 2 + 1)
+            if has_ref[c]:
+                since[c] += 1
+                plausible = abs(code - last[c]) <= max_step[c] * since[c]
+                if faulted[c]:
+                    calm[c] = calm[c] + 1 if recent[c] and abs(code - prev[c]) <= max_step[c] \
+                        else 0
+                    prev[c] = code
+                    ok = calm[c] >= fault_after and plausible and not run_away
+                    recent[c] = (recent[c] + [code])[-RUNAWAY_N:]
+                    verdict = "ok" if ok else "fault"
+                elif plausible and run_away:
+                    last[c], since[c], bad[c] = recent[c][0], RUNAWAY_N, 0
                     faulted[c], calm[c], prev[c] = True, 0, code
+                    recent[c] = (recent[c] + [code])[-RUNAWAY_N:]
+                    verdict = "fault"
+                elif not plausible:
+                    recent[c] = []
+                    bad[c] += 1
+                    verdict = "fault" if bad[c] >= fault_after else "held"
+                    if verdict == "fault":
+                        faulted[c], calm[c], prev[c], recent[c] = True, 0, code, [code]
             if verdict == "ok":
                 last[c], has_ref[c], faulted[c], bad[c], calm[c] = code, True, False, 0, 0
+                since[c] = 0
+                recent[c] = (recent[c] + [code])[-RUNAWAY_N:]
             else:
                 bits |= IMPLAUSIBLE
             if verdict == "held":
                 code = last[c]
                 model_codes[i, c] = code
             if verdict != "fault":
-                valid_mask |= 1 << c
                 # the training window, from docs/protocol.md: lo = floor((min - 5 % span) * 128)
                 t_lo, t_hi = model["channels"][c].get("trained_min_c"), \
                     model["channels"][c].get("trained_max_c")
@@ -204,8 +227,16 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
                     margin = (Fraction(t_hi) - Fraction(t_lo)) / 20
                     w_lo = math.floor((Fraction(t_lo) - margin) * 128)
                     w_hi = math.ceil((Fraction(t_hi) + margin) * 128)
-                    if not w_lo <= code <= w_hi:
-                        bits |= EXTRAP
+                else:  # no training range: the window is the valid range
+                    w_lo, w_hi = ch.min_code, ch.max_code
+                # beyond what training supports: half the window's span more, >= 5 degC
+                far = max(math.floor((w_hi - w_lo) * BEYOND_SPAN), BEYOND_MIN_CODES)
+                if not w_lo - far <= code <= w_hi + far:
+                    bits |= BEYOND
+                    continue
+                valid_mask |= 1 << c
+                if not w_lo <= code <= w_hi:
+                    bits |= EXTRAP
         aux = int(s["aux"][i]) if s["aux_ok"][i] else aux_lo - 1
         if not s["aux_ok"][i] or not aux_lo <= aux <= aux_hi:
             bits |= AUX_FAULT
@@ -218,8 +249,10 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
                 return clamp if v > 0 else -clamp
             return v
 
+        blocked = False
         for a in range(n_axes):
             if not (ok_mask >> a) & 1:
+                blocked = True
                 bits |= HOLD | (0 if has[a] else NO_DATA)
                 walking[a] = walking[a] or has[a]
                 out[i, a] = value[a]

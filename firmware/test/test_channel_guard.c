@@ -1,5 +1,6 @@
 /* Plausibility guard of one channel: glitch held, repeated implausible readings a fault,
- * recovery when the readings settle, reference forgotten after another fault. */
+ * recovery when the readings settle within the time-grown allowance, the first reading after
+ * another fault judged, a runaway faulted. */
 #include <setjmp.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -70,8 +71,20 @@ static void test_Guard_ShouldFaultAfterNImplausibleReadingsInARow(void **state)
     expect(5000, GUARD_FAULT, 0); /* the third in a row: the channel is a fault */
     expect(5000, GUARD_FAULT, 0); /* calm 1 */
     expect(5005, GUARD_FAULT, 0); /* calm 2 */
-    expect(5010, GUARD_OK, 5010); /* calm 3: settled at the new level, accepted */
-    expect(5015, GUARD_OK, 5015);
+    expect(5010, GUARD_FAULT, 0); /* calm 3, but 4010 from last good in 6 samples (60) */
+}
+
+static void test_Guard_ShouldAcceptANewLevelOnceTimeMakesItPlausible(void **state)
+{
+    (void)state;
+    expect(1000, GUARD_OK, 1000);
+    expect(1100, GUARD_HELD, 1000); /* +100 in one sample, limit 10 */
+    expect(1100, GUARD_HELD, 1000);
+    expect(1100, GUARD_FAULT, 0);
+    for (int k = 4; k < 10; k++) {
+        expect(1100, GUARD_FAULT, 0); /* settled, but 100 > 10 * k */
+    }
+    expect(1100, GUARD_OK, 1100); /* 10 samples since 1000: 100 <= 10 * 10 */
 }
 
 static void test_Guard_ShouldNeverRecoverOnANoisySensor(void **state)
@@ -94,22 +107,58 @@ static void test_Guard_ShouldRestartTheCalmCountOnAnotherJump(void **state)
     expect(900, GUARD_FAULT, 0);
     expect(900, GUARD_FAULT, 0);  /* calm 1 */
     expect(1900, GUARD_FAULT, 0); /* jump: calm 0 */
-    expect(1900, GUARD_FAULT, 0);
-    expect(1900, GUARD_FAULT, 0);
-    expect(1900, GUARD_OK, 1900);
+    expect(1900, GUARD_FAULT, 0); /* calm 1 */
+    expect(1900, GUARD_FAULT, 0); /* calm 2 */
+    for (int k = 8; k < 190; k++) {
+        expect(1900, GUARD_FAULT, 0); /* calm, but 1900 > 10 * k since the last good 0 */
+    }
+    expect(1900, GUARD_OK, 1900); /* 190 samples: 1900 <= 1900 */
 }
 
-static void test_Guard_ShouldForgetItsReferenceAfterAnotherFault(void **state)
+static void test_Guard_ShouldJudgeTheFirstReadingAfterAnotherFault(void **state)
 {
     (void)state;
     expect(1000, GUARD_OK, 1000);
-    channel_guard_lost(&g); /* e.g. open thermocouple for an hour */
-    expect(9000, GUARD_OK, 9000);
-    expect(9005, GUARD_OK, 9005);
-    /* also in the middle of an implausible run */
-    expect(20000, GUARD_HELD, 9005);
+    channel_guard_lost(&g);           /* one OPEN sample: a loose connector */
+    expect(1000 + 12800, GUARD_HELD, 1000); /* comes back +100 degC: not trusted */
+    expect(1000 + 12800, GUARD_HELD, 1000);
+    expect(1000 + 12800, GUARD_FAULT, 0);
+    expect(1000 + 12800, GUARD_FAULT, 0);
+}
+
+static void test_Guard_ShouldGiveASensorBackAfterAnHourTheAllowanceOfAnHour(void **state)
+{
+    (void)state;
+    expect(1000, GUARD_OK, 1000);
+    for (int k = 0; k < 60; k++) {
+        channel_guard_lost(&g); /* open thermocouple for 60 samples */
+    }
+    expect(1600, GUARD_OK, 1600); /* 600 in 61 samples: within 610 */
     channel_guard_lost(&g);
-    expect(20000, GUARD_OK, 20000);
+    expect(1621, GUARD_HELD, 1600); /* 21 in 2 samples: beyond 20 */
+}
+
+static void test_Guard_ShouldFaultARunawayThatStaysUnderTheStepLimit(void **state)
+{
+    (void)state;
+    /* 9 codes per sample, each step under the limit of 10, but 36 in 4 samples is more than
+     * 10 * (4 / 2 + 1) = 30: faster, for longer, than training ever moved */
+    expect(0, GUARD_OK, 0);
+    expect(9, GUARD_OK, 9);
+    expect(18, GUARD_OK, 18);
+    expect(27, GUARD_OK, 27);
+    expect(36, GUARD_FAULT, 0); /* 36 - 0 = 36 > 30 over the last 4 samples */
+    for (int k = 5; k < 40; k++) {
+        expect(9 * k, GUARD_FAULT, 0); /* still running away: never accepted */
+    }
+}
+
+static void test_Guard_ShouldAcceptASteadyChangeOfTheTrainedRate(void **state)
+{
+    (void)state;
+    for (int k = 0; k < 100; k++) {
+        expect(7 * k, GUARD_OK, 7 * k); /* 28 in 4 samples: within 30 */
+    }
 }
 
 static void test_Guard_ShouldFaultAtOnceWhenNIsOne(void **state)
@@ -118,6 +167,9 @@ static void test_Guard_ShouldFaultAtOnceWhenNIsOne(void **state)
     int32_t model = 0;
     assert_int_equal(channel_guard_check(&g, 0, STEP, 1, &model), GUARD_OK);
     assert_int_equal(channel_guard_check(&g, 100, STEP, 1, &model), GUARD_FAULT);
+    for (int k = 2; k < 10; k++) {
+        assert_int_equal(channel_guard_check(&g, 100, STEP, 1, &model), GUARD_FAULT);
+    }
     assert_int_equal(channel_guard_check(&g, 100, STEP, 1, &model), GUARD_OK);
     assert_int_equal(model, 100);
 }
@@ -151,7 +203,12 @@ int main(void)
         cmocka_unit_test_setup(test_Guard_ShouldFaultAfterNImplausibleReadingsInARow, setup),
         cmocka_unit_test_setup(test_Guard_ShouldNeverRecoverOnANoisySensor, setup),
         cmocka_unit_test_setup(test_Guard_ShouldRestartTheCalmCountOnAnotherJump, setup),
-        cmocka_unit_test_setup(test_Guard_ShouldForgetItsReferenceAfterAnotherFault, setup),
+        cmocka_unit_test_setup(test_Guard_ShouldAcceptANewLevelOnceTimeMakesItPlausible, setup),
+        cmocka_unit_test_setup(test_Guard_ShouldJudgeTheFirstReadingAfterAnotherFault, setup),
+        cmocka_unit_test_setup(test_Guard_ShouldGiveASensorBackAfterAnHourTheAllowanceOfAnHour,
+                               setup),
+        cmocka_unit_test_setup(test_Guard_ShouldFaultARunawayThatStaysUnderTheStepLimit, setup),
+        cmocka_unit_test_setup(test_Guard_ShouldAcceptASteadyChangeOfTheTrainedRate, setup),
         cmocka_unit_test_setup(test_Guard_ShouldFaultAtOnceWhenNIsOne, setup),
         cmocka_unit_test_setup(test_Guard_ShouldBeOffWithoutALimit, setup),
         cmocka_unit_test_setup(test_Guard_ShouldHandleTheExtremeCodesWithoutOverflow, setup),

@@ -23,6 +23,10 @@ int native_uart_fd(void);
 
 void native_set_aux0(int32_t value);
 void native_set_reset_cause_watchdog(bool wdt);
+
+/* --retain FILE: keep the retained memory (backup SRAM) in FILE across processes; false when
+ * FILE cannot be opened. */
+bool native_set_retain_file(const char *path);
 void native_advance_time_to(uint32_t ms);
 
 /* Exit status for main(): 0 after Q or end of feed, 2 after a bad feed line. */

@@ -64,6 +64,11 @@ bool hal_reset_was_watchdog(void)
     return reset_by_watchdog;
 }
 
+bool hal_reset_was_warm(void)
+{
+    return reset_by_watchdog; /* the native board's resets are the watchdog's or power cuts */
+}
+
 /* ---- watchdog ----------------------------------------------------------------------------
  * The box's IWDG runs on its own clock while the loop wakes every millisecond and kicks it.
  * Here the loop sleeps in poll() between feed commands instead, so the simulated watchdog only
@@ -325,11 +330,13 @@ bool hal_wait_for_event(uint32_t wake_at_ms)
 
 static void usage(FILE *to)
 {
-    fputs("usage: thermal_box [--wdt-reset] [--hang-after-samples N] [--pty-fd N]\n"
+    fputs("usage: thermal_box [--wdt-reset] [--retain FILE] [--hang-after-samples N] [--pty-fd N]\n"
           "Runs the box firmware on a pseudo-terminal (printed as 'PTY <path>') with a sample\n"
           "feed on stdin: 'S <aux0> <code0> ...', 'F <ch> <sr_hex>', 'Q'\n"
           "(docs/native-board.md).\n"
           "  --wdt-reset  start as if the last reset came from the watchdog\n"
+          "  --retain FILE  keep the retained memory (backup SRAM) in FILE: a box started\n"
+          "               again with the same FILE resumes where it was (a warm reset)\n"
           "  --hang-after-samples N  (test) the SPI bus locks up once, after N S lines: the\n"
           "               watchdog must reset the firmware\n"
           "  --pty-fd N   use the pseudo-terminal master inherited as file descriptor N as\n"
@@ -343,6 +350,11 @@ int main(int argc, char **argv)
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "--wdt-reset") == 0) {
             native_set_reset_cause_watchdog(true);
+        } else if (strcmp(argv[i], "--retain") == 0 && i + 1 < argc) {
+            if (!native_set_retain_file(argv[++i])) {
+                fprintf(stderr, "thermal_box: --retain: cannot open '%s'\n", argv[i]);
+                return 2;
+            }
         } else if (strcmp(argv[i], "--hang-after-samples") == 0 && i + 1 < argc) {
             long n;
             if (!parse_long(argv[++i], 10, 0, LONG_MAX, &n)) {

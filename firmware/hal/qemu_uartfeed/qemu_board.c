@@ -22,6 +22,7 @@
 #include "box_config.h"
 #include "hal_aux.h"
 #include "hal_board.h"
+#include "hal_retain.h"
 #include "hal_spi.h"
 #include "hal_time.h"
 #include "hal_watchdog.h"
@@ -303,4 +304,24 @@ bool hal_wait_for_event(uint32_t wake_at_ms)
             feed_fault(p + 1);
         }
     }
+}
+
+/* ---- retained memory ---------------------------------------------------------------------
+ * QEMU's netduinoplus2 machine does not model the STM32F405's backup SRAM (its accesses land
+ * on an unimplemented-device stub), so this board has none: every reset boots cold. */
+size_t hal_retain_size(void)
+{
+    return 0u;
+}
+
+void hal_retain_read(void *dst, size_t n)
+{
+    (void)dst;
+    (void)n;
+}
+
+void hal_retain_write(const void *src, size_t n)
+{
+    (void)src;
+    (void)n;
 }

@@ -34,6 +34,7 @@
 #define RCC_CFGR_PPRE2_DIV2 (4u << 13)
 #define RCC_AHB1ENR_GPIOA (1u << 0)
 #define RCC_AHB1ENR_GPIOC (1u << 2)
+#define RCC_AHB1ENR_BKPSRAM (1u << 18)
 #define RCC_APB1ENR_PWR (1u << 28)
 #define RCC_APB2ENR_USART1 (1u << 4)
 #define RCC_APB2ENR_ADC1 (1u << 8)
@@ -41,6 +42,9 @@
 #define RCC_CSR_LSION (1u << 0)
 #define RCC_CSR_RMVF (1u << 24)
 #define RCC_CSR_IWDGRSTF (1u << 29)
+#define RCC_CSR_BORRSTF (1u << 25)
+#define RCC_CSR_PORRSTF (1u << 27)
+#define RCC_CSR_SFTRSTF (1u << 28)
 
 /* ---- FLASH interface, PWR ---------------------------------------------------------------- */
 #define FLASH_ACR REG32(0x40023C00u)
@@ -50,6 +54,9 @@
 #define FLASH_ACR_DCEN (1u << 10)
 #define PWR_CR REG32(0x40007000u)
 #define PWR_CR_VOS (1u << 14)
+#define PWR_CR_DBP (1u << 8) /* backup domain write access */
+#define PWR_CSR REG32(0x40007004u)
+#define PWR_CSR_BRE (1u << 9) /* backup regulator enable */
 
 /* ---- GPIO -------------------------------------------------------------------------------- */
 #define GPIOA_BASE 0x40020000u

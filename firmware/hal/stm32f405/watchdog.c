@@ -7,16 +7,26 @@
 #include "stm32f405_regs.h"
 
 static bool reset_by_watchdog;
+static bool reset_warm;
 
 void board_watchdog_read_reset_cause(void)
 {
-    reset_by_watchdog = (RCC_CSR & RCC_CSR_IWDGRSTF) != 0u;
+    uint32_t csr = RCC_CSR;
+    reset_by_watchdog = (csr & RCC_CSR_IWDGRSTF) != 0u;
+    /* RM0090 6.3.21: BORRSTF is also set by a power-on reset, PORRSTF only by that. */
+    reset_warm = reset_by_watchdog || (csr & RCC_CSR_SFTRSTF) != 0u ||
+                 ((csr & RCC_CSR_BORRSTF) != 0u && (csr & RCC_CSR_PORRSTF) == 0u);
     RCC_CSR |= RCC_CSR_RMVF; /* clear, so the next reset reports its own cause */
 }
 
 bool hal_reset_was_watchdog(void)
 {
     return reset_by_watchdog;
+}
+
+bool hal_reset_was_warm(void)
+{
+    return reset_warm;
 }
 
 void hal_watchdog_start(uint32_t timeout_ms)

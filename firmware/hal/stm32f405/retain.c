@@ -1,0 +1,46 @@
+/* Backup SRAM (BKPSRAM, 4 KiB at 0x40024000, RM0090 5.1.2): kept through a watchdog or
+ * software reset, and through a power cut only with a battery on VBAT. */
+#include <stdint.h>
+
+#include "hal_retain.h"
+#include "stm32f405_regs.h"
+
+#define BKPSRAM_BASE 0x40024000u
+#define BKPSRAM_SIZE 4096u
+
+static void enable(void)
+{
+    static int done;
+    if (!done) {
+        RCC_APB1ENR |= RCC_APB1ENR_PWR;
+        PWR_CR |= PWR_CR_DBP;                 /* write access to the backup domain */
+        RCC_AHB1ENR |= RCC_AHB1ENR_BKPSRAM;
+        PWR_CSR |= PWR_CSR_BRE;               /* backup regulator: keeps it on VBAT */
+        done = 1;
+    }
+}
+
+size_t hal_retain_size(void)
+{
+    return BKPSRAM_SIZE;
+}
+
+void hal_retain_read(void *dst, size_t n)
+{
+    enable();
+    const volatile uint8_t *from = (const volatile uint8_t *)BKPSRAM_BASE;
+    uint8_t *to = dst;
+    for (size_t i = 0; i < n && i < BKPSRAM_SIZE; i++) {
+        to[i] = from[i];
+    }
+}
+
+void hal_retain_write(const void *src, size_t n)
+{
+    enable();
+    volatile uint8_t *to = (volatile uint8_t *)BKPSRAM_BASE;
+    const uint8_t *from = src;
+    for (size_t i = 0; i < n && i < BKPSRAM_SIZE; i++) {
+        to[i] = from[i];
+    }
+}
