@@ -22,6 +22,10 @@ def _fmt(value: float | None, digits: int = 3) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def _int(value: int | None) -> str:
+    return "-" if value is None else str(value)
+
+
 def format_table(report: ReplayReport, data: str) -> str:
     """The human-readable replay summary."""
     rate = (f", {report.samples / report.elapsed_s:,.0f} samples/s"
@@ -52,14 +56,30 @@ def format_table(report: ReplayReport, data: str) -> str:
                  f"reordered, {report.bad_lines} bad lines)")
     lines.append("4. residuals                      reported above (measured - correction)")
     if report.judging is not None:
-        j = report.judging
-        lines.append(f"6. held, limited, corrected       "
-                     f"{'PASS' if all(report.judgement.values()) else 'FAIL'}"
+        j, jm = report.judging, report.judgement
+        first = ("held_within_limit", "limited_within_limit", "clamped_within_limit",
+                 "corrected")
+        lines.append(f"6. held, limited, clamped         "
+                     f"{'PASS' if all(jm.get(k, True) for k in first) else 'FAIL'}"
                      f"  (held {100 * report.held_fraction:.1f} % <= "
                      f"{100 * j.max_held_fraction:g} %, limited "
                      f"{100 * report.limited_fraction:.1f} % <= "
-                     f"{100 * j.max_limited_fraction:g} %, corrected on "
+                     f"{100 * j.max_limited_fraction:g} %, clamped "
+                     f"{100 * report.clamped_fraction:.1f} % <= "
+                     f"{100 * j.max_clamped_fraction:g} %, corrected on "
                      f"{report.corrected_samples} samples)")
+        if "no_worse_than_uncompensated" in jm:
+            worse = report.worse_axes
+            lines.append(f"7. no worse than uncompensated    "
+                         f"{'PASS' if jm['no_worse_than_uncompensated'] else 'FAIL'}"
+                         + (f"  (worse: {', '.join(worse)})" if worse else
+                            "  (compensated RMS and peak <= raw on every measured axis)"))
+        if "steps_within_limit" in jm:
+            steps = ", ".join(f"{name} {_int(a.largest_step_nm)} <= {_int(a.max_step_nm)}"
+                              for name, a in report.axes.items())
+            lines.append(f"8. output steps within limit      "
+                         f"{'PASS' if jm['steps_within_limit'] else 'FAIL'}"
+                         f"  (largest step nm: {steps})")
     if report.status_counts:
         lines.append("   status bits the box raised (samples): " + ", ".join(
             f"{k} {v}" for k, v in report.status_counts.items())
@@ -115,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-limited-fraction", type=float, default=d.max_limited_fraction,
                    help="fail when more than this share of the samples had their output "
                         f"step limited (SLEW; default {d.max_limited_fraction:g})")
+    p.add_argument("--max-clamped-fraction", type=float, default=d.max_clamped_fraction,
+                   help="fail when more than this share of the samples were clamped to the "
+                        f"box's maximum correction (CLAMP; default {d.max_clamped_fraction:g})")
     return parser
 
 
@@ -122,7 +145,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from hil import replay as hil_replay
     from hil.runner import Zero
 
-    for name in ("max_held_fraction", "max_limited_fraction"):
+    for name in ("max_held_fraction", "max_limited_fraction", "max_clamped_fraction"):
         v = getattr(args, name)
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"--{name.replace('_', '-')} {v:g} must be between 0 and 1")
@@ -133,7 +156,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     bad = [z for z in args.zero_at if not 0 <= z < n]
     if bad:
         raise ValueError(f"--zero-at {bad[0]}: the run has samples 0..{n - 1}")
-    setup.judging = Judging(args.max_held_fraction, args.max_limited_fraction)
+    setup.judging = Judging(args.max_held_fraction, args.max_limited_fraction,
+                            max_clamped_fraction=args.max_clamped_fraction)
     events = [Zero(z) for z in sorted(set(args.zero_at))]
     if args.target == "qemu":
         from hil import qemu

@@ -70,7 +70,9 @@ def test_fl_thermal_replay_matches_twin_bit_for_bit(fl_setup, fl_result):
     assert report.samples == n and report.received == n
     assert report.checks == {"twin_bit_exact": True, "float_within_bound": True,
                              "no_lost_duplicated_reordered": True, "held_within_limit": True,
-                             "limited_within_limit": True, "corrected": True}, report.problems
+                             "limited_within_limit": True, "clamped_within_limit": True,
+                             "corrected": True, "no_worse_than_uncompensated": True,
+                             "steps_within_limit": True}, report.problems
     assert report.mismatches == 0 and report.max_abs_diff_nm == 0
     assert report.ok
     assert capture.sessions[0].exit_code == 0  # the firmware exited cleanly on Q
