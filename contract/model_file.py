@@ -489,6 +489,11 @@ def _check_axis(c: _Checker, name: object, ax: object, channels: list[ChannelSpe
         for k, v in t.items():
             if k not in ("kind", "source", "coef"):
                 params[k] = c.number(v, f"{where}: {k}")
+        if kind in TEMPERATURE_KINDS or kind in AUX_KINDS:
+            if not isinstance(source, str):  # {} or [] was a TypeError (unhashable) here
+                c.fail(f"{where}: source must be the name of a "
+                       f"{'channel' if kind in TEMPERATURE_KINDS else 'aux input'} "
+                       f"(a string), got {json.dumps(source)}")
         if kind in TEMPERATURE_KINDS:
             if source not in by_sensor:
                 c.fail(f"{where}: source {source!r} is not in 'channels' "
