@@ -315,7 +315,8 @@ def step_fl(demo: Demo) -> tuple[list[Path], dict]:
     for entry in runs:
         for axis, m in entry.get("axes", {}).items():
             change = m["reduction_pct"]
-            verdict = f"{change:.0f} % less" if change >= 0 else f"{-change:.0f} % WORSE"
+            verdict = ("no drift measured" if change is None else f"{change:.0f} % less"
+                       if change >= 0 else f"{-change:.0f} % WORSE")
             demo.say(f"    {axis}: RMS {fmt_um(m['raw_rms_um'])} raw → {fmt_um(m['rmse_um'])} "
                      f"compensated ({verdict}), worst {fmt_um(m['max_abs_um'])}")
         beyond = entry.get("outside_training_range") or []

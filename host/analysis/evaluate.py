@@ -87,7 +87,8 @@ def axis_metrics(measured: np.ndarray, predicted: np.ndarray) -> dict:
         "max_abs_um": float(np.max(np.abs(residual))),
         "raw_rms_um": raw,
         "raw_peak_um": float(np.max(np.abs(measured))),
-        "reduction_pct": 100.0 * (1.0 - err / raw) if raw > 0 else float("nan"),
+        # no drift measured (a constant target): a reduction of nothing is undefined, not nan
+        "reduction_pct": 100.0 * (1.0 - err / raw) if raw > 0 else None,
         "n_samples": int(measured.size),
     }
 

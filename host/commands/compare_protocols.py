@@ -17,6 +17,7 @@ from host.analysis import (
     simulate_runs,
     write_outputs,
 )
+from host.commands._arguments import hours_arg, seed_arg
 from host.sim import PROTOCOLS, parse_effects
 
 NAME = "compare-protocols"
@@ -37,14 +38,14 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="effects in the simulated runs (see host simulate --effects)")
     parser.add_argument("--max-rpm", type=float, default=8000.0,
                         help="simulated spindle's top speed (rpm, default %(default)g)")
-    parser.add_argument("--hours", type=float, default=8.0,
+    parser.add_argument("--hours", type=hours_arg, default=8.0,
                         help="simulated running time of each test (h, default %(default)g)")
-    parser.add_argument("--cool-hours", type=float, default=8.0,
+    parser.add_argument("--cool-hours", type=hours_arg, default=8.0,
                         help="simulated cooling time after it (h, default %(default)g)")
     parser.add_argument("--dt", type=float, default=60.0, help="simulated sample period (s)")
     parser.add_argument("--sim-sensors", type=int, default=16, metavar="N",
                         help="simulated thermocouples (default 16, plus T_amb)")
-    parser.add_argument("--seed", type=int, default=0, help="first seed of the simulated days")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="first seed of the simulated days")
     parser.add_argument("--repeats", type=int, default=None, metavar="N",
                         help="simulate the whole comparison on N sets of days, average them "
                         f"and show the spread; a winner is declared only when it beats the "

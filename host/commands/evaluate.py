@@ -34,9 +34,17 @@ def run(args: argparse.Namespace) -> int:
     print(f"model {args.model} on {args.run} ({data.n_samples} samples)")
     print(f"{'axis':<10} {'rmse um':>9} {'max|e| um':>10} {'raw rms um':>11} {'raw peak um':>12} "
           f"{'reduction':>10}")
+    flat = []
     for name, m in doc["axes"].items():
+        pct = m["reduction_pct"]
+        if pct is None:
+            flat.append(name)
         print(f"{name:<10} {m['rmse_um']:>9.3f} {m['max_abs_um']:>10.3f} {m['raw_rms_um']:>11.3f} "
-              f"{m['raw_peak_um']:>12.3f} {m['reduction_pct']:>9.1f}%")
+              f"{m['raw_peak_um']:>12.3f} "
+              + (f"{'-':>10}" if pct is None else f"{pct:>9.1f}%"))
+    if flat:
+        print(f"({', '.join(flat)}: no drift measured, the column is constant: a reduction is "
+              "undefined; the rmse is what the model adds)")
     if any(unit_of(name) != "um" for name in doc["axes"]):
         print("(a tilt axis, *_urad, is in urad)")
     for line in describe(doc["outside_training_range"], input_units(model)):

@@ -8,6 +8,7 @@ import json
 import numpy as np
 
 from contract.errors import InputError
+from host.commands._arguments import hours_arg, seed_arg
 from host.sim import (
     AXES,
     EFFECTS,
@@ -29,13 +30,13 @@ def add_program_arguments(parser: argparse.ArgumentParser) -> None:
                         help="spindle program (default: constant at 75%% of --max-rpm)")
     parser.add_argument("--max-rpm", type=float, default=8000.0,
                         help="maximum spindle speed (default 8000)")
-    parser.add_argument("--hours", type=float, default=8.0,
+    parser.add_argument("--hours", type=hours_arg, default=8.0,
                         help="running phase in hours (default 8)")
-    parser.add_argument("--cool-hours", type=float, default=8.0,
+    parser.add_argument("--cool-hours", type=hours_arg, default=8.0,
                         help="cooling phase at standstill in hours (default 8)")
     parser.add_argument("--rpm", type=float, default=None,
                         help="speed of the constant protocol (default 75%% of --max-rpm)")
-    parser.add_argument("--seed", type=int, default=0,
+    parser.add_argument("--seed", type=seed_arg, default=0,
                         help="seed of the random program, the noise and the day (default 0)")
 
 
@@ -49,7 +50,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--effects", default="", metavar="LIST",
                         help=f"comma-separated effects to switch on: {', '.join(EFFECTS)}, "
                         "or 'all' (default none)")
-    parser.add_argument("--machine-seed", type=int, default=0,
+    parser.add_argument("--machine-seed", type=seed_arg, default=0,
                         help="seed of the machine's sensor placement (same machine: same seed)")
     parser.add_argument("--ambient-c", type=float, default=20.0,
                         help="shop air at the start in degC (default 20)")
@@ -60,7 +61,17 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
+MAX_SAMPLES = 10_000_000  # 116 days at 1 s: far beyond a thermal test, still fits memory
+
+
 def run(args: argparse.Namespace) -> int:
+    if not (np.isfinite(args.dt) and args.dt > 0):
+        raise InputError(f"--dt {args.dt:g} s: the sample period must be a positive number")
+    samples = (args.hours + args.cool_hours) * 3600.0 / args.dt
+    if samples > MAX_SAMPLES:
+        raise InputError(f"--hours {args.hours:g} + --cool-hours {args.cool_hours:g} at --dt "
+                         f"{args.dt:g} s is {samples:.3g} samples, more than {MAX_SAMPLES:,}: "
+                         "shorten the run or sample less often")
     program = build_program(args.protocol, args.max_rpm, args.hours, args.cool_hours,
                             seed=args.seed, rpm=args.rpm)
     if not 3 <= args.precision <= 17:

@@ -4,6 +4,8 @@ DIR/model.json and (by default) DIR/model.h."""
 from __future__ import annotations
 
 import argparse
+import fnmatch
+import hashlib
 import json
 from pathlib import Path
 
@@ -12,7 +14,7 @@ from contract.errors import InputError
 from contract.model_file import jsonable, write_model, write_text_atomic
 from contract.terms import FILTER_KINDS, Term, filter_states
 from contract.tilt import Tilt, unit_of
-from host.commands._arguments import add_reference_argument
+from host.commands._arguments import add_reference_argument, seed_arg
 from host.commands._options import add_fill_gaps, csv_format
 from host.fitting.prefilter import PREFILTER_TAU_S
 from host.io import load_runs
@@ -79,7 +81,7 @@ def add_selection_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--blocks", type=int, default=DEFAULT_BLOCKS, metavar="N",
                         help="time blocks for validation when there is one run (default "
                         "%(default)s)")
-    parser.add_argument("--seed", type=int, default=0, help="c-means seed (default 0)")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="c-means seed (default 0)")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -228,10 +230,50 @@ def print_effects(doc: dict) -> None:
             print(f"  {name} unexplained{note}: {a['unexplained']['message']}")
 
 
+TARGET_SUFFIXES = ("_um", "_urad")  # displacement in um, tilt in urad (contract.tilt)
+
+
+def check_targets(targets: list[str], sensors: str | list[str]) -> None:
+    """A target is a displacement (``*_um``) or a tilt (``*_urad``), never a temperature
+    column: ``--target T01`` trained a temperature as micrometres."""
+    for name in targets:
+        pattern = sensors if isinstance(sensors, str) else None
+        if (pattern is not None and fnmatch.fnmatchcase(name, pattern)) or (
+                not isinstance(sensors, str) and name in sensors):
+            raise InputError(f"--target {name}: that is a temperature column (it matches "
+                             f"--sensors {sensors!r}); a target is a measured displacement "
+                             "(a column named *_um) or a tilt (*_urad)")
+        if not name.endswith(TARGET_SUFFIXES):
+            raise InputError(f"--target {name}: a target's name says its unit: a displacement "
+                             "in um ends in _um, a tilt in urad in _urad (the box, the monitor "
+                             "and LinuxCNC read the unit from it); rename the column")
+
+
+def check_distinct_runs(paths: list[str]) -> None:
+    """The same run given twice would count as two runs in validation (a run 'unseen' by
+    the fit that it was trained on)."""
+    seen: dict[object, str] = {}
+    for path in paths:
+        p = Path(path)
+        try:
+            key: object = p.resolve(strict=True)
+            digest = hashlib.sha256(p.read_bytes()).hexdigest()
+        except OSError:
+            continue  # load_runs names a missing or unreadable file
+        for k in (key, digest):
+            if k in seen:
+                same = "is the same file as" if k == key else "has the same content as"
+                raise InputError(f"{path} {same} {seen[k]}: each training run must be a "
+                                 "different run (validation holds runs out of the fit)")
+            seen[k] = path
+
+
 def run(args: argparse.Namespace) -> int:
     targets = [*args.target, *(t.name for t in args.tilt if t.name not in args.target)]
     if not targets:
         raise InputError("give at least one --target (or --tilt)")
+    check_targets(list(args.target), args.sensors)
+    check_distinct_runs(list(args.runs))
     runs = load_runs(args.runs, targets, args.sensors, args.aux, args.fill_gaps,
                      min_samples=4, fmt=csv_format(args), tilts=args.tilt)
     model = train_model(runs, targets, sensors=args.sensors, aux=args.aux,

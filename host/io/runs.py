@@ -416,6 +416,9 @@ MS_MIN_PERIOD = 100.0  # "seconds": time_s in ms has steps of 100..60000 for 0.1
 MS_MIN_SPAN_S = 14 * 86400.0  # ... and spans months; a thermal test lasts hours to days.
 # A step of a whole number of thousands (1000, 2000, 60000) is taken as whole seconds in ms
 # too: a thermal test does not sample every 16.7 minutes on the dot.
+# A time_s span beyond a year even when read as milliseconds is no thermal test in any unit
+# (a 1e300 is a logger's error code, not milliseconds): refused as out of range.
+MAX_SPAN_AS_MS = 366 * 86400.0 * 1000
 TARGET_LIMIT_UM = INT32_MAX / 1000  # the box's correction is int32 nanometres
 AUX_LIMIT = float(INT32_MAX)  # the box's aux inputs are int32
 DEFAULT_TEMPERATURE_RANGE = (CHANNEL_MIN_C, CHANNEL_MAX_C)
@@ -428,6 +431,14 @@ def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray, fill_gaps: in
     steps = np.diff(time_s)
     if steps.size == 0:
         return []
+    far = np.flatnonzero(np.abs(time_s - time_s[0]) > MAX_SPAN_AS_MS)
+    if far.size:
+        i = int(far[0])
+        raise RunFormatError(
+            path, f"time_s {time_s[i]:g} is out of range: {time_s[i] - time_s[0]:.3g} after "
+            f"the first sample ({time_s[0]:g}), more than a year even if these were "
+            "milliseconds (a thermal test run lasts hours to days; a logger's error code?)",
+            line=int(lines[i]), column=TIME_COLUMN)
     period = float(np.median(steps))
     span = float(time_s[-1] - time_s[0])
     whole_seconds_in_ms = period >= 1000 and abs(period / 1000 - round(period / 1000)) < 1e-9
