@@ -196,10 +196,7 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
                                    quiet=quiet)
     unwired = sorted(set(term_sensors(baseline_terms)) - set(box)) if box else []
     if fit == "auto" and result is not None:
-        candidates = [f for f in FAMILIES if FAMILIES[f][0] or (
-            final_terms != baseline_terms  # without effects, baseline == ols
-            and not unwired)]  # the baseline's sensors must still be on the box
-        family = min(candidates, key=result.rms)
+        family = min(auto_candidates(final_terms != baseline_terms, unwired), key=result.rms)
     else:
         family = "ridge" if fit == "ridge" else "ols"
     with_effects, shrunk = FAMILIES[family]
@@ -258,6 +255,13 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
         axis["metrics"]["promised_rmse_um"] = result.promise(family)
         axis["metrics"]["promised_fold_rmse_um"] = result.fold_rmse_um[family]
     return axis
+
+
+def auto_candidates(has_effects: bool, unwired: Sequence[str]) -> list[str]:
+    """The families ``--fit auto`` may choose: those with the effects always; those without
+    only when there are effects to leave out (else they equal their twin) and the baseline's
+    sensors are all still wired (an effect's re-selection may have given a channel away)."""
+    return [f for f in FAMILIES if FAMILIES[f][0] or (has_effects and not unwired)]
 
 
 FAMILY_RULES = {  # what model.json says chose the family, per --fit
