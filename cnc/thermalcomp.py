@@ -354,6 +354,10 @@ class Compensator:
         self.rebooted = False  # the box restarted and is still walking from 0 (SLEW)
         self.await_zero = False  # the box came back without its datum: hold until ZERO
         self.zero_pending = False  # ZERO sent, not acknowledged yet
+        # a ZERO acknowledged while the box reported NO_REF after its seq went back (a restart
+        # not yet confirmed): the held offsets are already the base, the restart must not wait
+        # for another ZERO
+        self.zeroed_since_suspect = False
         self.rezero = False  # ZERO acknowledged: the next value is a new datum, not a move
         self.zero_acks = 0
         self.zero_seq = -1
@@ -441,7 +445,7 @@ class Compensator:
             self.prev_seq, self.last_seq, self.last_lost = self.suspect_seq, seq, 0
             self.suspect_seq = None
             return "restart"
-        self.suspect_seq = seq
+        self.suspect_seq, self.zeroed_since_suspect = seq, False
         return "suspect"
 
     def _stray(self, seq: int, why: str) -> None:
@@ -459,7 +463,10 @@ class Compensator:
             # the datum the offsets were taken in is gone: the box has none (NO_REF), a new
             # power-up's (REFERENCED at once), or it had a ZERO's, which a power cycle forgets
             datum_lost = s.status & (NO_REF | REFERENCED) or self.stream_status & REFERENCED
-            if applied and datum_lost:
+            if self.zeroed_since_suspect:
+                self.log(f"the box restarted (seq {s.seq}) and was zeroed before this line "
+                         "confirmed it: the held offsets carry on as base")
+            elif applied and datum_lost:
                 self.await_zero = True
                 self.log(f"the box restarted (seq {s.seq}) without the reference the offsets "
                          "were taken in: holding the last offsets until ZERO")
@@ -551,6 +558,9 @@ class Compensator:
         if self.await_zero or self.status & NO_REF:
             for a in self.cfg.axes:
                 a.base = a.want
+            # the operator zeroed right after the box came back, before its second line
+            # confirmed the restart: that ZERO is the one the restart needs
+            self.zeroed_since_suspect = self.suspect_seq is not None
             self.await_zero, self.rezero = False, False
             self.log(f"box zeroed at seq {seq}: the held offsets ("
                      + ", ".join(f"{a.letter.upper()} {a.want}" for a in self.cfg.axes)

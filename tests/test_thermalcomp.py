@@ -384,6 +384,28 @@ def test_a_cold_restart_holds_the_offsets_until_zero_then_carries_them(tmp_path)
     del seq
 
 
+def test_a_zero_before_the_restart_is_confirmed_is_the_zero_the_restart_needs(tmp_path):
+    """The operator touches off right after a power cut, one line into the cold box (NO_REF,
+    seq went back, not yet confirmed as a restart): that ZERO makes the held offsets the base.
+    It was forgotten: the confirming line set awaiting-zero again and the offsets froze until
+    a second ZERO (`make cnc`'s power cut found it)."""
+    logs: list[str] = []
+    comp = _comp(tmp_path, FAST, logs)
+    _track(comp, range(0, 3001, 200), dx=400)
+    no_ref, referenced = int(protocol.Status.NO_REF), int(protocol.Status.REFERENCED)
+    _line(comp, 0, 0, 0, status=no_ref)  # the cold box's first line: suspect, held
+    assert comp.suspect_seq == 0 and comp.holding
+    comp.zero_sent()
+    comp.zeroed(0)
+    _line(comp, 1, 0, 0, status=referenced)  # confirms the restart; the change since ZERO: 0
+    assert comp.restarts == 1 and not comp.await_zero
+    comp.take_info(_info())
+    assert _want(comp) == {"z": -3000, "x": 40}
+    _line(comp, 2, 30, 150, status=referenced)  # held offset + the box's change
+    assert _want(comp) == {"z": -3150, "x": 43} and not comp.holding
+    assert any("zeroed before this line confirmed it" in m for m in logs)
+
+
 def test_a_restart_while_the_box_reports_referenced_also_waits_for_zero(tmp_path):
     comp = _comp(tmp_path, FAST)
     _track(comp, range(0, 1001, 200))
