@@ -49,6 +49,7 @@ from contract.box import (
 )
 from contract.errors import InputError
 from contract.fixed_point import INT32_MAX
+from contract.service import SERVICE_FIELDS
 from contract.terms import (
     AUX_KINDS,
     FILTER_KINDS,
@@ -467,6 +468,7 @@ def _check_axis(c: _Checker, name: object, ax: object, channels: list[ChannelSpe
                "axis's name ends in '_urad', every other axis is in um)")
     intercept = c.number(ax.get("intercept"), f"axis '{name}': intercept")
     c.step_limit(ax, f"axis '{name}'", name, "max_step_um", unit)
+    _check_service(c, name, ax.get("service"))
     raw = ax.get("terms")
     if not isinstance(raw, list):
         c.fail(f"axis '{name}': 'terms' must be a list")
@@ -537,6 +539,26 @@ def _check_axis(c: _Checker, name: object, ax: object, channels: list[ChannelSpe
                    f"input ranges, beyond the box's int32 nanometre limit "
                    f"{OUTPUT_LIMIT_UM:.6g} um{part}")
     return AxisSpec(name, unit, intercept, tuple(terms), tuple(coefs))
+
+
+def _check_service(c: _Checker, axis: str, block: object) -> None:
+    """``axes.<axis>.service`` (docs/service.md): the in-service estimator's parameters, each
+    within the range its fixed-point arithmetic is proven for (contract.service)."""
+    if block is None:
+        return  # a model trained before issue 42: the estimator uses its fallbacks
+    where = f"axis '{axis}': service"
+    if not isinstance(block, Mapping):
+        c.fail(f"{where}: expected an object of {', '.join(SERVICE_FIELDS)}, got {block!r}")
+    for key, (lo, hi, unit) in SERVICE_FIELDS.items():
+        if key not in block:
+            c.fail(f"{where}.{key}: missing (one of {', '.join(SERVICE_FIELDS)})")
+        v = c.number(block[key], f"{where}.{key}")
+        if not lo <= v <= hi:
+            c.fail(f"{where}.{key}: {v!r} {unit} is outside {lo:g}..{hi:g} (the range the "
+                   "box's fixed-point estimator is proven for, contract.service)")
+    why = block.get("why", "")
+    if not isinstance(why, str):
+        c.fail(f"{where}.why: expected text, got {why!r}")
 
 
 def _feature_reach(kind: str, lo: float, hi: float, params: Mapping[str, float]) -> float:

@@ -1,0 +1,28 @@
+"""The in-service estimator's contract (issue 42, docs/service.md): its model.json fields,
+their limits, and the fixed-point widths a C implementation mirrors (``codegen.estimator``
+is the bit-exact Python twin).
+
+Stdlib only, like the rest of contract/.
+"""
+
+from __future__ import annotations
+
+# ---- model.json: axes.<axis>.service ------------------------------------------------------
+# field -> (lowest, highest, unit); the limits are what the fixed-point ranges are proven for
+SERVICE_FIELDS: dict[str, tuple[float, float, str]] = {
+    "q_um2_per_h": (0.0, 100.0, "um^2 per hour"),  # the bias's random walk
+    "probe_noise_um": (0.01, 10.0, "um"),  # the probe's standard deviation, R = its square
+    "gate_sigma": (1.0, 16.0, "standard deviations"),  # refuse |innovation| > this sqrt(P+R)
+    "gate_floor_um": (0.0, 1000.0, "um"),  # ... and above this floor
+    "p_max_um2": (0.01, 1000.0, "um^2"),  # the bias variance's cap (and its value at reset)
+}
+SERVICE_DEFAULTS = {"probe_noise_um": 0.5, "gate_sigma": 4.0, "gate_floor_um": 3.0}
+MAX_PERIOD_S = 3600.0  # sample periods the estimator's q per sample is proven for
+
+# ---- fixed point (docs/service.md, "Fixed point") -----------------------------------------
+P_FRAC_BITS = 8  # P, q and R in 1/256 nm^2 (int64)
+GAIN_FRAC_BITS = 16  # K = P / (P + R) in Q16 (0 .. 65536)
+GATE_FRAC_BITS = 8  # gate_sigma^2 in Q8 (256 .. 65536)
+INNOVATION_MAX_NM = 1 << 22  # |innovation| above 4.19 mm: refused before any product
+BIAS_MAX_NM = 500_000  # |bias| is clamped to 0.5 mm (int32 with room to spare)
+NM_PER_UM = 1000
