@@ -45,6 +45,7 @@ from host.selection import (
     METHODS,
     joint_l1_ranking,
 )
+from host.service.parameters import add_service
 from host.train.axis_fit import axis_dict
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from host.train.next_day import (
@@ -519,6 +520,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     }
     # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
     add_step_limits(model, data.runs)
+    # the in-service estimator's parameters from the out-of-fold residual (issue 42)
+    add_service(model, data.runs, data.n_blocks, data.ref)
     return model
 
 
