@@ -190,7 +190,8 @@ def output_stage_ref(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputC
     ``step``: the walk-back step (BOX_SLEW_NM_PER_S per period); ``track``: each axis's
     step limit from the header (None: unlimited while tracking); ``zero_before``: samples
     before which ZERO is sent (0 = before the first); the box refuses one (HOLDING) when an
-    axis's inputs were faulted at the sample before it (not after a reset: nothing sampled).
+    axis's inputs were faulted, or an axis walked (SLEW), at the sample before it (not after
+    a reset: nothing sampled).
     ``needs_ref``: a start-referenced model after a cold power-up: until the first accepted
     ZERO every axis holds (NO_REF). ``resets``: samples before which a warm reset happened."""
     n, n_axes = computed_nm.shape
@@ -205,7 +206,8 @@ def output_stage_ref(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputC
     ok_rows = computed.tolist()
     val_rows = computed_nm.tolist()
     for i in range(n):
-        if i in zeros and (i == 0 or i in warm or all(ok_rows[i - 1])):
+        if i in zeros and (i == 0 or i in warm
+                           or (all(ok_rows[i - 1]) and not bits[i - 1] & int(Status.SLEW))):
             accepted.append(i)
             referenced = True
             for ax in axes:

@@ -202,6 +202,29 @@ def test_zero_mid_run_matches_the_twin_line_by_line(setup):
     assert np.all(np.delete(d, [499, 899], axis=0) <= limits(setup))
 
 
+def test_a_zero_while_an_axis_walks_back_is_refused_and_the_twin_agrees(setup, tmp_path):
+    """Issue 41: after a hold an axis walks back to the model (SLEW); a datum taken then would
+    keep the walk's remaining gap for good (the tool ends that far off a healthy box's), so
+    the box refuses that ZERO ($E,HOLDING) as it does while an axis holds."""
+    from hil.runner import ChipFault
+
+    t05 = ch(setup, "T05")
+    fault = [ChipFault(AT, t05, 1), ChipFault(AT + 200, t05, 0)]
+    # a slow walk-back (20 nm/s: 300 nm a sample) so that the walk lasts a while
+    slow = hil_replay.prepare(_model_path(setup, tmp_path), setup.feed.run.path,
+                              tmp_path / "hil", cflags="-DBOX_SLEW_NM_PER_S=20")
+    zs = hil_replay.ReplaySetup(slow.build, slow.feed, slow.twin, slow.binary, slow.output,
+                                Judging(max_held_fraction=0.5, max_limited_fraction=0.5,
+                                        require_no_worse=False))
+    report, _ = hil_replay.run(zs, fault)
+    walking = [k for k in range(AT + 200, N) if report.fw_status[k] & SLEW]
+    assert walking, "the scenario must make an axis walk back"
+    report, capture = hil_replay.run(zs, [*fault, Zero(walking[0] + 1)])
+    assert [a.split(b"*")[0] for a in capture.sessions[0].zero_acks] == [b"$E,HOLDING"]
+    assert report.ok, report.problems  # the twin expected the refusal too
+    assert not np.any(report.fw_status & REFERENCED)
+
+
 def test_zero_at_powerup_references_from_the_first_sample(setup, tmp_path):
     z = hil_replay.prepare(_model_path(setup, tmp_path), setup.feed.run.path,
                            tmp_path / "hil", zero_at_powerup=True)

@@ -57,7 +57,9 @@ typedef struct {
     bool referenced;   /* a ZERO reference is in force (REFERENCED) */
     uint32_t zero_seq; /* seq of the first sample of that reference */
     bool needs_ref;    /* TCM_ZERO_AT_POWERUP: no correction without a reference (NO_REF) */
-    bool zero_blocked; /* an axis held at the latest sample (input fault): ZERO is refused */
+    bool zero_blocked; /* an axis held (input fault) or walked (SLEW) at the latest sample:
+                        * its output is not the model's, so a datum taken now is not the
+                        * healthy box's: ZERO is refused */
 
     tcm_state_t tcm;
     int32_t codes[BOX_MAX_CHANNELS];       /* as read (sent on the line) */
@@ -398,8 +400,8 @@ static void take_sample(void)
             bool valid = ((ok >> a) & 1u) != 0u;
             uint16_t f = axis_output_update(&app.axes[a], &app.out_cfg[a], valid && !no_ref,
                                             app.computed_nm[a]);
-            if (!valid) {
-                app.zero_blocked = true;
+            if (!valid || (f & STATUS_SLEW) != 0u) {
+                app.zero_blocked = true; /* held, or still walking back to the model */
             }
             st |= f;
         }
@@ -506,7 +508,7 @@ static void handle_command(const cmd_t *c)
         break;
     case CMD_ZERO:
         if (app.zero_blocked) {
-            /* A new datum taken while an axis holds is not the
+            /* A new datum taken while an axis holds or walks is not the
              * healthy box's: refuse, the CNC side asks again once the box tracks. */
             send_error("HOLDING");
             break;

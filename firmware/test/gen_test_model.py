@@ -39,7 +39,7 @@ SEED = 20240605
  REFERENCED, IMPLAUSIBLE, NO_REF, BEYOND) = (1 << i for i in range(15))
 RUNAWAY_N = 4  # docs/firmware.md: the runaway check looks 4 readings back
 BEYOND_SPAN, BEYOND_MIN_CODES = Fraction(1, 2), 640  # box_config.h defaults
-ZERO_BEFORE = (125, 331)  # the CNC side sends ZERO before these samples (no axis holds)
+ZERO_BEFORE = (128, 334)  # the CNC side sends ZERO before these samples (no axis holds)
 SR_OPEN = 0x01
 
 
@@ -143,7 +143,7 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
     faulted = [False] * len(chans)
     since = [0] * len(chans)  # samples since the last good reading
     recent: list[list[int]] = [[] for _ in chans]  # the latest consecutive readings
-    blocked = False  # an axis held at the previous sample (input fault): ZERO refused
+    blocked = False  # an axis held (input fault) or walked at the previous sample: ZERO refused
     referenced = False
     aux_lo, aux_hi = twin.model.aux[0].min, twin.model.aux[0].max
     n_axes = twin.n_axes
@@ -278,6 +278,7 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
             else:
                 value[a] += lim if target > value[a] else -lim
                 bits |= SLEW
+                blocked = True  # walking: not the model's output, ZERO refused
             out[i, a] = value[a]
         status[i] = bits
     return {"out": out, "status": status, "shown": shown}
