@@ -354,6 +354,9 @@ class Compensator:
         self.rebooted = False  # the box restarted and is still walking from 0 (SLEW)
         self.await_zero = False  # the box came back without its datum: hold until ZERO
         self.zero_pending = False  # ZERO sent, not acknowledged yet
+        # ZERO refused while an axis held ($E,HOLDING): sent again on the first line without a
+        # hold bit, so the touch-off waiting for zero-acks happens on a datum the box can keep
+        self.zero_deferred = False
         # a ZERO acknowledged while the box reported NO_REF after its seq went back (a restart
         # not yet confirmed): the held offsets are already the base, the restart must not wait
         # for another ZERO
@@ -574,11 +577,16 @@ class Compensator:
     def refused(self, reason: str) -> None:
         """``$E,<reason>`` from the box."""
         if reason == "HOLDING" and self.zero_pending:
-            self.zero_pending = False
-            self.log("the box refused ZERO while an axis holds (HOLDING): pulse zero again "
-                     "once the fault is gone")
+            self.zero_pending, self.zero_deferred = False, True
+            self.log("the box refused ZERO while an axis holds (HOLDING): deferred, sent again "
+                     "on the first line without a hold bit (zero-deferred; touch off only "
+                     "once zero-acks has counted it)")
         else:
             self.log(f"box refused a command: {reason}")
+
+    def deferred_zero_due(self, status: int) -> bool:
+        """A deferred ZERO is due now: the box's last line carries no hold bit."""
+        return self.zero_deferred and not status & HOLD_BITS and not self.zero_pending
 
     def bad_line(self, raw: bytes, err: Exception | str) -> None:
         self.bad_lines += 1
@@ -621,7 +629,8 @@ class HalDriver:
                 ("holds", hal.HAL_S32, hal.HAL_OUT), ("restarts", hal.HAL_S32, hal.HAL_OUT),
                 ("zero-acks", hal.HAL_S32, hal.HAL_OUT), ("zero-seq", hal.HAL_S32, hal.HAL_OUT),
                 ("model-mismatch", hal.HAL_BIT, hal.HAL_OUT),
-                ("awaiting-zero", hal.HAL_BIT, hal.HAL_OUT)):
+                ("awaiting-zero", hal.HAL_BIT, hal.HAL_OUT),
+                ("zero-deferred", hal.HAL_BIT, hal.HAL_OUT)):
             h.newpin(pin, kind, direction)
         for a in cfg.axes:
             p = a.letter
@@ -691,6 +700,7 @@ class HalDriver:
         h["fault"] = comp.fault or comp.model_mismatch
         h["model-mismatch"] = comp.model_mismatch
         h["awaiting-zero"] = comp.await_zero
+        h["zero-deferred"] = comp.zero_deferred
         h["stale"] = comp.stale
         h["holding"] = comp.holding
         h["walking"] = comp.walking
@@ -727,6 +737,10 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
     if isinstance(msg, protocol.Sample):
         if comp.take_sample(msg, now):
             port.write(b"INFO\r\n")  # a restarted box may carry another model
+        if comp.deferred_zero_due(msg.status) and port.write(b"ZERO\r\n"):
+            comp.zero_deferred = False
+            comp.zero_sent()
+            comp.log(f"zero: the box no longer holds (seq {msg.seq}): sending the deferred ZERO")
     elif isinstance(msg, protocol.Info):
         comp.take_info(msg)
     elif isinstance(msg, protocol.Ack) and msg.command == "ZERO":

@@ -489,3 +489,32 @@ def test_the_frame_escape_script_counts_a_line_that_still_decodes(tmp_path):
     row = mod.measure("bitflip", 2000, seed=1)  # CRC-16 catches 1-3 bit flips: none escape
     assert row["trials"] == 2000 and row["escape_value"] == 0
     json.dumps(row)
+
+
+class _WritePort(tc.Port):
+    """A port that keeps what the component writes (the box's side of the line)."""
+
+    def __init__(self) -> None:
+        super().__init__("/dev/null", 115200)
+        self.written: list[bytes] = []
+
+    def write(self, data: bytes) -> bool:
+        self.written.append(data)
+        return True
+
+
+def test_a_zero_refused_while_holding_is_sent_again_once_the_box_no_longer_holds(tmp_path):
+    comp = _comp(tmp_path, FAST)
+    port = _WritePort()
+    seq = _track(comp, range(0, 1001, 200))
+    comp.zero_sent()
+    tc.handle_line(comp, port, protocol.encode_line("E", ["HOLDING"]).rstrip(b"\r\n"), 0.0)
+    assert comp.zero_deferred and comp.zero_acks == 0
+    tc.handle_line(comp, port, _raw(seq, 0, 1000, status=tc.HOLD), 0.0)
+    assert port.written == []  # still holding: not yet
+    tc.handle_line(comp, port, _raw(seq + 1, 0, 1000), 0.0)
+    assert port.written == [b"ZERO\r\n"] and comp.zero_pending and not comp.zero_deferred
+    comp.zeroed(seq + 1)
+    assert comp.zero_acks == 1 and comp.rezero
+    tc.handle_line(comp, port, _raw(seq + 2, 0, 1000), 0.0)
+    assert port.written == [b"ZERO\r\n"]  # once
