@@ -17,6 +17,8 @@ SERVICE_FIELDS: dict[str, tuple[float, float, str]] = {
     "p_max_um2": (0.01, 1000.0, "um^2"),  # the bias variance's cap (and its value at reset)
 }
 SERVICE_DEFAULTS = {"probe_noise_um": 0.5, "gate_sigma": 4.0, "gate_floor_um": 3.0}
+# a model trained before the service block: the estimator runs with these (docs/service.md)
+SERVICE_FALLBACKS = SERVICE_DEFAULTS | {"q_um2_per_h": 0.5, "p_max_um2": 25.0}
 MAX_PERIOD_S = 3600.0  # sample periods the estimator's q per sample is proven for
 
 # ---- fixed point (docs/service.md, "Fixed point") -----------------------------------------

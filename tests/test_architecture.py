@@ -25,10 +25,13 @@ BELOW = {
     "host.sim": {"contract", "host.io", "host.fitting", "host.progress"},
     "host.selection": {"contract", "host.io", "host.fitting", "host.progress"},
     "host.effects": {"contract", "host.io", "host.fitting", "host.selection", "host.progress"},
+    # in service (issue 42): probe readings, the gate, the estimators, their parameters
+    "host.service": {"contract", "host.io", "host.fitting", "host.progress"},
     "host.train": {"contract", "host.io", "host.fitting", "host.selection", "host.effects",
-                   "host.progress", "host.parallel"},
+                   "host.progress", "host.parallel", "host.service"},
     "host.analysis": {"contract", "codegen", "host.io", "host.fitting", "host.selection",
-                      "host.effects", "host.train", "host.sim", "host.progress"},
+                      "host.effects", "host.train", "host.sim", "host.progress",
+                      "host.service"},
     "host.box": {"contract", "codegen"},
     "hil": {"contract", "codegen", "host.io", "host.fitting", "host.progress"},
     # the LinuxCNC side: the HAL component and the headless driver run under Debian's

@@ -12,6 +12,7 @@ from host.io.runs import (
     load_run,
     load_runs,
     read_header,
+    read_table,
     write_run,
 )
 from host.io.split import split_file, window
@@ -25,6 +26,7 @@ __all__ = [
     "load_run",
     "load_runs",
     "read_header",
+    "read_table",
     "split_file",
     "window",
     "write_run",

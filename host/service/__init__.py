@@ -29,7 +29,7 @@ from host.service.estimators import (
     run_estimator,
 )
 from host.service.gate import Gate
-from host.service.parameters import ServiceParams, derive_service, service_params
+from host.service.parameters import ServiceParams, add_service, derive_service, service_params
 from host.service.probes import (
     PROBE_WHEN,
     ProbePlan,
@@ -51,6 +51,7 @@ __all__ = [
     "ProbeReadings",
     "ServiceParams",
     "ServiceTrace",
+    "add_service",
     "derive_service",
     "logged_probes",
     "probe_column",

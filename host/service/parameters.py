@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from contract.service import SERVICE_DEFAULTS, SERVICE_FIELDS
+from contract.service import SERVICE_DEFAULTS, SERVICE_FALLBACKS, SERVICE_FIELDS
 from contract.terms import Term
 from host.fitting import Reference, out_of_fold_predictions, stack
 from host.fitting.reference import segment_bounds
@@ -33,8 +33,8 @@ from host.io import Run
 WANDER_LAGS_H = (0.5, 1.0, 2.0)
 P_MAX_FACTOR = 4.0
 P_MAX_CLIP_UM2 = (4.0, 100.0)
-FALLBACK_Q_UM2_PER_H = 0.5  # a model trained before the service block (docs/service.md)
-FALLBACK_P_MAX_UM2 = 25.0
+FALLBACK_Q_UM2_PER_H = SERVICE_FALLBACKS["q_um2_per_h"]  # a model without a service block
+FALLBACK_P_MAX_UM2 = SERVICE_FALLBACKS["p_max_um2"]
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ cell is a reading in the axis's unit, used as it is.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,9 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from contract.errors import InputError
-from host.io import CsvFormat, Run, RunFormatError
-from host.io.runs import TARGET_LIMIT_UM, read_table
-from host.sim.testplan import parse_duration
+from contract.model_file import OUTPUT_LIMIT_UM
+from host.io import CsvFormat, Run, RunFormatError, read_header, read_table
 
 PROBE_WHEN = ("interval", "stopped")
 PROBE_PREFIX = "probe_"
@@ -41,12 +41,21 @@ def probe_column(axis: str) -> str:
     return PROBE_PREFIX + axis
 
 
+_DURATION = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(s|sec|min|m|h|hr)?\s*$")
+_UNIT_S = {None: 1.0, "s": 1.0, "sec": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0, "hr": 3600.0}
+
+
 def duration_s(text: str) -> float:
-    """``--probe-every``: '60min', '2h', '90s', '3600' to seconds (ProbeError if not)."""
-    try:
-        return parse_duration(text, "--probe-every")
-    except InputError as exc:
-        raise ProbeError(str(exc)) from None
+    """``--probe-every``: '60min', '2h', '90s', '3600' (seconds) to seconds; ProbeError if
+    it is not a positive duration."""
+    m = _DURATION.match(str(text))
+    if not m:
+        raise ProbeError(f"--probe-every: cannot read {text!r} as a duration (e.g. 30min, 2h, "
+                         "900s)")
+    seconds = float(m.group(1)) * _UNIT_S[m.group(2)]
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise ProbeError(f"--probe-every: must be a positive duration (got {text!r})")
+    return seconds
 
 
 @dataclass(frozen=True)
@@ -129,8 +138,6 @@ def synthesise_probes(run: Run, truth: Mapping[str, np.ndarray], plan: ProbePlan
 def logged_columns(path: str | Path, axes: Sequence[str], fmt: CsvFormat | None = None
                    ) -> list[str]:
     """The ``probe_<axis>`` columns a run file carries for ``axes``."""
-    from host.io import read_header
-
     header = read_header(path, fmt)
     return [a for a in axes if probe_column(a) in header]
 
@@ -153,10 +160,10 @@ def logged_probes(path: str | Path, run: Run, axes: Sequence[str],
             raise RunFormatError(path, "missing column 'time_s'", line=1, column="time_s")
         values = data[:, header.index(name)]
         rows = np.flatnonzero(~np.isnan(values))
-        big = rows[np.abs(values[rows]) > TARGET_LIMIT_UM]
+        big = rows[np.abs(values[rows]) > OUTPUT_LIMIT_UM]
         if big.size:
             raise RunFormatError(path, f"probe reading {values[big[0]]:g} is beyond any "
-                                 f"correction the box can output (±{TARGET_LIMIT_UM:g}, int32 "
+                                 f"correction the box can output (±{OUTPUT_LIMIT_UM:g}, int32 "
                                  "nanometres): a probe column must be in the axis's unit "
                                  "(um)", line=int(lines[big[0]]), column=name)
         k = np.searchsorted(run.time_s, time[rows])

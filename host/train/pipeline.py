@@ -45,7 +45,7 @@ from host.selection import (
     METHODS,
     joint_l1_ranking,
 )
-from host.service.parameters import add_service
+from host.service import add_service
 from host.train.axis_fit import axis_dict
 from host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from host.train.next_day import (
