@@ -8,8 +8,10 @@ import json
 from contract.model_file import jsonable, read_model
 from contract.tilt import unit_of
 from host.analysis import evaluate_model, load_for_model
+from host.analysis.service import service_of
 from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
+from host.commands._probes import add_probe_arguments, probe_readings
 from host.train import describe, input_units
 
 NAME = "evaluate"
@@ -22,12 +24,21 @@ def register(parser: argparse.ArgumentParser) -> None:
     add_reference_argument(parser, training=False)
     add_fill_gaps(parser)
     parser.add_argument("--json", action="store_true", help="print JSON on stdout")
+    add_probe_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     model = read_model(args.model)
     data = load_for_model(args.run, model, args.fill_gaps, fmt=csv_format(args))
     doc = {"model": args.model, **evaluate_model(model, data, args.reference)}
+    readings = probe_readings(args, model, data, csv_format(args))
+    if readings is not None:  # issue 42: the model updated by the probe (docs/service.md)
+        doc["probes"] = readings.source
+        for axis, m in service_of(model, data, readings, args.reference).items():
+            a = doc["axes"][axis]
+            a.update(m)
+            if a["raw_rms_um"] > 0:
+                a["reduction_pct"] = 100.0 * (1.0 - a["rmse_um"] / a["raw_rms_um"])
     if args.json:
         print(json.dumps(jsonable(doc), indent=2, allow_nan=False))
         return 0
@@ -47,6 +58,13 @@ def run(args: argparse.Namespace) -> int:
               "undefined; the rmse is what the model adds)")
     if any(unit_of(name) != "um" for name in doc["axes"]):
         print("(a tilt axis, *_urad, is in urad)")
+    if readings is not None:
+        print(f"probes ({readings.source}):")
+        print(f"{'axis':<10} {'updated':>9} {'static':>9} {'probe-only':>11} {'probes':>7} "
+              f"{'refused':>8}")
+        for name, m in doc["axes"].items():
+            print(f"{name:<10} {m['rmse_um']:>9.3f} {m['static_rmse_um']:>9.3f} "
+                  f"{m['probe_only_rmse_um']:>11.3f} {m['probes']:>7} {m['refused']:>8}")
     for line in describe(doc["outside_training_range"], input_units(model)):
         print(line)
     return 0
