@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import select
 import subprocess
 import sys
@@ -52,46 +53,121 @@ class DriverError(RuntimeError):
 
 
 class Tap:
-    """The box's serial line with a recorder in the middle (box pty <-> component pty)."""
+    """The box's serial line with a recorder in the middle (box pty <-> component pty).
+
+    Its ends can change while it runs, always inside its own thread (``call``): the box's end
+    when the box restarts (a new process announces a new pty), the component's end when the
+    link drops (both pty ends closed, the symlink removed: the component's read fails) and
+    comes back (a new pty behind the same symlink). Bytes can be injected towards the
+    component (a forged line, garbage)."""
 
     def __init__(self, box_pty: str, link_path: Path) -> None:
-        self.box_fd = os.open(box_pty, os.O_RDWR | os.O_NOCTTY)
-        tty.setraw(self.box_fd)
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.slave)  # no echo, no CR/LF mangling before the component opens it
+        self.box_fd: int | None = None
+        self.master: int | None = None
+        self.slave: int | None = None
         self.link_path = link_path
-        if link_path.is_symlink() or link_path.exists():
-            link_path.unlink()
-        link_path.symlink_to(os.ttyname(self.slave))
         self.samples: list[dict] = []  # every $C line the box sent, decoded, in order
         self.replies: list[str] = []  # every other line the box sent
         self.commands: list[str] = []  # every line the component sent
         self.corrupt_next = False
         self.cond = threading.Condition()
         self.stop = False
+        self._calls: list[tuple[object, threading.Event, list]] = []
         self._from_box = bytearray()
         self._from_comp = bytearray()
+        self._attach_box(box_pty)
+        self._open_link()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
 
+    # the ends, changed only in the tap's thread (or before it starts)
+    def _attach_box(self, box_pty: str) -> None:
+        self.box_fd = os.open(box_pty, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(self.box_fd)
+        self._from_box = bytearray()
+
+    def _detach_box(self) -> None:
+        if self.box_fd is not None:
+            _close(self.box_fd)
+        self.box_fd = None
+
+    def _open_link(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)  # no echo, no CR/LF mangling before the component opens it
+        if self.link_path.is_symlink() or self.link_path.exists():
+            self.link_path.unlink()
+        self.link_path.symlink_to(os.ttyname(self.slave))
+        self._from_comp = bytearray()
+
+    def _drop_link(self) -> None:
+        """The cable is pulled: both ends of the component's pty closed, the port gone."""
+        if self.link_path.is_symlink():
+            self.link_path.unlink()
+        for fd in (self.master, self.slave):
+            if fd is not None:
+                _close(fd)
+        self.master = self.slave = None
+
+    def _inject(self, data: bytes) -> None:
+        if self.master is not None:
+            os.write(self.master, data)
+
+    def call(self, fn, *args, timeout: float = 10.0):
+        """Run ``fn(*args)`` in the tap's thread, between two reads; its result."""
+        done, out = threading.Event(), []
+        with self.cond:
+            self._calls.append((lambda: out.append(fn(*args)), done, out))
+        if not done.wait(timeout):
+            raise DriverError(f"the tap did not run {getattr(fn, '__name__', fn)}")
+        if out and isinstance(out[-1], BaseException):
+            raise out[-1]
+        return out[0] if out else None
+
+    def attach_box(self, box_pty: str) -> None:
+        self.call(self._attach_box, box_pty)
+
+    def detach_box(self) -> None:
+        self.call(self._detach_box)
+
+    def drop_link(self) -> None:
+        self.call(self._drop_link)
+
+    def restore_link(self) -> None:
+        self.call(self._open_link)
+
+    def inject(self, data: bytes) -> None:
+        self.call(self._inject, data)
+
     def _run(self) -> None:
         while not self.stop:
-            ready, _, _ = select.select([self.box_fd, self.master], [], [], 0.05)
+            with self.cond:
+                calls, self._calls = self._calls, []
+            for fn, done, out in calls:
+                try:
+                    fn()
+                except Exception as exc:  # handed to the caller
+                    out.append(exc)
+                done.set()
+            fds = [fd for fd in (self.box_fd, self.master) if fd is not None]
+            ready, _, _ = select.select(fds, [], [], 0.02)
             for fd in ready:
                 try:
                     data = os.read(fd, 65536)
                 except OSError:
-                    self.stop = True
-                    break
+                    data = b""
                 if fd == self.box_fd:
+                    if not data:  # the box's process is gone (killed): wait for the next
+                        self._detach_box()
+                        continue
                     self._box_bytes(data)
-                else:
+                elif fd == self.master and data:
                     self._from_comp += data
                     *done, rest = bytes(self._from_comp).split(b"\n")
                     self._from_comp = bytearray(rest)
                     with self.cond:
                         self.commands += [d.rstrip(b"\r").decode(errors="replace") for d in done]
-                    os.write(self.box_fd, data)
+                    if self.box_fd is not None:
+                        os.write(self.box_fd, data)
 
     def _box_bytes(self, data: bytes) -> None:
         self._from_box += data
@@ -106,7 +182,8 @@ class Tap:
                 msg = protocol.decode(raw)  # the box's own line: it must decode
                 record = {"seq": msg.seq, "status": msg.status,
                           "corr_nm": list(msg.corrections_nm), "corrupted": False,
-                          "t": time.monotonic()}
+                          "temps": list(msg.temp_codes), "t": time.monotonic(),
+                          "delivered": self.master is not None}
                 if self.corrupt_next:
                     self.corrupt_next = False
                     record["corrupted"] = True
@@ -118,7 +195,7 @@ class Tap:
                 else:
                     self.replies.append(raw.decode(errors="replace"))
                 self.cond.notify_all()
-        if out:
+        if out and self.master is not None:  # a dropped link loses what the box sent
             os.write(self.master, bytes(out))
 
     def wait(self, pred, timeout: float, what: str):
@@ -133,13 +210,15 @@ class Tap:
     def close(self) -> None:
         self.stop = True
         self.thread.join(2.0)
-        for fd in (self.box_fd, self.master, self.slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-        if self.link_path.is_symlink():
-            self.link_path.unlink()
+        self._detach_box()
+        self._drop_link()
+
+
+def _close(fd: int) -> None:
+    try:
+        os.close(fd)
+    except OSError:
+        pass
 
 
 def _corrupt(line: bytes) -> bytes:
@@ -155,9 +234,9 @@ def _corrupt(line: bytes) -> bytes:
 class Box:
     """The native firmware process: feed on stdin, UART on the pty it announces."""
 
-    def __init__(self, binary: str) -> None:
-        self.proc = subprocess.Popen([binary], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, bufsize=0)
+    def __init__(self, binary: str, options: tuple[str, ...] = ()) -> None:
+        self.proc = subprocess.Popen([binary, *options], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0)
         assert self.proc.stdout is not None
         ready, _, _ = select.select([self.proc.stdout], [], [], 10.0)
         first = self.proc.stdout.readline().decode(errors="replace") if ready else ""
@@ -179,7 +258,20 @@ class Box:
             return ""
         return self.proc.stderr.read().decode(errors="replace").strip()[-500:]
 
+    def kill(self) -> int:
+        """A power cut (or the watchdog's reset): the process dies between two samples."""
+        self.proc.kill()
+        code = self.proc.wait()
+        for stream in (self.proc.stdin, self.proc.stdout):
+            try:
+                stream.close()  # type: ignore[union-attr]
+            except OSError:
+                pass
+        return code
+
     def stop(self) -> int:
+        if self.proc.poll() is not None:
+            return self.proc.returncode
         try:
             self.feed("Q\n")
             self.proc.stdin.close()  # type: ignore[union-attr]
@@ -275,26 +367,89 @@ class Machine:
                 "comp_offset_mm": {a: self.get(f"{COMP}.{a}.offset") for a in self.letters}}
         for pin in ("holding", "fault", "stale", "walking", "extrapolating", "referenced",
                     "active", "seq", "bad-lines", "lost-lines", "holds", "zero-acks",
-                    "age-s", "status"):
+                    "age-s", "status", "restarts", "awaiting-zero", "connected",
+                    "model-mismatch"):
             snap[pin] = self.get(f"{COMP}.{pin}")
         return snap
 
 
-def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
+def _pulse_zero(machine: Machine, tap: Tap, timeout: float) -> str:
+    """The operator's touch-off: ``thermalcomp.zero`` up until the box answers, then down."""
+    with tap.cond:
+        n = len(tap.replies)
+    machine.setp(f"{COMP}.zero", 1)
+    tap.wait(lambda: any(r.startswith(("$OK,ZERO", "$E")) for r in tap.replies[n:]), timeout,
+             "the box's reply to ZERO")
+    machine.setp(f"{COMP}.zero", 0)
+    return next(r for r in tap.replies[n:] if r.startswith(("$OK,ZERO", "$E")))
+
+
+def start_box(plan: dict, warm: bool) -> Box:
+    """The box always runs with its retained memory in a file (the backup SRAM): a warm start
+    (``--wdt-reset``) resumes from it; a cold one (a power cut) finds none."""
+    retain = Path(plan["retain"])
+    if not warm:
+        retain.unlink(missing_ok=True)  # no backup battery: the power cut took it
+    return Box(plan["firmware"], ("--wdt-reset",) * warm + ("--retain", str(retain)))
+
+
+def restart_box(plan: dict, boxes: list[Box], tap: Tap, warm: bool,
+                faults: dict[int, int]) -> None:
+    """Kill the box between two samples and start it again; the tap attaches to its new pty
+    (the component's end of the line stays). The chips' faults are physical: they are still
+    there after the restart."""
+    tap.detach_box()
+    boxes[-1].kill()
+    box = start_box(plan, warm)
+    boxes.append(box)
+    tap.attach_box(box.pty)
+    for ch, sr in sorted(faults.items()):
+        if sr:
+            box.feed(f"F {ch} {sr:02x}\n")
+
+
+def garbage(seed: int, n_random: int = 512, run: int = 16 * 1024) -> bytes:
+    """Noise on the wire: random bytes (newlines among them), then ``run`` bytes without one."""
+    rng = random.Random(seed)
+    no_newline = bytes(b for b in range(256) if b != 0x0A)
+    return rng.randbytes(n_random) + bytes(rng.choice(no_newline) for _ in range(run))
+
+
+def forged_line(box_line: dict, delta_nm: int) -> bytes:
+    """A CRC-valid ``$C`` line with the next seq and every correction moved by ``delta_nm``."""
+    return protocol.encode_sample((box_line["seq"] + 1) % (1 << 32), box_line["status"],
+                                  [c + delta_nm for c in box_line["corr_nm"]],
+                                  box_line["temps"])
+
+
+def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap) -> list[dict]:
     """Feed every sample, apply the plan's events, record what LinuxCNC does after each."""
     feed = Path(plan["feed"]).read_text().splitlines()
     ev = plan.get("events", {})
     open_tc, stale, bad = ev.get("open"), ev.get("stale"), ev.get("bad_line")
     off, zero, dis = ev.get("machine_off"), ev.get("zero"), ev.get("disable")
+    wdt, forged = ev.get("wdt_restart"), ev.get("forged")
+    cuts = {c["at"]: c for c in ev.get("power_cut", [])}  # a power cut: the box boots cold
+    zero_after_cut = {c["at"] + int(c["zero_after"]): c for c in cuts.values()}
+    noise, link = ev.get("garbage"), ev.get("reconnect")
+    faults: dict[int, int] = {}
     records: list[dict] = []
     start_mdi = plan["start_mdi"]
     timeout = float(plan.get("timeout_s", 10.0))
     for k, line in enumerate(feed):
         phase = "track"
+        # before any injection: garbage is counted as soon as the component reads it
+        bad_before = machine.get(f"{COMP}.bad-lines")
+        if k == 0 and plan.get("zero_at_start"):
+            # a start-referenced box holds (NO_REF) until ZERO: the job's touch-off
+            records.append({"sample": k, "phase": "zero_start",
+                            "reply": _pulse_zero(machine, tap, timeout)})
         if open_tc and k == open_tc["at"]:
-            box.feed(f"F {open_tc['channel']} 01\n")
+            faults[open_tc["channel"]] = 1
+            boxes[-1].feed(f"F {open_tc['channel']} 01\n")
         if open_tc and k == open_tc["stop"]:
-            box.feed(f"F {open_tc['channel']} 00\n")
+            faults[open_tc["channel"]] = 0
+            boxes[-1].feed(f"F {open_tc['channel']} 00\n")
         if open_tc and open_tc["at"] <= k < open_tc["stop"]:
             phase = "open"
         if stale and k == stale["at"]:
@@ -317,26 +472,59 @@ def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
             phase = "disabled"
         if zero and k == zero["at"]:
             acks = machine.get(f"{COMP}.zero-acks")
-            machine.setp(f"{COMP}.zero", 1)
-            tap.wait(lambda: any(r.startswith("$OK,ZERO") or r.startswith("$E")
-                                 for r in tap.replies), timeout, "the box's reply to ZERO")
-            machine.setp(f"{COMP}.zero", 0)
-            reply = next(r for r in tap.replies if r.startswith(("$OK,ZERO", "$E")))
-            records.append({"sample": k, "phase": "zero_sent", "reply": reply,
+            records.append({"sample": k, "phase": "zero_sent",
+                            "reply": _pulse_zero(machine, tap, timeout),
                             "zero_acks_before": acks})
             phase = "zero"
+        if wdt and k == wdt["at"]:
+            restart_box(plan, boxes, tap, True, faults)
+            phase = "wdt_restart"
+        if k in cuts:
+            restart_box(plan, boxes, tap, False, faults)
+            phase = "power_cut"
+        if k in zero_after_cut:
+            # the operator's touch-off some samples after the box came back cold
+            records.append({"sample": k, "phase": "zero_after_cut",
+                            "awaiting_zero_before": machine.get(f"{COMP}.awaiting-zero"),
+                            "reply": _pulse_zero(machine, tap, timeout)})
+            phase = "zero_after_cut"
+        if noise and k == noise["at"]:
+            tap.inject(garbage(int(noise.get("seed", 41))))
+            phase = "garbage"
+        link_down = bool(link and link["at"] <= k < link["at"] + link["samples"])
+        if link and k == link["at"]:
+            tap.drop_link()  # the cable is pulled: the component's reads fail
+            machine.wait(lambda: not machine.get(f"{COMP}.connected"), timeout,
+                         "the component to notice the dropped link")
+        if link_down:
+            phase = "link_down"
+        if link and k == link["at"] + link["samples"]:
+            tap.restore_link()  # plugged in again: the same port name, a new device
+            machine.wait(lambda: machine.get(f"{COMP}.connected"), 20,
+                         "the component to reopen the port and read INFO")
+            phase = "reconnected"
         n_before = len(tap.samples)
-        bad_before = machine.get(f"{COMP}.bad-lines")
-        box.feed(line + "\n")
+        holds = machine.get(f"{COMP}.holds")
+        boxes[-1].feed(line + "\n")
         tap.wait(lambda n=n_before: len(tap.samples) > n, timeout, f"the box's line of sample "
                  f"{k}")
         box_line = tap.samples[n_before]
-        if box_line["corrupted"]:
+        if link_down:
+            time.sleep(0.01)  # nothing reaches the component
+        elif box_line["corrupted"] or phase == "garbage" or (forged and k == forged["at"] + 1):
+            # refused, swallowed by the noise before it, or taken as the forged line's stray
             machine.wait(lambda b=bad_before: machine.get(f"{COMP}.bad-lines") > b, timeout,
-                         f"the component to refuse the corrupted line of sample {k}")
+                         f"the component to count a bad line at sample {k}")
+            if phase == "garbage":
+                time.sleep(0.1)  # the rest of the run and the box's line it swallowed
+            if forged and k == forged["at"] + 1:
+                machine.wait(lambda s=box_line["seq"]: machine.get(f"{COMP}.seq") == s, timeout,
+                             f"the component to take seq {box_line['seq']} (sample {k})")
         else:
             seq = box_line["seq"]
-            machine.wait(lambda s=seq: machine.get(f"{COMP}.seq") == s, timeout,
+            # taken (seq) or held (a line whose seq went back: a restarted box)
+            machine.wait(lambda s=seq, h=holds: machine.get(f"{COMP}.seq") == s or
+                         machine.get(f"{COMP}.holds") > h, timeout,
                          f"the component to take seq {seq} (sample {k})")
         if off and k == off["at"] + off["samples"] - 1:
             machine.on()
@@ -351,12 +539,30 @@ def replay(plan: dict, machine: Machine, box: Box, tap: Tap) -> list[dict]:
             machine.wait(lambda: machine.get(f"{COMP}.active"), timeout,
                          "the component to resynchronise after enable")
             phase = "enabled"
-        if machine.poll().task_state == linuxcnc.STATE_ON:
-            time.sleep(0.003)  # let motion pick up a counts change written this instant
-            machine.wait(machine.settled, timeout, f"the external offset to settle after "
-                         f"sample {k}")
+        _settle(machine, timeout, k)
         records.append({"sample": k, "phase": phase, "box": box_line, **machine.snapshot()})
+        if forged and k == forged["at"]:
+            # between this sample and the next: one extra line, CRC-valid, 60 um off
+            fake = forged_line(box_line, int(forged["delta_nm"]))
+            tap.inject(fake)
+            machine.wait(lambda s=(box_line["seq"] + 1) % (1 << 32):
+                         machine.get(f"{COMP}.seq") == _s32(s), timeout,
+                         "the component to take the forged line")
+            _settle(machine, timeout, k)
+            records.append({"sample": k, "phase": "forged",
+                            "line": fake.decode().strip(), **machine.snapshot()})
     return records
+
+
+def _s32(value: int) -> int:
+    return value - (1 << 32) if value >= 1 << 31 else value
+
+
+def _settle(machine: Machine, timeout: float, k: int) -> None:
+    if machine.poll().task_state == linuxcnc.STATE_ON:
+        time.sleep(0.003)  # let motion pick up a counts change written this instant
+        machine.wait(machine.settled, timeout, f"the external offset to settle after "
+                     f"sample {k}")
 
 
 def run_program(prog: dict, machine: Machine) -> dict:
@@ -426,13 +632,14 @@ def main(argv: list[str]) -> int:
     plan_path = Path(ini_path).resolve().parent / ini.find("THERMALCOMP", "DRIVER_PLAN")
     plan = json.loads(plan_path.read_text())
     out: dict = {"ok": False, "error": "", "records": [], "programs": []}
-    box = tap = None
+    boxes: list[Box] = []
+    tap = None
     t_start = time.monotonic()
     try:
         letters = [a["letter"] for a in plan["axes"]]
         machine = Machine(letters)
-        box = Box(plan["firmware"])
-        tap = Tap(box.pty, Path(plan["port_link"]))
+        boxes.append(start_box(plan, warm=False))
+        tap = Tap(boxes[0].pty, Path(plan["port_link"]))
         machine.wait(lambda: machine.get(f"{COMP}.connected"), 20,
                      "the component to open the port and read INFO")
         machine.on()
@@ -440,7 +647,7 @@ def main(argv: list[str]) -> int:
         machine.mdi(plan["start_mdi"])
         out["base_pos_mm"] = {a: machine.get(f"joint.{machine.joint[a]}.motor-pos-cmd")
                               for a in letters}
-        out["records"] = replay(plan, machine, box, tap)
+        out["records"] = replay(plan, machine, boxes, tap)
         for prog in plan.get("programs", []):
             out["programs"].append(run_program(prog, machine))
         out["ok"] = True
@@ -453,9 +660,10 @@ def main(argv: list[str]) -> int:
             out["box_replies"] = tap.replies
             out["commands"] = tap.commands
             tap.close()
-        if box is not None:
-            out["box_exit"] = box.stop()
-            out["box_stderr"] = box.stderr()
+        if boxes:
+            out["box_exit"] = boxes[-1].stop()
+            out["box_stderr"] = boxes[-1].stderr()
+            out["box_starts"] = len(boxes)
         out["elapsed_s"] = time.monotonic() - t_start
         Path(plan["results"]).write_text(json.dumps(out))
     return 0 if out["ok"] else 1

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import fcntl
 import json
+import math
 import os
 import pwd
 import shutil
@@ -54,7 +55,17 @@ class CncError(RuntimeError):
 
 @dataclass
 class Scenario:
-    """What the session injects, by sample index of the replayed run."""
+    """What the session injects, by sample index of the replayed run.
+
+    Besides the faults the component holds on (open thermocouple, stale stream, corrupted
+    line, machine off/on, enable off/on, ZERO), the controller events of issue 41's rule,
+    each judged against the clean run (``fault_rows``): a forged CRC-valid line
+    (``forged_at``: after that sample, every correction +``forged_delta_um``), noise on the
+    wire (``garbage_at``: random bytes and a 16 KiB run without a newline, before that
+    sample), a dropped and restored link (``reconnect_at`` for ``reconnect_samples``
+    samples), a watchdog restart (``wdt_at``: the box killed and started with
+    ``--wdt-reset`` on its retained memory) and power cuts (``power_cuts``: (sample, samples
+    until the operator's ZERO) each; the box boots cold, NO_REF)."""
 
     n_samples: int = 961
     open_at: int = 200
@@ -67,6 +78,14 @@ class Scenario:
     disable_at: int = 600
     disable_samples: int = 5
     zero_at: int | None = 700
+    forged_at: int | None = 120
+    forged_delta_um: float = 60.0
+    garbage_at: int | None = 300
+    reconnect_at: int | None = 380
+    reconnect_samples: int = 2
+    wdt_at: int | None = 450
+    power_cuts: tuple[tuple[int, int], ...] = ((800, 1), (880, 3))
+    zero_at_start: bool = True  # a start-referenced box holds (NO_REF) until the job's ZERO
     stale_period_s: float = 0.1  # the component's stale clock in the time-compressed replay
     stale_periods: float = 3.0
     testplans: tuple[ThermalTestPlan, ...] = ()  # run after the replay, in AUTO (linuxcnc)
@@ -81,7 +100,39 @@ class Scenario:
                     "disable": {"at": self.disable_at, "samples": self.disable_samples}}
         if self.zero_at is not None:
             ev["zero"] = {"at": self.zero_at}
-        return {k: v for k, v in ev.items() if _inside(v, self.n_samples)}
+        if self.forged_at is not None:
+            ev["forged"] = {"at": self.forged_at,
+                            "delta_nm": round(self.forged_delta_um * 1000.0)}
+        if self.garbage_at is not None:
+            ev["garbage"] = {"at": self.garbage_at, "seed": 41}
+        if self.reconnect_at is not None:
+            ev["reconnect"] = {"at": self.reconnect_at, "samples": self.reconnect_samples}
+        if self.wdt_at is not None:
+            ev["wdt_restart"] = {"at": self.wdt_at}
+        out = {k: v for k, v in ev.items() if _inside(v, self.n_samples)}
+        cuts = [{"at": at, "zero_after": after} for at, after in self.power_cuts
+                if at + after < self.n_samples]
+        if cuts:
+            out["power_cut"] = cuts
+        return out
+
+    def controller_events(self) -> list[tuple[str, int]]:
+        """(scenario name, sample) of each event judged by the rule, in order."""
+        ev = self.events()
+        named = [("forged line", "forged"), ("garbage on the wire", "garbage"),
+                 ("stale stream", "stale"), ("reconnect", "reconnect"),
+                 ("corrupted line", "bad_line"), ("watchdog restart", "wdt_restart")]
+        out = [(name, int(ev[key]["at"])) for name, key in named if key in ev]
+        out += [(f"power cut (ZERO after {c['zero_after']})", int(c["at"]))
+                for c in ev.get("power_cut", [])]
+        return sorted(out, key=lambda e: e[1])
+
+
+def campaign_scenario() -> Scenario:
+    """Every controller event of the fault campaign (hil/faults.py: ``make faults``) on the
+    whole replay, without the test programs: run it with ``run_session`` and turn the result
+    into rows with ``fault_rows``."""
+    return Scenario(testplans=())
 
 
 def _inside(event: dict, n: int) -> bool:
@@ -135,8 +186,11 @@ def prepare_box(build: Path, n_samples: int):
     terms = {"dx_um": default_terms(["T03", "T04", "T01"], period, "spindle_rpm"),
              "dy_um": default_terms(["T06", "T07", "T05"], period, None),
              "dz_um": default_terms(["T05", "T01", "T02"], period, "spindle_rpm")}
-    model = write_model(fit_example_model(TRAIN_RUN, terms, aux_names=["spindle_rpm"]),
-                        build / "model.json")
+    fitted = fit_example_model(TRAIN_RUN, terms, aux_names=["spindle_rpm"])
+    # the default users get (host train --reference start): the box zeroes at the job's ZERO,
+    # boots NO_REF after a power cut (the header's zero_at_powerup follows the reference)
+    fitted["reference"] = {"kind": "start", "samples": 1}
+    model = write_model(fitted, build / "model.json")
     run = load_run(REPLAY_RUN, targets=[a for _, a in AXES], sensors=sensors + ["T07"],
                    aux=["spindle_rpm"])
     n = min(n_samples, run.n_samples)
@@ -197,6 +251,7 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
             "port_link": str(port), "results": str(stage_dir / "results.json"),
             "axes": [{"letter": letter, "box_axis": a} for letter, a in AXES],
             "start_mdi": START_MDI, "events": scenario.events(), "timeout_s": 10.0,
+            "retain": str(stage_dir / "retain.bin"), "zero_at_start": scenario.zero_at_start,
             "programs": programs}
     (cfg / "plan.json").write_text(json.dumps(plan, indent=1))
     for p in (stage_dir, *stage_dir.rglob("*")):
@@ -264,20 +319,37 @@ class _Records:
                     for r in rs for a in self.letters), default=0.0)
 
 
-def _tracking(rec: _Records, problems: list[str]) -> tuple[int, float, float]:
+def _tracking(rec: _Records, problems: list[str],
+              cuts: tuple[int, ...] = ()) -> tuple[int, float, float]:
     """On every healthy sample, the offset and the joint follow the box within a count:
-    (samples tracked, worst offset difference, worst joint difference) in nm."""
+    (samples tracked, worst offset difference, worst joint difference) in nm.
+
+    After a power cut the component carries the offsets it held as a base and adds the box's
+    change since the operator's ZERO: from then on the offset is base - correction, the base
+    taken at the first healthy sample after the cut (the power cut's row judges the base
+    itself against the clean run)."""
     max_off = max_joint = 0.0
     tracked = 0
+    base = {a: 0.0 for a in rec.letters}
+    segment = 0
     for r in rec.records:
+        while segment < len(cuts) and r["sample"] >= cuts[segment]:
+            segment, base = segment + 1, {}
         healthy = (not r["box"]["status"] & HOLD_BITS and not r["holding"]
                    and not r["walking"] and not r["box"]["corrupted"]
-                   and r["phase"] not in ("machine_off", "disabled"))
+                   and r["box"].get("delivered", True)
+                   and r["phase"] not in ("machine_off", "disabled", "garbage"))
         if not healthy:
             continue
+        if not base:
+            base = {a: r["eoffset_mm"][a] * 1e6 - rec.want_nm(r, i)
+                    for i, a in enumerate(rec.letters)}
         tracked += 1
-        max_off = max(max_off, rec.offset_diff_nm(r))
-        max_joint = max(max_joint, rec.joint_diff_nm(r))
+        max_off = max(max_off, max(abs(r["eoffset_mm"][a] * 1e6 - base[a] - rec.want_nm(r, i))
+                                   for i, a in enumerate(rec.letters)))
+        max_joint = max(max_joint, max(
+            abs((r["pos_cmd_mm"][a] - rec.base[a]) * 1e6 - base[a] - rec.want_nm(r, i))
+            for i, a in enumerate(rec.letters)))
     if tracked == 0:
         problems.append("no sample was tracked (every one held or walking)")
     if max_off > rec.nm_per_count:
@@ -398,12 +470,236 @@ def _zero(raw: dict, rec: _Records, problems: list[str]) -> dict:
     return zero
 
 
-def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Result:
-    """Compare LinuxCNC's offsets with the box's lines; the summary and the problems found."""
+# --- the rule: no single event worse than the clean run by more than one step limit --------
+def clean_reference(setup, scenario: Scenario) -> dict:
+    """The offsets a clean session would command, computed without the component or LinuxCNC.
+
+    The clean box's lines come from the host's twin (hil.expect: bit-exact with the firmware,
+    as the HIL checks) for the same feed with only the non-controller events (the open
+    thermocouple, the job's ZERO and the ZERO at ``zero_at``); the component's documented
+    rules (docs/linuxcnc.md) turn them into offsets: hold every axis on a hold bit, else move
+    towards sign x correction by at most min(step limit, slew) per line, within
+    ``max_abs_um``, and take the first line after an acknowledged ZERO at once."""
+    import numpy as np
+
+    from cnc import thermalcomp
+    from contract.fixed_point import CODE_MAX, CODE_MIN
+    from hil.expect import expect_session, sr_timeline
+
+    feed, model = setup.feed, setup.model
+    n = feed.n_samples
+    codes = np.clip(np.asarray(feed.codes, dtype=np.int64), CODE_MIN, CODE_MAX)
+    faults = []
+    if scenario.open_at < n:
+        faults = [(scenario.open_at, scenario.open_channel, 1),
+                  (min(scenario.open_stop, n), scenario.open_channel, 0)]
+    sr = sr_timeline(n, codes.shape[1], [f for f in faults if f[0] < n])
+    zeros = ([0] if scenario.zero_at_start else []) + (
+        [scenario.zero_at] if scenario.zero_at is not None and scenario.zero_at < n else [])
+    exp = expect_session(setup.twin, codes, feed.aux, sr, setup.output, zero_before=zeros,
+                         zero_at_powerup=setup.build.zero_at_powerup)
+    cfg = thermalcomp.load_config(CONFIG_DIR / "thermalcomp.conf")
+    names = list(model["axes"])
+    period_s = float(model["sample_period_s"])
+    slew_nm = cfg.slew_nm_per_s * round(period_s * 1000.0) / 1000.0
+    max_abs_nm = cfg.max_abs_um * 1000.0
+    steps = {a.letter: float(thermalcomp._axis_step_nm(CONFIG_DIR, f"axis.{a.letter}",
+                                                        a.box_axis, model, None, True))
+             for a in cfg.axes}
+    offset: dict[str, list[float]] = {a.letter: [] for a in cfg.axes}
+    want = {a.letter: 0 for a in cfg.axes}
+    datum = False
+    for k in range(n):
+        datum = datum or k in zeros
+        if exp.status[k] & thermalcomp.HOLD_BITS:
+            pass  # every axis keeps its offset (a datum change waits for the next line)
+        else:
+            for a in cfg.axes:
+                bound = math.floor(max_abs_nm / a.nm_per_count + 1e-9)
+                corr = int(exp.out_nm[k, names.index(a.box_axis)])
+                target = max(-bound, min(bound, round(a.sign * corr / a.nm_per_count)))
+                if datum:
+                    want[a.letter] = target
+                else:
+                    step = max(1, math.floor(min(steps[a.letter], slew_nm) / a.nm_per_count
+                                             + 1e-9))
+                    w = want[a.letter]
+                    want[a.letter] = max(-bound, min(bound, w + max(-step, min(step,
+                                                                                target - w))))
+            datum = False
+        for a in cfg.axes:
+            offset[a.letter].append(want[a.letter] * a.nm_per_count)
+    return {"corr_nm": [[int(v) for v in row] for row in exp.out_nm],
+            "status": [int(v) for v in exp.status], "offset_nm": offset, "step_nm": steps,
+            "nm_per_count": {a.letter: a.nm_per_count for a in cfg.axes},
+            "box_axes": {a.letter: names.index(a.box_axis) for a in cfg.axes}}
+
+
+FLAG_SAMPLES = 10  # the flags reported for an event: those seen in its first samples
+_FLAG_PINS = ("holding", "fault", "stale", "awaiting-zero", "walking", "model-mismatch")
+_COUNTERS = ("bad-lines", "lost-lines", "restarts", "zero-acks")
+
+
+def _flags(window: list[dict], before: dict | None, clean_status: list[int]) -> list[str]:
+    """The component's flags seen over a window, its counters' increments, and the box's
+    status bits that the clean run does not have there."""
+    flags = [pin for pin in _FLAG_PINS if any(r.get(pin) for r in window)]
+    if any(not r.get("connected", True) for r in window):
+        flags.append("disconnected")
+    for c in _COUNTERS:
+        most = max((r[c] for r in window if c in r), default=None)
+        if most is not None and before is not None and most > before[c]:
+            flags.append(f"{c} +{most - before[c]}")
+    extra = 0
+    for r in window:
+        if "box" in r and r["sample"] < len(clean_status):
+            extra |= r["box"]["status"] & ~clean_status[r["sample"]]
+    from contract.protocol import status_names
+
+    flags += [f"box {name}" for name in status_names(extra)]
+    return flags
+
+
+def _judge_events(raw: dict, rec: _Records, clean: dict, events: list[tuple[str, int]],
+                  problems: list[str]) -> list[dict]:
+    """Per controller event: over its samples (from the event to the next one, or the end),
+    per axis the largest |LinuxCNC offset - the clean run's offset|, against one step limit
+    (+ 1 count). Samples with the machine off or compensation disabled are not compared."""
+    n = len(clean["status"])
+    extras = [r for r in raw.get("records", []) if r.get("phase") in ("forged", "stale_pause")]
+    rows = []
+    for i, (name, at) in enumerate(events):
+        end = events[i + 1][1] if i + 1 < len(events) else n
+        window = [r for r in rec.records if at <= r["sample"] < end
+                  and r["phase"] not in ("machine_off", "disabled")]
+        # (snapshot, the sample whose clean offset the tool should have then)
+        compared = [(r, r["sample"]) for r in window]
+        for x in extras:
+            if at <= x["sample"] < end:
+                if x["phase"] == "forged":
+                    compared.append((x, x["sample"]))
+                elif x["sample"] > 0:
+                    compared.append((x["during"], x["sample"] - 1))
+        inc, bound, detail = {}, {}, []
+        ok = bool(window)
+        for a in rec.letters:
+            worst = max((abs(r["eoffset_mm"][a] * 1e6 - clean["offset_nm"][a][k])
+                         for r, k in compared), default=float("nan"))
+            inc[a] = worst / 1000.0
+            bound[a] = clean["step_nm"][a] / 1000.0
+            if not worst <= clean["step_nm"][a] + clean["nm_per_count"][a]:
+                ok = False
+        before = rec.idx.get(at - 1)
+        # the flags of the event itself: its first FLAG_SAMPLES samples
+        near = [r for r in window if r["sample"] < at + FLAG_SAMPLES]
+        flags = _flags(near + [x for x, k in compared if "box" not in x
+                               and k < at + FLAG_SAMPLES], before, clean["status"])
+        row = {"scenario": name, "where": "linuxcnc", "at": at, "until": end,
+               "increase_um": inc, "bound_um": bound, "flags": flags}
+        ok &= _event_checks(name, at, raw, rec, window, before, detail)
+        row["ok"] = ok
+        row["detail"] = "; ".join(detail) or f"samples {at}-{end - 1}"
+        if not ok:
+            problems.append(f"{name} at sample {at}: increase "
+                            + ", ".join(f"{a} {inc[a]:.3f}" for a in rec.letters)
+                            + " um (bound " + ", ".join(f"{bound[a]:.3f}" for a in rec.letters)
+                            + f" um + 1 count); {row['detail']}")
+        rows.append(row)
+    return rows
+
+
+def _moved_nm(a: dict, b: dict, letter: str) -> float:
+    return abs(a["eoffset_mm"][letter] - b["eoffset_mm"][letter]) * 1e6
+
+
+def _event_checks(name: str, at: int, raw: dict, rec: _Records, window: list[dict],
+                  before: dict | None, detail: list[str]) -> bool:
+    """What each event must also show besides the bound (so the bound is not met by luck)."""
+    ok = True
+    if name == "forged line":
+        forged = [r for r in raw.get("records", []) if r.get("phase") == "forged"
+                  and r["sample"] == at]
+        here = rec.idx.get(at)
+        if not forged or here is None:
+            detail.append("the forged line was not injected")
+            return False
+        moved = {a: _moved_nm(forged[0], here, a) / 1000.0 for a in rec.letters}
+        taken = all(m > 0.5 * rec.nm_per_count / 1000.0 for m in moved.values())
+        detail.append("the forged line (+60 um) moved the offsets "
+                      + ", ".join(f"{a} {moved[a]:.3f}" for a in rec.letters) + " um"
+                      + ("" if taken else ": NOT taken"))
+        ok &= taken
+    elif name.startswith("power cut"):
+        cut = [r for r in window if r["sample"] <= at + 1]
+        zero = [r for r in raw.get("records", []) if r.get("phase") == "zero_after_cut"
+                and "reply" in r and at < r["sample"]]
+        held = before is not None and all(_moved_nm(r, before, a) <= MOVED_NM
+                                          for r in cut for a in rec.letters)
+        no_ref = any(r["box"]["status"] & (1 << 13) for r in cut)
+        replied = bool(zero) and zero[0]["reply"].startswith("$OK,ZERO")
+        detail.append(f"box NO_REF {'yes' if no_ref else 'NO'}, offsets held "
+                      f"{'yes' if held else 'NO'}, ZERO at {zero[0]['sample'] if zero else '-'}"
+                      f" ({zero[0]['reply'] if zero else 'not sent'}; awaiting-zero before "
+                      f"it: {'yes' if zero and zero[0]['awaiting_zero_before'] else 'no'})")
+        ok &= held and no_ref and replied
+    elif name == "watchdog restart":
+        r = rec.idx.get(at)
+        resumed = (r is not None and before is not None
+                   and r["box"]["seq"] == before["box"]["seq"] + 1
+                   and bool(r["box"]["status"] & (1 << 8)))
+        detail.append(f"seq {before['box']['seq'] if before else '?'} -> "
+                      f"{r['box']['seq'] if r else '?'}, WDT_RESET "
+                      f"{'yes' if r and r['box']['status'] & (1 << 8) else 'NO'}")
+        ok &= resumed
+    elif name == "reconnect":
+        down = [r for r in window if r["phase"] == "link_down"]
+        lost = sum(1 for r in down if not r["box"].get("delivered", True))
+        dropped = any(not r["connected"] for r in down)
+        detail.append(f"link down for {lost} box line(s), component saw it: "
+                      f"{'yes' if dropped else 'NO'}")
+        ok &= dropped and lost == len(down) > 0
+    elif name == "garbage on the wire":
+        r = rec.idx.get(at)
+        refused = r is not None and before is not None and r["bad-lines"] > before["bad-lines"]
+        detail.append(f"bad lines +{r['bad-lines'] - before['bad-lines'] if refused else 0}")
+        ok &= refused
+    return ok
+
+
+def _box_against_twin(rec: _Records, clean: dict, cuts: tuple[int, ...]) -> dict:
+    """The box's lines as the tap decoded them against the twin's clean lines, on every
+    sample before the first power cut (a watchdog restart resumes bit for bit)."""
+    stop = min(cuts, default=len(clean["status"]))
+    compared = mismatches = 0
+    for r in rec.records:
+        if r["sample"] >= stop:
+            continue
+        compared += 1
+        want = clean["corr_nm"][r["sample"]]
+        mask = ~(1 << 8)  # WDT_RESET: set after the watchdog restart only
+        if r["box"]["corr_nm"] != want or (r["box"]["status"] & mask) != (
+                clean["status"][r["sample"]] & mask):
+            mismatches += 1
+    return {"compared": compared, "mismatches": mismatches}
+
+
+def fault_rows(summary: dict) -> list[dict]:
+    """One row per controller event of a session's summary (``run_session``), for the fault
+    campaign: {scenario, where, increase_um, bound_um, flags, ok, detail}."""
+    keys = ("scenario", "where", "increase_um", "bound_um", "flags", "ok", "detail")
+    return [{k: row[k] for k in keys} for row in summary.get("events", [])]
+
+
+def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0,
+          clean: dict | None = None, events: list[tuple[str, int]] | None = None) -> Result:
+    """Compare LinuxCNC's offsets with the box's lines, and (given the clean run's offsets,
+    ``clean_reference``) each controller event with the clean run; the summary and the
+    problems found."""
     problems: list[str] = []
     rec = _Records([r for r in raw.get("records", []) if "box" in r],
                    raw.get("base_pos_mm", {}), nm_per_count)
-    tracked, max_off, max_joint = _tracking(rec, problems)
+    cuts = tuple(at for name, at in events or [] if name.startswith("power cut"))
+    tracked, max_off, max_joint = _tracking(rec, problems, cuts)
     holds = _open_thermocouple(rec, step_nm, problems)
     holds += _stale_pauses(raw, rec, problems)
     holds += _corrupted_lines(rec, problems)
@@ -411,13 +707,20 @@ def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0) -> Re
     holds += resync_holds
     holds += _enable_off_on(rec, problems)
     zero = _zero(raw, rec, problems)
+    rows = _judge_events(raw, rec, clean, events or [], problems) if clean else []
+    twin = _box_against_twin(rec, clean, cuts) if clean else {}
+    if twin.get("mismatches"):
+        problems.append(f"the box's own lines differ from the twin's clean lines on "
+                        f"{twin['mismatches']} of {twin['compared']} samples before the first "
+                        "power cut: the clean reference is not the box's")
     if not raw.get("ok"):
         problems.insert(0, f"the LinuxCNC session did not complete: {raw.get('error')}")
     records = rec.records
     summary = {"samples": len(records), "tracked_samples": tracked,
                "max_abs_diff_nm": max_off, "max_abs_diff_counts": max_off / nm_per_count,
                "max_abs_joint_diff_nm": max_joint, "holds": holds, "resync": resync,
-               "zero": zero, "zero_ok": bool(zero.get("ok")),
+               "zero": zero, "zero_ok": bool(zero.get("ok")), "events": rows,
+               "box_vs_twin": twin,
                "bad_lines": records[-1]["bad-lines"] if records else 0,
                "lost_lines": records[-1]["lost-lines"] if records else 0,
                "ok": not problems, "problems": problems}
@@ -532,6 +835,24 @@ def table(summary: dict, elapsed_s: float) -> str:
     for h in s["holds"]:  # off by: how far an offset moved while held, or missed after resync
         lines.append(f"{h['fault']:24s}{h['samples']:8d}  {h['box_status']:12s}"
                      f"{'yes' if h['held'] else 'NO':>8s}{h['moved_nm']:11.3f}")
+    if s.get("events"):
+        letters = [letter for letter, _ in AXES]
+        lines += ["", "the rule: no single event moves the tool further from the clean run than "
+                  "one step limit (+1 count)",
+                  f"{'controller event':28s}{'at':>5s}  "
+                  + "".join(f"{a + ' um (bound)':>17s}" for a in letters) + "  result",
+                  "-" * 86]
+        for e in s["events"]:
+            lines.append(f"{e['scenario']:28s}{e['at']:5d}  "
+                         + "".join(f"{e['increase_um'][a]:8.3f} ({e['bound_um'][a]:6.3f})"
+                                   for a in letters)
+                         + f"  {'PASS' if e['ok'] else 'FAIL'}")
+            lines.append(f"{'':35s}{e['detail']}")
+            lines.append(f"{'':35s}flags: {', '.join(e['flags']) or '-'}")
+        t = s.get("box_vs_twin", {})
+        same = t.get("compared", 0) - t.get("mismatches", 0)
+        lines.append(f"clean run: the twin's lines (box = twin on {same}/{t.get('compared', 0)} "
+                     "samples before the first power cut) through the component's rules")
     z = s["zero"]
     lines.append("")
     if z.get("done"):
@@ -578,7 +899,9 @@ def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float 
     finally:
         if not keep:
             shutil.rmtree(stage_dir, ignore_errors=True)
-    result = judge(raw, step_nm=1000.0 * setup.model["sample_period_s"])
+    clean = clean_reference(setup, scenario)
+    result = judge(raw, step_nm=1000.0 * setup.model["sample_period_s"], clean=clean,
+                   events=scenario.controller_events())
     if scenario.testplans:
         recorded = raw.get("programs", [])
         progs = [judge_program(tp, recorded[i] if i < len(recorded) else None)
