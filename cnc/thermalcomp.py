@@ -584,9 +584,25 @@ class Compensator:
         else:
             self.log(f"box refused a command: {reason}")
 
-    def deferred_zero_due(self, status: int) -> bool:
-        """A deferred ZERO is due now: the box's last line carries no hold bit."""
-        return self.zero_deferred and not status & HOLD_BITS and not self.zero_pending
+    def zero_wait_reason(self) -> str:
+        """Why a ZERO now would take a datum that is not a healthy box's ("" : none): the
+        box holds or walks an axis (it refuses then), the stream is stale, or the offsets
+        still walk to the box's value after a hold (that gap would stay in the datum).
+        NO_REF does not wait: a ZERO is what it asks for."""
+        if self.stale:
+            return "the stream is stale"
+        if self.status & NO_REF:  # every axis holds for want of a datum: ZERO is the cure
+            return ""
+        held = self.status & (HOLD_BITS | SLEW)
+        if held:
+            return "box status " + "|".join(protocol.status_names(held))
+        if self.walking:
+            return "the offsets still walk to the box's value"
+        return ""
+
+    def deferred_zero_due(self) -> bool:
+        """A deferred ZERO can go now (nothing to wait for, none in flight)."""
+        return self.zero_deferred and not self.zero_pending and not self.zero_wait_reason()
 
     def bad_line(self, raw: bytes, err: Exception | str) -> None:
         self.bad_lines += 1
@@ -687,7 +703,11 @@ class HalDriver:
                 self.last_write, self.need_sync = now, False
         zero = bool(h["zero"])
         if zero and not self.zero_was:
-            if port.write(b"ZERO\r\n"):
+            wait = comp.zero_wait_reason()
+            if wait:
+                comp.zero_deferred = True
+                comp.log(f"zero: deferred ({wait}); sent once that is over")
+            elif port.write(b"ZERO\r\n"):
                 comp.zero_sent()
                 comp.log("zero: sending ZERO")
             else:
@@ -737,7 +757,7 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
     if isinstance(msg, protocol.Sample):
         if comp.take_sample(msg, now):
             port.write(b"INFO\r\n")  # a restarted box may carry another model
-        if comp.deferred_zero_due(msg.status) and port.write(b"ZERO\r\n"):
+        if comp.deferred_zero_due() and port.write(b"ZERO\r\n"):
             comp.zero_deferred = False
             comp.zero_sent()
             comp.log(f"zero: the box no longer holds (seq {msg.seq}): sending the deferred ZERO")

@@ -511,10 +511,38 @@ def test_a_zero_refused_while_holding_is_sent_again_once_the_box_no_longer_holds
     tc.handle_line(comp, port, protocol.encode_line("E", ["HOLDING"]).rstrip(b"\r\n"), 0.0)
     assert comp.zero_deferred and comp.zero_acks == 0
     tc.handle_line(comp, port, _raw(seq, 0, 1000, status=tc.HOLD), 0.0)
-    assert port.written == []  # still holding: not yet
-    tc.handle_line(comp, port, _raw(seq + 1, 0, 1000), 0.0)
-    assert port.written == [b"ZERO\r\n"] and comp.zero_pending and not comp.zero_deferred
-    comp.zeroed(seq + 1)
-    assert comp.zero_acks == 1 and comp.rezero
+    tc.handle_line(comp, port, _raw(seq + 1, 0, 1000, status=tc.SLEW), 0.0)
+    assert port.written == []  # still holding, then walking back: not yet
     tc.handle_line(comp, port, _raw(seq + 2, 0, 1000), 0.0)
+    assert port.written == [b"ZERO\r\n"] and comp.zero_pending and not comp.zero_deferred
+    comp.zeroed(seq + 2)
+    assert comp.zero_acks == 1 and comp.rezero
+    tc.handle_line(comp, port, _raw(seq + 3, 0, 1000), 0.0)
     assert port.written == [b"ZERO\r\n"]  # once
+
+
+def test_a_deferred_zero_waits_until_the_offsets_have_walked_to_the_box(tmp_path):
+    """After a hold the box tracks again at once but the component walks its offset back at
+    the step limit; a datum taken in between would keep the remaining gap."""
+    comp = _comp(tmp_path, FAST)
+    port = _WritePort()
+    seq = _track(comp, range(0, 1001, 200))
+    tc.handle_line(comp, port, _raw(seq, 0, 1000, status=tc.HOLD), 0.0)
+    comp.zero_sent()
+    tc.handle_line(comp, port, protocol.encode_line("E", ["HOLDING"]).rstrip(b"\r\n"), 0.0)
+    big = 1000 + 3 * Z_STEP  # the box moved on while held: three steps to walk
+    for k in range(1, 4):
+        tc.handle_line(comp, port, _raw(seq + k, 0, big), 0.0)
+        assert comp.walking == (k < 3) and port.written == ([] if k < 3 else [b"ZERO\r\n"])
+    assert _want(comp)["z"] == -big
+
+
+def test_a_box_without_its_datum_is_never_made_to_wait_for_zero(tmp_path):
+    """After a cold power-up the box holds every axis (HOLD|NO_DATA|NO_REF) until ZERO: the
+    component must not defer that ZERO waiting for the hold to end (it never would)."""
+    comp = _comp(tmp_path, FAST)
+    seq = _track(comp, range(0, 1001, 200))
+    _line(comp, seq, 0, 0, status=tc.HOLD | tc.NO_DATA | tc.NO_REF)
+    assert comp.zero_wait_reason() == ""
+    _line(comp, seq + 1, 0, 0, status=tc.HOLD)
+    assert comp.zero_wait_reason().startswith("box status HOLD")
