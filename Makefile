@@ -3,6 +3,9 @@
 #               replay a run through the native firmware over a pty, write the report
 #   make test   every test suite: Python (host, codegen, HIL) and C (firmware, cmocka)
 #   make cnc    replay a run through the box into a headless LinuxCNC (external offsets)
+#   make faults single ordinary events (restart, power cut, loose connector, runaway or stuck
+#               sensor, ZERO in a hold, forged line, garbage, stale, reconnect) against the rule
+#               "never worse than the clean run by more than one step limit" (build/faults/)
 #   make flash  flash the STM32F405 with build/model.h through OpenOCD (ST-LINK)
 
 PY      := .venv/bin/python
@@ -18,7 +21,7 @@ DEMO_TEST  := $(EXAMPLES)/sim_random.csv
 DEMO_TARGETS := --target dx_um --target dy_um --target dz_um
 
 .PHONY: setup system-deps test test-python test-firmware test-floors lint demo train firmware firmware-native \
-        firmware-stm32 hil flash bench examples report clean cnc
+        firmware-stm32 hil flash bench examples report clean cnc faults
 
 setup: $(STAMP)
 
@@ -35,7 +38,7 @@ $(STAMP): pyproject.toml scripts/install-system-deps.sh
 lint: $(STAMP)
 	$(PY) -m ruff check contract host codegen hil tests bench cnc firmware/test
 
-test: $(STAMP) lint test-firmware test-python test-floors
+test: $(STAMP) lint test-firmware test-python test-floors faults
 
 test-python: $(STAMP)
 	$(PY) -m pytest
@@ -90,6 +93,11 @@ report: $(STAMP)
 # The box's corrections through a headless LinuxCNC on external offsets (docs/linuxcnc.md).
 cnc: $(STAMP)
 	$(PY) -m cnc
+
+# The fault campaign of issue 41: native box + the component's logic, and the controller's
+# events through a real headless LinuxCNC; a table and build/faults/summary.json.
+faults: $(STAMP)
+	$(PY) -m cnc.faults --quiet
 
 bench: $(STAMP)
 	$(PY) -m bench

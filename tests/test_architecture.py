@@ -39,7 +39,7 @@ BELOW = {
     "cnc.thermalcomp": {"contract"},
     "cnc.driver": {"contract"},
     "cnc": {"contract", "codegen", "hil", "host.io", "host.fitting", "host.sim",
-            "host.progress"},
+            "host.progress", "cnc.thermalcomp"},
 }
 TOP = ("host.cli", "host.commands", "host.demo", "host.__main__", "host")  # may import any wing
 UNITS = sorted(BELOW, key=len, reverse=True)

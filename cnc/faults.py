@@ -1,0 +1,506 @@
+"""`make faults`: single ordinary events against the rule "never worse than no compensation".
+
+The rule (docs/safety.md, issue 41): no single event may make the tool error worse than the
+clean run by more than one step limit of that axis; where the box or the controller cannot
+know, it holds and says why on the wire.
+
+Each scenario replays the demo's unseen run through the native firmware (hil.runner: the same
+box, feed and events as ``python -m hil replay``) and follows the box's lines with the LinuxCNC
+component's own logic (cnc.thermalcomp.Compensator: sequence, holds, bounded moves, restarts,
+ZERO), so what reaches the tool is what the component would command. Events on the wire between
+the box and the controller (a forged line, garbage, a silent or dropped link) are injected into
+the component's input. The scenarios that involve LinuxCNC also run through a real headless
+LinuxCNC (cnc.session) and are judged there from its own offsets.
+
+The tool error of axis a at sample k, after the operator's last touch-off at sample k0 (the
+ZEROs of the scenario: the datum absorbs whatever offset was applied at that moment):
+``e[k] = (d[k] - d[k0]) - (c[k] - c[k0])``, d the measured displacement, c the offset the
+component commands (in the box's units). A scenario's *increase* is ``max_k |e[k]| - |e_clean[k]|``
+against the clean run with the same operator actions (the same touch-offs, no fault). Its
+bound is one step limit of the axis (the model's ``max_step_um`` as the header carries it),
+except on the samples where the component held and said why (``holding``): there the tool
+keeps its last offset while the machine drifts on, which no box can know; the table shows that
+drift separately (``while held``) with the hold's length.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from cnc.thermalcomp import (
+    AxisMap,
+    Compensator,
+    Config,
+    Port,
+    handle_line,
+)
+from contract import model_file, protocol
+from hil import replay as hil_replay
+from hil.checks import step_limits_nm
+from hil.runner import (
+    Capture,
+    ChipFault,
+    CodeOffset,
+    CodeOverride,
+    Event,
+    Restart,
+    Zero,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO_TRAIN = [ROOT / "examples" / "sim_constant.csv", ROOT / "examples" / "sim_step.csv"]
+DEMO_TEST = ROOT / "examples" / "sim_random.csv"
+TARGETS = ["dx_um", "dy_um", "dz_um"]
+CHANNEL = 3  # the issue's channel (T05 in the demo model)
+LETTERS = {"dx_um": "x", "dy_um": "y", "dz_um": "z"}  # LinuxCNC's axes (cnc/config)
+
+
+# Scenarios measured outside their bound, with what is missing. `make faults` shows them as
+# GAP (not PASS) and fails when one of them passes (then this entry must go) or another fails.
+KNOWN_GAPS = {
+    "power cut, then ZERO": (
+        "a cold box's lag filters start at the current readings: mid warm-up the datum "
+        "after the ZERO misses what the lags had still to catch up (needs the lag state kept "
+        "over a power cut: battery-backed SRAM, or the controller handing it back)"),
+    "stuck sensor": (
+        "a frozen converter repeats one code; the box does not yet tell it from a steady "
+        "temperature (a stuck-channel rule from the training runs is under way)"),
+    "ZERO during a hold": (
+        "the open channel's lag filters resume from their state before a 5 h fault and "
+        "catch up after the datum (needs the filters re-seeded or the axis held until they "
+        "settle)"),
+}
+
+
+# --- what happens on the wire between the box and the controller -------------------------
+@dataclass(frozen=True)
+class Forge:
+    """After the line of sample ``after``: a CRC-valid ``$C`` line with the next seq and every
+    correction moved by ``delta_nm`` (a forged or damaged-but-valid line)."""
+
+    after: int
+    delta_nm: int = 60_000
+
+
+@dataclass(frozen=True)
+class Garbage:
+    """After the line of sample ``after``: these bytes arrive at the component."""
+
+    after: int
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Silence:
+    """The lines of samples [start, stop) never reach the component (a stale stream); with
+    ``reconnect`` the port closed at ``start`` and opened again at ``stop`` (a USB-serial
+    adapter unplugged and plugged in: the component asks INFO again)."""
+
+    start: int
+    stop: int
+    reconnect: bool = False
+
+
+WireEvent = Forge | Garbage | Silence
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    events: tuple[Event, ...] = ()
+    wire: tuple[WireEvent, ...] = ()
+    what: str = ""
+
+    @property
+    def touch_offs(self) -> tuple[int, ...]:
+        return tuple(sorted({0, *(e.at for e in self.events if isinstance(e, Zero))}))
+
+
+def scenarios(n: int) -> list[Scenario]:
+    """The campaign: the five events of issue 41, then the wire's."""
+    ch = CHANNEL
+    return [
+        Scenario("watchdog restart", (Restart(500, wdt_reset=True),),
+                 what="the box resets (watchdog, brown-out) before sample 500"),
+        Scenario("power cut", (Restart(500),),
+                 what="the box loses power before sample 500 and boots cold (no backup "
+                      "battery); nobody touches off: the controller holds to the end"),
+        Scenario("power cut, then ZERO", (Restart(500), Zero(501)),
+                 what="as above; the operator touches off (ZERO) one sample later"),
+        Scenario("loose connector", (ChipFault(400, ch, 1), ChipFault(401, ch, 0),
+                                     CodeOffset(401, 402, ch, 12800)),
+                 what="one OPEN sample on T05, then one reading +100 degC"),
+        Scenario("runaway sensor", (CodeOffset(400, n, ch, 0, per_sample=31),),
+                 what="T05 climbs 31 codes (0.24 degC) per sample from sample 400"),
+        Scenario("stuck sensor", (CodeOverride(400, n, ch, -1),),
+                 what="T05 freezes at its reading of sample 399"),
+        Scenario("ZERO during a hold", (ChipFault(200, ch, 1), Zero(450),
+                                        ChipFault(500, ch, 0)),
+                 what="T05 open from 200 to 500; the operator touches off at 450"),
+        Scenario("forged line", wire=(Forge(300),),
+                 what="a CRC-valid line with the next seq, every axis +60 um"),
+        Scenario("garbage on the wire", wire=(Garbage(320, bytes(range(256)) * 3),
+                                              Garbage(321, b"A" * 16384)),
+                 what="768 bytes of every value, then 16 KiB without a newline"),
+        Scenario("stale stream", wire=(Silence(350, 356),),
+                 what="no line reaches the controller for 6 samples"),
+        Scenario("reconnect", wire=(Silence(600, 603, reconnect=True),),
+                 what="the serial port goes away for 3 samples and comes back"),
+    ]
+
+
+# --- the controller, following the box ----------------------------------------------------
+class _Wire:
+    """The component's port, offline: what it writes is noted (INFO, ZERO)."""
+
+    def __init__(self) -> None:
+        self.asked_info = False
+        self.sent_zero = False
+        self.port = Port("(campaign)", 115200)
+        self.port.synced = True
+
+    def write(self, data: bytes) -> bool:
+        if data.startswith(b"INFO"):
+            self.asked_info = True
+        elif data.startswith(b"ZERO"):
+            self.sent_zero = True
+        return True
+
+
+@dataclass
+class Followed:
+    """Per sample: the offset the component commands (nm, box units) and whether it held."""
+
+    offset_nm: np.ndarray  # (n, n_axes)
+    holding: np.ndarray  # (n,) bool
+    walking: np.ndarray  # (n,) bool: walking back to the box's value after a hold
+    box_status: np.ndarray  # (n,) the box's status word on that sample's line (-1: none)
+    flags: set[str] = field(default_factory=set)
+    log: list[str] = field(default_factory=list)
+    touch_offs: list[int] = field(default_factory=list)  # samples of the datums in force
+    zero_resent_after: list[int] = field(default_factory=list)  # the component's own ZEROs
+
+
+def follow(model: dict, capture: Capture, axes: Sequence[str],
+           wire: Sequence[WireEvent] = ()) -> Followed:
+    """Feed the box's lines, in the order it sent them, to the component's logic."""
+    period = float(model["sample_period_s"])
+    steps = step_limits_nm(model)
+    cfg = Config(port="(campaign)", axes=[AxisMap(a, a, 1, 1.0, float(steps[a]))
+                                          for a in axes],
+                 model_hash=model_file.model_hash(model))
+    out = Followed(np.zeros((capture.n_samples, len(axes))),
+                   np.zeros(capture.n_samples, dtype=bool),
+                   np.zeros(capture.n_samples, dtype=bool),
+                   np.full(capture.n_samples, -1, dtype=np.int64))
+    comp = Compensator(cfg, log=out.log.append)
+    port = _Wire()
+    silent = [w for w in wire if isinstance(w, Silence)]
+    info_line = b""
+
+    def deliver(raw: bytes, t: float) -> None:
+        handle_line(comp, port, raw, t)  # type: ignore[arg-type]  (write() is all it uses)
+        if port.asked_info and info_line:
+            port.asked_info = False
+            handle_line(comp, port, info_line, t)  # the box answers INFO
+
+    k = 0
+    for s in capture.sessions:
+        zero_replies = list(s.zero_acks)
+        for raw in s.lines:
+            if raw.startswith(b"$I,"):
+                info_line = raw
+            t = k * period
+            gone = next((w for w in silent if w.start <= k < w.stop), None)
+            if gone is not None:
+                if gone.reconnect and k == gone.start and comp.info_fresh:
+                    comp.info_fresh = False  # as main() does when the port goes away
+                    out.log.append("port closed: offsets held, reopening")
+                if raw.startswith(b"$C,"):
+                    comp.check_stale(t)
+                    _record(out, comp, k, -1)
+                    k += 1
+                continue
+            if zero_replies and raw == zero_replies[0]:
+                zero_replies.pop(0)
+                comp.zero_sent()
+                if raw.startswith(b"$E,"):
+                    out.flags.add("ZERO refused: " + raw.decode(errors="replace").split("*")[0])
+                else:  # the operator touches off once the ZERO is acknowledged
+                    out.touch_offs.append(k)
+            if any(w.reconnect and w.stop == k for w in silent) and comp.needs_info():
+                handle_line(comp, port, info_line, t)  # reopened: the component asks INFO
+            deliver(raw, t)
+            comp.check_stale(t)
+            if not raw.startswith(b"$C,"):
+                continue
+            msg = protocol.decode(raw)
+            assert isinstance(msg, protocol.Sample)
+            _record(out, comp, k, msg.status)
+            if port.sent_zero:  # a deferred ZERO: the runner must send it before sample k+1
+                port.sent_zero = False
+                out.zero_resent_after.append(k)
+                out.flags.add("ZERO deferred and sent again")
+            for w in wire:
+                if isinstance(w, Forge) and w.after == k:
+                    forged = protocol.encode_sample(
+                        msg.seq + 1, msg.status,
+                        [c + w.delta_nm for c in msg.corrections_nm], msg.temp_codes)
+                    deliver(forged.rstrip(b"\r\n"), t)
+                    out.offset_nm[k] = [a.want for a in cfg.axes]  # what the forged line did
+                    out.flags.add("forged line taken (bounded)" if comp.bad_lines == 0
+                                  else "forged line refused")
+                elif isinstance(w, Garbage) and w.after == k:
+                    for line in port.port.feed(w.data):
+                        deliver(line, t)
+            k += 1
+    for name, value in (("stale", any(w for w in silent if not w.reconnect)),):
+        if value:
+            out.flags.add(name)
+    if comp.bad_lines:
+        out.flags.add(f"bad-lines {comp.bad_lines}")
+    if comp.restarts:
+        out.flags.add(f"restarts {comp.restarts}")
+    return out
+
+
+def _record(out: Followed, comp: Compensator, k: int, status: int) -> None:
+    if k >= len(out.holding):
+        return
+    out.offset_nm[k] = [a.want for a in comp.cfg.axes]
+    out.holding[k] = comp.holding or bool(comp.hold_reason)
+    out.walking[k] = comp.walking
+    out.box_status[k] = status
+    if comp.hold_reason:
+        out.flags.add("held: " + comp.hold_reason)
+    if comp.await_zero:
+        out.flags.add("awaiting-zero")
+
+
+# --- judging --------------------------------------------------------------------------------
+def tool_error_um(measured: np.ndarray, offset_nm: np.ndarray,
+                  touch_offs: Sequence[int]) -> np.ndarray:
+    """e[k] = (d[k] - d[k0]) - (c[k] - c[k0]), k0 the last touch-off at or before k."""
+    n = len(measured)
+    k0 = np.zeros(n, dtype=np.int64)
+    for t in sorted(touch_offs):
+        k0[t:] = t
+    c = offset_nm / 1000.0
+    return (measured - measured[k0]) - (c - c[k0])
+
+
+@dataclass
+class Row:
+    scenario: str
+    where: str
+    increase_um: dict[str, float]
+    held_drift_um: dict[str, float]
+    held_samples: int
+    bound_um: dict[str, float]
+    flags: list[str]
+    ok: bool
+    what: str = ""
+
+    def to_json(self) -> dict:
+        out = {"scenario": self.scenario, "where": self.where, "what": self.what,
+               "increase_um": self.increase_um, "bound_um": self.bound_um,
+               "while_held_um": self.held_drift_um, "held_samples": self.held_samples,
+               "flags": self.flags, "ok": self.ok}
+        if self.scenario in KNOWN_GAPS:
+            out["known_gap"] = KNOWN_GAPS[self.scenario]
+        return out
+
+
+def judge(scenario: Scenario, faulted: Followed, clean: Followed, measured: dict,
+          axes: Sequence[str], bounds_um: dict[str, float], extra_flags: Sequence[str] = ()
+          ) -> Row:
+    inc, held = {}, {}
+    slew = (faulted.box_status >= 0) & (faulted.box_status & int(protocol.Status.SLEW) != 0)
+    following = ~faulted.holding & ~faulted.walking & ~slew
+    for i, a in enumerate(axes):
+        e_f = tool_error_um(measured[a], faulted.offset_nm[:, i], [0, *faulted.touch_offs])
+        e_c = tool_error_um(measured[a], clean.offset_nm[:, i], [0, *clean.touch_offs])
+        worse = np.abs(e_f) - np.abs(e_c)
+        inc[a] = float(max(worse[following].max(initial=0.0), 0.0))
+        held[a] = float(max(worse[~following].max(initial=0.0), 0.0))
+    flags = sorted(faulted.flags - clean.flags) + list(extra_flags)
+    status_seen = int(np.bitwise_or.reduce(faulted.box_status[faulted.box_status >= 0]))
+    status_clean = int(np.bitwise_or.reduce(clean.box_status[clean.box_status >= 0]))
+    flags = [*("box: " + n for n in protocol.status_names(status_seen & ~status_clean)), *flags]
+    ok = all(inc[a] <= bounds_um[a] + 1e-9 for a in axes)
+    return Row(scenario.name, "native box + component", inc, held,
+               int(faulted.holding.sum() - clean.holding.sum()), dict(bounds_um), flags, ok,
+               scenario.what)
+
+
+# --- the campaign ---------------------------------------------------------------------------
+def demo_model(build: Path) -> Path:
+    """The demo's model, trained as `make train` does (host train's defaults: reference
+    start, zero at power-up); kept in ``build`` for the next campaign."""
+    model_json = build / "model.json"
+    if not model_json.is_file():
+        cmd = [sys.executable, "-m", "host", "train", *map(str, DEMO_TRAIN),
+               *(x for t in TARGETS for x in ("--target", t)), "--out", str(build),
+               "--no-codegen", "--quiet"]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0 or not model_json.is_file():
+            raise RuntimeError(f"host train failed ({proc.returncode}): "
+                               f"{(proc.stderr or proc.stdout).strip()[-800:]}")
+    return model_json
+
+
+def run_campaign(build: Path, quiet: bool = False, linuxcnc: bool = True) -> dict:
+    build.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    setup = hil_replay.prepare(demo_model(build), DEMO_TEST, build / "hil")
+    model, feed = setup.model, setup.feed
+    axes = list(feed.measured)
+    bounds = {a: v / 1000.0 for a, v in step_limits_nm(model).items() if a in axes}
+    n = feed.n_samples
+    clean_cache: dict[tuple[int, ...], Followed] = {}
+    rows: list[Row] = []
+    for sc in scenarios(n):
+        events = [_resolve(e, feed.codes) for e in sc.events]
+        zeros = tuple(e for e in events if isinstance(e, Zero))
+        if sc.touch_offs not in clean_cache:
+            _, cap = hil_replay.run(setup, list(zeros), quiet=True)
+            clean_cache[sc.touch_offs] = follow(model, cap, axes)
+        report, cap = hil_replay.run(setup, events, quiet=True)
+        faulted = follow(model, cap, axes, sc.wire)
+        for _ in range(20):  # the component sent a deferred ZERO: replay with it, until
+            sent = {Zero(k + 1) for k in faulted.zero_resent_after} - set(events)  # it holds
+            if not sent:
+                break
+            events = sorted([*events, *sent], key=lambda e: getattr(e, "at", 0))
+            report, cap = hil_replay.run(setup, events, quiet=True)
+            faulted = follow(model, cap, axes, sc.wire)
+        extra = [] if report.checks.get("twin_bit_exact") else ["box != twin"]
+        row = judge(sc, faulted, clean_cache[sc.touch_offs], feed.measured, axes, bounds, extra)
+        rows.append(row)
+        if not quiet:
+            print(f"  {sc.name:<22} {'PASS' if row.ok else 'FAIL'}", file=sys.stderr)
+    rows.append(_hil_verdict_row(build, setup))
+    out_rows = [r.to_json() for r in rows]
+    if linuxcnc:
+        out_rows += _linuxcnc_rows(build / "linuxcnc", quiet)
+    summary = {"model": str(build / "model.json"), "run": str(DEMO_TEST), "samples": n,
+               "rule": "increase of |tool error| over the clean run with the same touch-offs, "
+                       "on samples where the controller does not hold; bound: one step limit "
+                       "of the axis",
+               "rows": out_rows, "elapsed_s": time.monotonic() - t0}
+    summary["verdict"] = verdict(out_rows)
+    summary["ok"] = not summary["verdict"]
+    return summary
+
+
+def verdict(rows: list[dict]) -> list[str]:
+    """What makes the campaign fail: a scenario beyond its bound that is no known gap, or a
+    known gap that now holds (the entry in KNOWN_GAPS must go)."""
+    problems = []
+    for r in rows:
+        gap = r["scenario"] in KNOWN_GAPS
+        if not r["ok"] and not gap:
+            problems.append(f"{r['scenario']} ({r['where']}): beyond its bound")
+        elif r["ok"] and gap:
+            problems.append(f"{r['scenario']}: now within its bound, drop it from KNOWN_GAPS")
+    return problems
+
+
+def _linuxcnc_rows(build: Path, quiet: bool) -> list[dict]:
+    """The controller's scenarios through a real headless LinuxCNC (cnc.session)."""
+    from cnc import session
+
+    if not quiet:
+        print("  LinuxCNC session (headless) ...", file=sys.stderr)
+    try:
+        result = session.run_session(build, session.campaign_scenario())
+    except session.CncError as exc:
+        return [{"scenario": "LinuxCNC session", "where": "linuxcnc", "increase_um": {},
+                 "bound_um": {}, "flags": [str(exc)[:200]], "ok": False, "held_samples": 0}]
+    return session.fault_rows(result.summary)
+
+
+def _resolve(e: Event, codes: np.ndarray) -> Event:
+    """A stuck sensor (code -1) freezes at the reading just before it sticks."""
+    if isinstance(e, CodeOverride) and e.code == -1:
+        return CodeOverride(e.start, e.stop, e.channel, int(codes[e.start - 1, e.channel]))
+    return e
+
+
+def _hil_verdict_row(build: Path, setup) -> Row:
+    """Event 5: a model fifty times too strong must fail the HIL verdict."""
+    import copy
+
+    bad = copy.deepcopy(setup.model)
+    for ax in bad["axes"].values():
+        ax["intercept"] = ax.get("intercept", 0.0) * 50
+        for t in ax["terms"]:
+            t["coef"] *= 50
+        ax.pop("max_step_um", None)
+    bad.pop("model_hash", None)
+    path = build / "model_x50.json"
+    path.write_text(json.dumps(bad))
+    s50 = hil_replay.prepare(path, DEMO_TEST, build / "hil_x50")
+    report, _ = hil_replay.run(s50, quiet=True)
+    failed = [k for k, v in report.checks.items() if not v]
+    return Row("model x50 (HIL verdict)", "hil replay", {}, {}, 0, {}, failed,
+               ok=bool(failed), what="coefficients x50, step limits deleted: the verdict must "
+                                     "fail")
+
+
+def table(summary: dict) -> str:
+    axes = TARGETS
+    head = (f"{'scenario':<24} {'where':<24} " + " ".join(f"{a:>8}" for a in axes)
+            + f" {'held':>5}  {'result':<6} flags")
+    lines = [head, f"{'':<24} {'':<24} " + " ".join(f"{'um':>8}" for _ in axes), "-" * 110]
+    for r in summary["rows"]:
+        inc, bound = r.get("increase_um", {}), r.get("bound_um", {})
+        keys = [a if a in inc else LETTERS[a] for a in axes]
+        cells = " ".join(f"{inc[k]:>4.2f}/{bound[k]:<3.1f}" if k in inc else f"{'-':>8}"
+                         for k in keys)
+        lines.append(f"{r['scenario']:<24} {r['where']:<24} {cells} "
+                     f"{r.get('held_samples', 0):>5}  "
+                     f"{_result(r):<6} {'; '.join(r['flags'])[:80]}")
+    lines.append("")
+    for r in summary["rows"]:
+        if r["scenario"] in KNOWN_GAPS and not r["ok"]:
+            lines.append(f"GAP {r['scenario']}: {KNOWN_GAPS[r['scenario']]}")
+    for p in summary.get("verdict", []):
+        lines.append(f"FAIL {p}")
+    lines.append("per axis: increase of |tool error| over the clean run / one step limit (um), "
+                 "on samples where the controller follows the box; 'held': extra samples held")
+    return "\n".join(lines)
+
+
+def _result(r: dict) -> str:
+    if r["ok"]:
+        return "PASS"
+    return "GAP" if r["scenario"] in KNOWN_GAPS else "FAIL"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m cnc.faults", description=__doc__.split("\n")[0])
+    ap.add_argument("--build-dir", default=str(ROOT / "build" / "faults"))
+    ap.add_argument("--no-linuxcnc", action="store_true",
+                    help="only the native box and the component's logic (no LinuxCNC run)")
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    build = Path(args.build_dir)
+    summary = run_campaign(build, quiet=args.quiet, linuxcnc=not args.no_linuxcnc)
+    (build / "summary.json").write_text(json.dumps(summary, indent=1))
+    print(table(summary))
+    print(f"\nwrote {build / 'summary.json'} ({summary['elapsed_s']:.0f} s)")
+    return 0 if summary["ok"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
