@@ -1,6 +1,6 @@
 """`make faults`: single ordinary events against the rule "never worse than no compensation".
 
-The rule (docs/safety.md, issue 41): no single event may make the tool error worse than the
+The rule (docs/faults.md, issue 41): no single event may make the tool error worse than the
 clean run by more than one step limit of that axis; where the box or the controller cannot
 know, it holds and says why on the wire.
 
