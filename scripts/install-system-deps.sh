@@ -1,11 +1,13 @@
 #!/usr/bin/env bash
 # Installs the Debian packages the project needs (cross compiler, cmocka, QEMU,
-# OpenOCD, Chromium for the report check, LinuxCNC for the external-offset test).
+# OpenOCD, Chromium for the report check, LinuxCNC for the external-offset test,
+# mosquitto and PostgreSQL for the fleet tests, started by the tests themselves).
 # Skips apt when everything is present, uses sudo when not root. Always
 # --no-install-recommends (see docs/platform notes).
 set -euo pipefail
 pkgs=(make gcc python3-venv gcc-arm-none-eabi libnewlib-arm-none-eabi libcmocka-dev
-      qemu-system-arm openocd chromium linuxcnc-uspace)
+      qemu-system-arm openocd chromium linuxcnc-uspace mosquitto mosquitto-clients
+      postgresql openssl)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
