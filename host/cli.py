@@ -24,7 +24,8 @@ from contract.errors import InputError
 from host.progress import set_quiet
 
 # optional dependency (import name) -> the extra that installs it (pyproject.toml)
-EXTRAS = {"matplotlib": "report", "serial": "monitor", "sklearn": "sklearn"}
+EXTRAS = {"matplotlib": "report", "serial": "monitor", "sklearn": "sklearn", "paho": "fleet",
+          "psycopg": "fleet"}
 
 
 def _command_modules() -> list:

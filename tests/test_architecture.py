@@ -33,6 +33,8 @@ BELOW = {
                       "host.effects", "host.train", "host.sim", "host.progress",
                       "host.service"},
     "host.box": {"contract", "codegen"},
+    # the fleet over MQTT (issue 45): the protocol decoder, and the run writer for export
+    "host.fleet": {"contract", "host.io"},
     "hil": {"contract", "codegen", "host.io", "host.fitting", "host.progress"},
     # the LinuxCNC side: the HAL component and the headless driver run under Debian's
     # /usr/bin/python3 with the contract only; the session (make cnc) builds with the rest
