@@ -17,8 +17,9 @@ def serialise(model: QModel) -> bytes:
     out = bytearray(struct.pack("<IIII", len(model.channels), len(model.aux),
                                 len(model.axes), model.period_ms))
     for ch in model.channels:
-        out += struct.pack("<iiiiiB", ch.min_code, ch.max_code, ch.window_lo_code,
-                           ch.window_hi_code, ch.max_step_code, ch.tc_code)
+        out += struct.pack("<iiiiiBH", ch.min_code, ch.max_code, ch.window_lo_code,
+                           ch.window_hi_code, ch.max_step_code, ch.tc_code,
+                           ch.max_still_samples)
     for a in model.aux:
         out += struct.pack("<ii", a.min, a.max)
     for ax in model.axes:

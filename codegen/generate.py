@@ -71,7 +71,8 @@ def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
         "channels": [{"channel": c.index, "sensor": c.sensor, "min_code": c.min_code,
                       "max_code": c.max_code, "window_lo_code": c.window_lo_code,
                       "window_hi_code": c.window_hi_code, "max_step_code": c.max_step_code,
-                      "max_step_source": c.max_step_source} for c in model.channels],
+                      "max_step_source": c.max_step_source,
+                      "max_still_samples": c.max_still_samples} for c in model.channels],
         "aux": [{"input": a.index, "name": a.name, "min": a.min, "max": a.max}
                 for a in model.aux],
         "axes": {

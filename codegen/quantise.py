@@ -24,6 +24,8 @@ from contract.box import (
     DEFAULT_AXIS_STEP_UM_PER_S,
     DEFAULT_CHANNEL_STEP_C_PER_S,
     DEFAULT_CHANNEL_STEP_MIN_C,
+    MAX_STILL_SAMPLES,
+    MIN_STILL_SAMPLES,
     RUNTIME_MAX_AUX,
     RUNTIME_MAX_AXES,
     RUNTIME_MAX_CHANNELS,
@@ -93,6 +95,7 @@ class QChannel:
     window_hi_code: int  # valid range when the model has no training range for the channel
     max_step_code: int = 1  # largest plausible change per sample (codes, >= 1): IMPLAUSIBLE
     max_step_source: str = "model"  # "model" (max_step_c) or "default" (older model.json)
+    max_still_samples: int = 0  # same code this many samples in a row: STUCK (0: no check)
 
 
 @dataclass(frozen=True)
@@ -228,7 +231,7 @@ def _parse_channels(model: Mapping, period_s: float) -> tuple[QChannel, ...]:
         win_lo, win_hi = _training_window(ch, where, sensor, lo, hi)
         step, source = _channel_step(ch, where, sensor, period_s)
         out.append(QChannel(i, sensor, tc, TC_TYPES[tc], min_c, max_c, lo, hi, win_lo, win_hi,
-                            step, source))
+                            step, source, _channel_still(ch, where, sensor)))
     if len({c.sensor for c in out}) != len(out):
         raise CodegenError("channels: sensor names must be unique")
     return tuple(out)
@@ -270,6 +273,19 @@ def _channel_step(ch: Mapping, where: str, sensor: str, period_s: float) -> tupl
         source = "default"
     code = math.ceil(step_c * (1 << TEMP_FRAC_BITS))
     return max(1, min(code, CODE_MAX - CODE_MIN)), source
+
+
+def _channel_still(ch: Mapping, where: str, sensor: str) -> int:
+    """The stuck limit: ``max_still_samples`` (host train: twice the longest run of one code
+    in training, at least 10), or 0 (no stuck check) for a model.json without it."""
+    if "max_still_samples" not in ch:
+        return 0
+    v = ch["max_still_samples"]
+    if isinstance(v, bool) or not isinstance(v, int) \
+            or not MIN_STILL_SAMPLES <= v <= MAX_STILL_SAMPLES:
+        raise CodegenError(f"{where}.max_still_samples ({sensor}): {v!r} must be a whole "
+                           f"number of samples from {MIN_STILL_SAMPLES} to {MAX_STILL_SAMPLES}")
+    return v
 
 
 def _axis_step(ax: Mapping, name: str, period_s: float) -> tuple[int, str]:

@@ -173,6 +173,9 @@ def _channel_view(ch: QChannel) -> dict:
         "step_lit": c_int32(ch.max_step_code),
         "step_c": _num(ch.max_step_code / 128),
         "step_default": ch.max_step_source == "default",
+        "still_macro": f"TCM_CH{ch.index}_MAX_STILL",
+        "still_lit": f"{ch.max_still_samples}u",
+        "still": ch.max_still_samples,
     }
 
 

@@ -20,8 +20,9 @@ RUNTIME_MAX_STATES = 32
 RUNTIME_MAX_TERMS_PER_AXIS = 255
 # TCM_RUNTIME_FORMAT: 2 channels carry the training window (EXTRAP); 3 channels carry their
 # largest plausible step (IMPLAUSIBLE) and axes their output step limit, both CRC-covered; 4 a
-# lag/rate term names its filter state, shared by the terms of one channel and time constant
-RUNTIME_FORMAT = 4
+# lag/rate term names its filter state, shared by the terms of one channel and time constant; 5
+# channels carry their stuck limit (max_still_samples, STUCK), CRC-covered
+RUNTIME_FORMAT = 5
 HEADER_FORMAT = RUNTIME_FORMAT
 ZERO_SAMPLES = 8  # a ZERO's reference is the mean of this many samples (BOX_ZERO_SAMPLES)
 CHANNEL_MIN_C = -40.0  # default valid range of a thermocouple channel
@@ -34,6 +35,14 @@ CHANNEL_MAX_C = 200.0
 STEP_MARGIN = 4  # limit = margin x the fastest change per sample seen in training
 CHANNEL_STEP_FLOOR_C = 8 / 128  # at least 8 codes (1/16 degC): sensor noise is never flagged
 AXIS_STEP_FLOOR_UM = 0.5  # at least 0.5 um per sample: a nearly static model is not frozen
+# A stuck channel (a frozen converter repeats one code forever): host train stores per channel
+# channels[i].max_still_samples = max(STILL_MARGIN x the longest run of identical codes in any
+# training run, STILL_FLOOR), at most MAX_STILL_SAMPLES; the box faults a channel whose code
+# stayed the same for that many samples in a row (STUCK). Absent: no stuck check.
+STILL_MARGIN = 2
+STILL_FLOOR = 10  # samples: live thermocouples change code almost every sample (3-8 in a row)
+MAX_STILL_SAMPLES = 65535  # uint16_t in the header
+MIN_STILL_SAMPLES = 2  # 1 would fault every reading
 # A model.json from before the limits (no max_step_c / max_step_um): codegen's documented
 # conservative defaults per sample period of period_s seconds.
 DEFAULT_CHANNEL_STEP_C_PER_S = 0.1  # a structure thermocouple moves far slower

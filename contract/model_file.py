@@ -45,6 +45,8 @@ from contract.box import (
     BOX_STATES,
     CHANNEL_MAX_C,
     CHANNEL_MIN_C,
+    MAX_STILL_SAMPLES,
+    MIN_STILL_SAMPLES,
     RUNTIME_MAX_TERMS_PER_AXIS,
 )
 from contract.errors import InputError
@@ -340,6 +342,18 @@ class _Checker:
             self.fail(f"{where}.{key} ({label}): {v!r} {unit} per sample must be positive (the "
                       "largest change the box accepts per sample)")
 
+    def still_limit(self, e: Mapping, where: str, label: str) -> None:
+        """The optional stuck limit: a whole number of samples the box's uint16_t holds."""
+        key = "max_still_samples"
+        if key not in e:
+            return  # a model written before the stuck check: the box has none for it
+        v = e[key]
+        if isinstance(v, bool) or not isinstance(v, int) \
+                or not MIN_STILL_SAMPLES <= v <= MAX_STILL_SAMPLES:
+            self.fail(f"{where}.{key} ({label}): {v!r} must be a whole number of samples from "
+                      f"{MIN_STILL_SAMPLES} to {MAX_STILL_SAMPLES} (the box faults the channel "
+                      "as STUCK when its code stays the same that many samples in a row)")
+
     def trained(self, e: Mapping, where: str, label: str, keys: tuple[str, str]
                 ) -> tuple[float | None, float | None]:
         if not any(k in e for k in keys):
@@ -389,6 +403,7 @@ def check_model(model: Any, where: str = "model", *, output_range: bool = True) 
                    "(min_c must be below max_c)")
         t_lo, t_hi = c.trained(ch, key, sensor, ("trained_min_c", "trained_max_c"))
         c.step_limit(ch, key, sensor, "max_step_c", "degC")
+        c.still_limit(ch, key, sensor)
         channels.append(ChannelSpec(ch["channel"], sensor, tc, lo, hi, t_lo, t_hi))
     sensors = [ch.sensor for ch in channels]
     if len(set(sensors)) != len(sensors):

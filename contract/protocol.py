@@ -62,6 +62,7 @@ class ChannelFault(IntFlag):
     NO_RESPONSE = 1 << 9  # bus error or the chip did not read its configuration back
     IMPLAUSIBLE = 1 << 10  # the plausibility guard rejected the reading (held or faulted)
     BEYOND = 1 << 11  # beyond the trained range plus its margin: a channel fault, axes hold
+    STUCK = 1 << 12  # the same code max_still_samples times in a row: a channel fault, axes hold
 
 
 class ProtocolError(InputError):

@@ -4,7 +4,8 @@ The model part is the integer twin ``codegen.fixed.FixedModel`` (bit-exact by co
 it sit the parts of the application the wire protocol and the firmware's documented behaviour
 define: which channel is faulted (chip fault status register, valid code range), the
 plausibility guard of ``firmware/include/channel_guard.h`` (IMPLAUSIBLE: a glitch held at the
-last good code, repeated ones a fault), which status bits that raises, and the output stage of
+last good code, repeated ones a fault), the stuck check (one code ``max_still_samples`` times
+in a row: a channel fault), which status bits that raises, and the output stage of
 ``firmware/include/axis_output.h`` (ZERO reference, hold on a fault, the per-axis step limit,
 walk back at the slew limit, clamp) -- the guard and the output stage are the sample-by-sample
 twins ``codegen.fixed.ChannelGuard`` / ``AxisOutput``. Configuration is read from
@@ -143,6 +144,28 @@ def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
     return valid, bits
 
 
+def still_runs(codes: np.ndarray, readable: np.ndarray) -> np.ndarray:
+    """[n, ch]: how many valid readings in a row, this one included, carried this code (0 on
+    a sample whose reading was not valid: a chip fault or an out-of-range code ends a run),
+    saturating at 65535 like the box's uint16_t counter."""
+    n = codes.shape[0]
+    if n == 0:
+        return np.zeros(codes.shape, dtype=np.int64)
+    same = np.zeros(codes.shape, dtype=bool)
+    same[1:] = readable[1:] & readable[:-1] & (codes[1:] == codes[:-1])
+    idx = np.arange(n)[:, None]
+    start = np.maximum.accumulate(np.where(same, 0, idx), axis=0)  # first sample of the run
+    return np.where(readable, np.minimum(idx - start + 1, 65535), 0)
+
+
+def stuck_channels(codes: np.ndarray, readable: np.ndarray,
+                   max_still: Sequence[int]) -> np.ndarray:
+    """[n, ch] bool: the channel is stuck (docs/firmware.md): a valid reading whose code the
+    channel has carried ``max_still`` readings in a row or more; ``max_still`` 0: no check."""
+    limit = np.asarray(max_still, dtype=np.int64)
+    return readable & (limit > 0) & (still_runs(codes, readable) >= limit)
+
+
 def guard_channels(codes: np.ndarray, in_range: np.ndarray, max_step: Sequence[int],
                    fault_after: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The plausibility guard over a session (codegen.fixed.ChannelGuard per channel).
@@ -266,8 +289,11 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
         bits |= np.where((in_range & ((codes < wlo) | (codes > whi))).any(axis=1), EXTRAP, 0)
         empty = np.zeros((n, 0), dtype=np.int64)
         return Expected(empty, empty, empty.astype(bool), bits, codes, codes, empty)
+    # stuck: a channel fault like a chip fault (its axes hold, HOLD); the guard counts the
+    # sample as lost, so the first reading that moves again is judged
+    stuck = stuck_channels(codes, in_range, [c.max_still_samples for c in m.channels])
     model_codes, valid, implausible = guard_channels(
-        codes, in_range, [c.max_step_code for c in m.channels], cfg.implausible_after)
+        codes, in_range & ~stuck, [c.max_step_code for c in m.channels], cfg.implausible_after)
     bits |= np.where(implausible.any(axis=1), int(IMPLAUSIBLE), 0)
     far_lo, far_hi = cfg.beyond_limits(wlo, whi)
     far = valid & ((model_codes < far_lo) | (model_codes > far_hi))

@@ -168,9 +168,9 @@ def test_model_hash_ignores_traces_but_not_the_function():
 
 def _one_term_crc() -> int:
     data = struct.pack("<IIII", 1, 0, 1, 1000)  # channels, aux, axes, period ms
-    data += struct.pack("<iiiiiB", -5120, 25600, -5120, 25600, 128, 0)  # T01: -40..200 degC,
-    # no training range (window = valid range), no max_step_c (default 1 degC = 128 codes per
-    # 1 s sample), type K
+    data += struct.pack("<iiiiiBH", -5120, 25600, -5120, 25600, 128, 0, 0)  # T01: -40..200
+    # degC, no training range (window = valid range), no max_step_c (default 1 degC = 128 codes
+    # per 1 s sample), type K, no max_still_samples (no stuck check: 0)
     data += struct.pack("<BBqi", ONE_SHIFT, 1, ONE_INTERCEPT_Q, 1000)  # default 1 um/s x 1 s
     data += struct.pack("<BBBiq", 0, 0, 0, 0, ONE_COEF_Q)  # temp, channel 0, no state, no param
     return zlib.crc32(data)
@@ -184,7 +184,7 @@ GOLDEN = """\
  * Model {hash} (schema thermal-model/1), sample period 1000 ms.
  * Output: per axis, int32_t nanometres. Inputs: int32_t temperature codes, LSB 1/128 degC
  * (MAX31856 LTCB >> 5, sign-extended); a code outside its channel's range below is a fault.
- * Arithmetic: docs/fixed-point.md (runtime format 4); bounds: docs/codegen.md.
+ * Arithmetic: docs/fixed-point.md (runtime format 5); bounds: docs/codegen.md.
  * Include this file from exactly one firmware source file.
  */
 #ifndef TCM_GENERATED_MODEL_H
@@ -194,9 +194,9 @@ GOLDEN = """\
 
 #include "model_eval.h"
 
-#define TCM_HEADER_FORMAT 4
+#define TCM_HEADER_FORMAT 5
 #if TCM_HEADER_FORMAT != TCM_RUNTIME_FORMAT
-#error "model.h is header format 4 but model_eval.h is another runtime format: regenerate \
+#error "model.h is header format 5 but model_eval.h is another runtime format: regenerate \
 model.h with the codegen matching this firmware (host codegen)"
 #endif
 
@@ -225,6 +225,8 @@ model.h with the codegen matching this firmware (host codegen)"
 /* largest plausible change 1.0 degC per sample: the conservative default (model.json has no \
 max_step_c) */
 #define TCM_CH0_MAX_STEP INT32_C(128)
+/* no stuck check (model.json has no max_still_samples) */
+#define TCM_CH0_MAX_STILL 0u
 
 /* ---- Axis 0: dz_um ----
  * out_nm = rdiv(intercept_q + sum_j coef_q[j] * x_j, 2^43): each integer below is
@@ -274,12 +276,15 @@ _Static_assert(TCM_CH0_MIN_CODE <= TCM_CH0_WINDOW_LO && TCM_CH0_WINDOW_LO <= TCM
 && TCM_CH0_WINDOW_HI <= TCM_CH0_MAX_CODE,
                "channel 0 (T01): training window outside the valid range");
 _Static_assert(TCM_CH0_MAX_STEP >= 1, "channel 0 (T01): plausible step must be at least 1 code");
+_Static_assert(TCM_CH0_MAX_STILL == 0u || (TCM_CH0_MAX_STILL >= 2u && TCM_CH0_MAX_STILL <= \
+65535u), "channel 0 (T01): stuck limit must be 0 (off) or 2..65535 samples");
 
 /* ---- Tables --------------------------------------------------------------------------- */
 static const tcm_channel_t tcm_channels[] = {{
     {{.min_code = TCM_CH0_MIN_CODE, .max_code = TCM_CH0_MAX_CODE, \
 .window_lo_code = TCM_CH0_WINDOW_LO, .window_hi_code = TCM_CH0_WINDOW_HI, \
-.max_step_code = TCM_CH0_MAX_STEP, .tc_type = TCM_TC_K, .sensor = "T01"}},
+.max_step_code = TCM_CH0_MAX_STEP, .max_still_samples = TCM_CH0_MAX_STILL, \
+.tc_type = TCM_TC_K, .sensor = "T01"}},
 }};
 _Static_assert(sizeof tcm_channels / sizeof tcm_channels[0] == TCM_N_CHANNELS, \
 "channel table size");
@@ -621,7 +626,54 @@ def test_host_derives_step_limits_from_the_training_runs(tmp_path):
     assert m["channels"][0]["max_step_c"] == pytest.approx(4 * 0.5)
     assert m["channels"][1]["max_step_c"] == pytest.approx(1 / 16)  # constant: the floor
     assert m["axes"]["dz_um"]["max_step_um"] == pytest.approx(4 * 3.0 * 0.5)
+    # stuck limits: 2 x the longest run of one code, at least 10. T01's codes 2560, 2624,
+    # 2624, 2752, 2752: runs of 2; T02 one code over 0..5 s with the 2 s gap: 6 samples.
+    assert m["channels"][0]["max_still_samples"] == 10  # 2 x 2 = 4: the floor
+    assert m["channels"][1]["max_still_samples"] == 12
     codegen.generate(m)  # and codegen takes them
+
+
+def test_longest_still_counts_gaps_and_ends_at_a_missing_reading():
+    from host.fitting.step_limits import longest_still
+
+    t = np.arange(7.0)
+    assert longest_still(np.array([1.0, 1.0, np.nan, 1.0, 1.0, 1.0, 2.0]), t, 1.0) == 3
+    # the box's codes, not the floats: 1.0 is code 128, 1.004 and 1.008 are both 129
+    assert longest_still(np.array([1.0, 1.004, 1.008]), t[:3], 1.0) == 2
+    assert longest_still(np.array([5.0, 5.0]), np.array([0.0, 600.0]), 60.0) == 11
+    assert longest_still(np.array([]), np.array([]), 1.0) == 0
+
+
+def test_stuck_limit_goes_into_the_header_and_the_crc():
+    m = model("one_term")
+    without = codegen.generate(m)
+    assert without.model.channels[0].max_still_samples == 0
+    assert "#define TCM_CH0_MAX_STILL 0u" in without.text
+    assert "no stuck check (model.json has no max_still_samples)" in without.text
+    m["channels"][0]["max_still_samples"] = 12
+    gen = codegen.generate(m)
+    assert gen.model.channels[0].max_still_samples == 12
+    assert "#define TCM_CH0_MAX_STILL 12u" in gen.text
+    assert gen.fixed_point["channels"][0]["max_still_samples"] == 12
+    other = copy.deepcopy(m)
+    other["channels"][0]["max_still_samples"] = 13
+    crcs = {without.crc32, gen.crc32, codegen.generate(other).crc32}
+    assert len(crcs) == 3  # in the CRC
+    assert codegen.model_hash(other) != codegen.model_hash(m) != codegen.model_hash(
+        model("one_term"))
+
+
+@pytest.mark.parametrize("value", [0, 1, 65536, -3, 12.0, "12", True, None])
+def test_a_stuck_limit_that_is_not_a_whole_number_of_samples_is_refused(value):
+    from contract.model_file import ModelFormatError, check_model
+
+    m = model("one_term")
+    m["channels"][0]["max_still_samples"] = value
+    with pytest.raises(ModelFormatError,
+                       match=r"channels\[0\]\.max_still_samples \(T01\).* 2 to 65535"):
+        check_model(m)
+    with pytest.raises(codegen.CodegenError, match="max_still_samples"):
+        codegen.generate(m)
 
 
 # ---- the twin: filter states, faults, every kind by hand ------------------------------------

@@ -74,7 +74,7 @@ def test_header_compiles_warning_free_on_host_and_cortex_m4(name, tmp_path):
 @pytest.mark.skipif(GCC is None, reason="needs gcc")
 def test_stale_header_format_is_a_compile_error(tmp_path):
     gen = _write_header(tmp_path, "one_term")
-    stale = gen.text.replace("#define TCM_HEADER_FORMAT 4", "#define TCM_HEADER_FORMAT 3")
+    stale = gen.text.replace("#define TCM_HEADER_FORMAT 5", "#define TCM_HEADER_FORMAT 4")
     assert stale != gen.text
     (tmp_path / "model.h").write_text(stale)
     r = _compile(GCC, ["-c", "use.c", "-o", "/dev/null"], tmp_path)
@@ -126,7 +126,9 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
         step_c = Fraction(c["max_step_c"]) if "max_step_c" in c else \
             max(Fraction(1), Fraction(1, 10) * Fraction(m["sample_period_s"]))
         step = max(1, math.ceil(step_c * 128))
-        out += struct.pack("<iiiiiB", lo, hi, w_lo, w_hi, step, {"K": 0, "J": 1}[c["tc_type"]])
+        # the stuck limit, 0 (no check) without max_still_samples
+        out += struct.pack("<iiiiiBH", lo, hi, w_lo, w_hi, step, {"K": 0, "J": 1}[c["tc_type"]],
+                           c.get("max_still_samples", 0))
     for a in aux:
         out += struct.pack("<ii", int(np.ceil(a["min"])), int(np.floor(a["max"])))
     kinds = ["temp", "lag", "rate", "speed", "speed2", "square", "time"]

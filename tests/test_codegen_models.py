@@ -44,7 +44,7 @@ def all_kinds() -> dict:
     """3 channels, 1 aux, 3 axes (5, 3 and 1 terms): every kind, negative intercepts."""
     p = 1.0
     trained = {"trained_min_c": 18.3, "trained_max_c": 41.7,  # as host train writes them
-               "max_step_c": 0.3171}
+               "max_step_c": 0.3171, "max_still_samples": 14}
     near_edge = {"trained_min_c": -19.0, "trained_max_c": 119.5}  # window clipped to the range
     m = base(period_s=p, channels=[{**channel(0, "T01"), **trained},
                                    channel(1, "T02", tc="J"),

@@ -123,24 +123,38 @@ def test_malformed_commands_get_one_error_each(fw, raw, reason):
 
 def test_faults_set_status_bits_and_hold(fw):
     box = Box(fw["binary"])
-    ok = " ".join(["2560"] * 8)
-    box.feed(f"S 1000 {ok}\n" * 80)  # at 1 um/s the cold-start walk to ~45 um is over
+    n = 0
+
+    def ok(t05: str = "2560") -> str:
+        """Every channel at 20 degC, T05 as given; T07 (its stuck check: the same code 12
+        times in a row is STUCK) dithers by one code, as a live thermocouple does."""
+        nonlocal n
+        n += 1
+        return " ".join(["2560"] * 4 + [t05, "2560", str(2560 + n % 2), "2560"])
+
+    box.feed("".join(f"S 1000 {ok()}\n" for _ in range(80)))  # the cold-start walk is over
     settled = [p.decode(line) for line in box.lines(80)][-1]
     assert settled.status == 0
-    box.feed("F 1 01\n" + f"S 1000 {ok}\n")  # T02 open: dx holds
+    box.feed("F 1 01\n" + f"S 1000 {ok()}\n")  # T02 open: dx holds
     m = p.decode(box.lines(1)[0])
     assert m.flags == p.Status.OPEN | p.Status.HOLD
     assert m.corrections_nm[0] == settled.corrections_nm[0]
-    box.feed("F 1 00\nF 6 40\n" + f"S 1000 {ok}\n")  # T07 thermocouple range: dz holds
+    box.feed("F 1 00\nF 6 40\n" + f"S 1000 {ok()}\n")  # T07 thermocouple range: dz holds
     assert p.decode(box.lines(1)[0]).flags == p.Status.TC_FAULT | p.Status.HOLD
-    box.feed("F 6 00\n" + "S 1000 " + " ".join(["2560"] * 4 + ["30000"] + ["2560"] * 3) + "\n")
+    box.feed("F 6 00\n" + f"S 1000 {ok('30000')}\n")
     assert p.decode(box.lines(1)[0]).flags == p.Status.RANGE | p.Status.HOLD  # T05 > 200 degC
-    box.feed(f"S 13000 {ok}\n")  # spindle above 12000 rpm
+    box.feed(f"S 13000 {ok()}\n")  # spindle above 12000 rpm
     assert p.decode(box.lines(1)[0]).flags == p.Status.AUX_FAULT | p.Status.HOLD
-    box.feed(f"S 1000 {ok}\n")
+    box.feed(f"S 1000 {ok()}\n")
     assert p.decode(box.lines(1)[0]).status == 0
     box.send(b"STATUS\n")
     assert p.decode(box.lines(1)[0]).channel_faults == (0,) * 8
+    frozen = " ".join(["2560"] * 6 + ["2570", "2560"])  # T07 freezes: stuck at the 12th
+    box.feed(f"S 1000 {frozen}\n" * 12)
+    lines = [p.decode(line) for line in box.lines(12)]
+    assert [bool(m.flags & p.Status.HOLD) for m in lines] == [False] * 11 + [True]
+    box.send(b"STATUS\n")
+    assert p.decode(box.lines(1)[0]).channel_faults == (0,) * 6 + (p.ChannelFault.STUCK, 0)
     assert box.finish()[0] == 0
 
 

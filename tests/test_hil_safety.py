@@ -24,7 +24,16 @@ from contract.terms import make_lag, make_rate, make_speed, make_temp
 from hil import replay as hil_replay
 from hil.checks import Judging
 from hil.example_model import fit_example_model, write_model
-from hil.expect import HOLD, IMPLAUSIBLE, NO_DATA, RANGE, REFERENCED, SLEW, expect_session
+from hil.expect import (
+    HOLD,
+    IMPLAUSIBLE,
+    NO_DATA,
+    RANGE,
+    REFERENCED,
+    SLEW,
+    axis_inputs,
+    expect_session,
+)
 from hil.runner import ChannelSwap, CodeOffset, CodeOverride, Zero
 from host.io import load_run, write_run
 
@@ -121,13 +130,79 @@ def test_a_one_sample_glitch_is_flagged_held_and_never_reaches_the_filters(setup
     assert np.abs(out[AT] - out[AT - 1]).max() < 1000
 
 
-def test_a_stuck_sensor_passes_the_guard_and_matches_the_twin(setup):
+def run_start(codes: np.ndarray, i: int) -> int:
+    """The first sample of the run of identical codes that sample i ends."""
+    while i > 0 and codes[i - 1] == codes[i]:
+        i -= 1
+    return i
+
+
+def test_a_stuck_sensor_is_a_fault_its_axes_hold_until_it_moves(setup):
+    """T05 freezes at its reading of AT - 1 for max_still_samples + 3 samples (or until the
+    run reads another code), then reads the run again. The rule worked out by hand
+    (docs/firmware.md, "Stuck channel"): the k-th reading in a row of one code is stuck from
+    k = max_still_samples on; both axes read T05, so both hold (HOLD) on exactly those
+    samples, and not after."""
     c5 = ch(setup, "T05")
-    stuck = int(setup.feed.codes[AT, c5])
-    report, _ = hil_replay.run(setup, [CodeOverride(AT, N, c5, stuck)])
-    assert report.ok, report.problems
-    assert not np.any(report.fw_status & (IMPLAUSIBLE | HOLD))  # constant is plausible
-    assert np.all(steps(report.fw_out_nm) <= limits(setup))
+    codes = setup.feed.codes[:, c5]
+    max_still = setup.twin.model.channels[c5].max_still_samples
+    t05 = next(c for c in setup.model["channels"] if c["sensor"] == "T05")
+    assert max_still == t05["max_still_samples"] >= 10  # from its training run, floor 10
+    stop = AT + max_still + 3
+    while codes[stop] == codes[AT - 1]:  # the run itself may come back to that code
+        stop += 1
+    report, _ = hil_replay.run(setup, [CodeOverride(AT, stop, c5, int(codes[AT - 1]))])
+    assert report.checks["twin_bit_exact"], report.problems
+    first = run_start(codes, AT - 1) + max_still - 1
+    assert AT <= first < stop
+    st, out = report.fw_status, report.fw_out_nm
+    held = np.flatnonzero(st & HOLD)
+    assert held.tolist() == list(range(first, stop))
+    assert np.all(out[first:stop] == out[first - 1])  # held at the last value before
+    assert not np.any(st & IMPLAUSIBLE)  # the readings are plausible; the run is not
+    assert np.all(steps(out) <= limits(setup))
+
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """Issue 41's set-up: host train defaults on sim_constant + sim_step, replayed on
+    sim_random (60 s period); channel 3 is T05."""
+    from contract.model_file import write_model as write_model_file
+    from host.train import train_model
+
+    d = tmp_path_factory.mktemp("hil_stuck_demo")
+    targets = ["dx_um", "dy_um", "dz_um"]
+    runs = [load_run(REPO / "examples" / f, targets, "T*", ["spindle_rpm"])
+            for f in ("sim_constant.csv", "sim_step.csv")]
+    path = d / "model.json"
+    write_model_file(train_model(runs, targets, aux=["spindle_rpm"]), path)
+    return hil_replay.prepare(path, REPO / "examples" / "sim_random.csv", d / "hil")
+
+
+def test_the_issues_stuck_sensor_holds_on_the_demo_model(demo):
+    """Issue 41: T05 frozen at its reading of sample 399 from sample 400 to the end. Before
+    the stuck check the box followed it: the tool error grew 16.7 um over the clean run on dy
+    (one step limit: 3.6 um). Now T05 (max_still_samples 10 from training: its longest run
+    of one code there is 4 samples) is a fault from the 10th reading of the run on, the axes
+    that read it hold; before that, no axis is further from the clean run than one step."""
+    c = 3
+    assert demo.twin.model.channels[c].sensor == "T05"
+    max_still = demo.twin.model.channels[c].max_still_samples
+    assert max_still == 10
+    codes = demo.feed.codes[:, c]
+    n = demo.feed.n_samples
+    report, _ = hil_replay.run(demo, [CodeOverride(400, n, c, int(codes[399]))])
+    assert report.checks["twin_bit_exact"], report.problems
+    clean, _ = hil_replay.run(demo)
+    first = run_start(codes, 399) + max_still - 1
+    st, out = report.fw_status, report.fw_out_nm
+    assert not np.any(clean.fw_status[400:] & HOLD)
+    assert not np.any(st[400:first] & HOLD) and np.all(st[first:] & HOLD)
+    reads = [a for a, (chans, _) in enumerate(axis_inputs(demo.twin)) if c in chans]
+    assert reads and np.all(out[first:, reads] == out[first - 1, reads])
+    drift = np.abs(out[400:first] - clean.fw_out_nm[400:first]).max(axis=0)
+    assert np.all(drift <= limits(demo)), drift
 
 
 def test_a_slow_drift_passes_the_guard_and_matches_the_twin(setup):

@@ -23,7 +23,7 @@
 #include <stdint.h>
 
 /* A generated model.h must carry the same number (nanopb style check in the header). */
-#define TCM_RUNTIME_FORMAT 4
+#define TCM_RUNTIME_FORMAT 5
 
 /* Capacity of the runtime (state is statically sized; codegen refuses bigger models). */
 #define TCM_MAX_CHANNELS 32u /* valid_mask is a uint32_t */
@@ -81,15 +81,17 @@
 #define TCM_RDIV_CONST(v, f) (((int64_t)(v) + ((INT64_C(1) << (f)) >> 1)) >> (f))
 
 /* One thermocouple channel: the valid code range (a code outside it is a fault), the
- * training window (a valid code outside it is an extrapolation: status EXTRAP) and the largest
- * plausible change per sample (a faster one is status IMPLAUSIBLE; the application's guard,
- * not this runtime, applies it). */
+ * training window (a valid code outside it is an extrapolation: status EXTRAP), the largest
+ * plausible change per sample (a faster one is status IMPLAUSIBLE) and the stuck limit (the
+ * same code that many samples in a row is channel fault STUCK); the application, not this
+ * runtime, applies the last two. */
 typedef struct {
     int32_t min_code;       /* ceil(min_c * 128) */
     int32_t max_code;       /* floor(max_c * 128) */
     int32_t window_lo_code; /* training range widened by 5 % of its span, in codes */
     int32_t window_hi_code; /* (the valid range when the model has no training range) */
     int32_t max_step_code;  /* codes per sample period, >= 1 (docs/codegen.md) */
+    uint16_t max_still_samples; /* samples of one code in a row = stuck; 0: no stuck check */
     uint8_t tc_type;    /* TCM_TC_K / TCM_TC_J */
     const char *sensor; /* sensor name, for INFO (not part of the CRC) */
 } tcm_channel_t;

@@ -27,5 +27,6 @@
 #define CHFAULT_NO_RESPONSE ((uint16_t)1u << 9) /* bus error or configuration not read back */
 #define CHFAULT_IMPLAUSIBLE ((uint16_t)1u << 10) /* reading rejected by the plausibility guard */
 #define CHFAULT_BEYOND ((uint16_t)1u << 11)      /* beyond the trained range plus its margin */
+#define CHFAULT_STUCK ((uint16_t)1u << 12)       /* one code max_still_samples times in a row */
 
 #endif

@@ -65,6 +65,7 @@ typedef struct {
     int32_t codes[BOX_MAX_CHANNELS];       /* as read (sent on the line) */
     int32_t model_codes[BOX_MAX_CHANNELS]; /* what the model gets (guarded) */
     uint16_t ch_fault[BOX_MAX_CHANNELS];
+    uint16_t still[BOX_MAX_CHANNELS]; /* valid readings in a row with one code (0: none) */
     channel_guard_t guards[BOX_MAX_CHANNELS];
     int32_t aux[BOX_MAX_AUX];
     int32_t computed_nm[BOX_MAX_AXES];
@@ -81,7 +82,7 @@ static app_t app;
  * Everything that makes the next sample line what it would have been without a reset: the
  * sequence, the reference, the filters, the guards and the output stage. Written after every
  * sample; trusted at boot only after a warm reset, for the same model, with a valid CRC. */
-#define RETAIN_MAGIC UINT32_C(0x54434d52) /* "TCMR" */
+#define RETAIN_MAGIC UINT32_C(0x54434d53) /* "TCMS": the layout with the stuck counters */
 
 typedef struct {
     uint32_t magic;
@@ -97,6 +98,8 @@ typedef struct {
     tcm_state_t tcm;
     channel_guard_t guards[BOX_MAX_CHANNELS];
     axis_output_t axes[BOX_MAX_AXES];
+    int32_t codes[BOX_MAX_CHANNELS]; /* the latest readings: the stuck check compares with them */
+    uint16_t still[BOX_MAX_CHANNELS];
     uint32_t crc; /* CRC-32 of every byte before it */
 } retained_t;
 
@@ -137,6 +140,8 @@ static void retain_save(void)
     snap.tcm = app.tcm;
     for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
         snap.guards[ch] = app.guards[ch];
+        snap.codes[ch] = app.codes[ch];
+        snap.still[ch] = app.still[ch];
     }
     for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
         snap.axes[a] = app.axes[a];
@@ -167,6 +172,8 @@ static bool retain_restore(void)
     app.tcm = snap.tcm;
     for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
         app.guards[ch] = snap.guards[ch];
+        app.codes[ch] = snap.codes[ch];
+        app.still[ch] = snap.still[ch];
     }
     for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
         app.axes[a] = snap.axes[a];
@@ -184,6 +191,18 @@ static bool beyond_training(const tcm_channel_t *c, int32_t code)
         margin = BOX_BEYOND_MIN_CODES;
     }
     return code < (int64_t)c->window_lo_code - margin || code > (int64_t)c->window_hi_code + margin;
+}
+
+/* Stuck: a valid reading with the same code as the channel's previous reading extends the
+ * run, any other starts one; a reading that is not valid (chip fault, no answer, out of
+ * range) ends it (still 0). The channel is a fault while the run is max_still_samples or
+ * longer (docs/firmware.md, "Stuck channel"); 0 in the model: no check. */
+static bool still_stuck(uint32_t ch, const tcm_channel_t *c, int32_t code)
+{
+    uint16_t n = app.still[ch];
+    app.still[ch] = (n > 0u && code == app.codes[ch]) ? (uint16_t)(n < UINT16_MAX ? n + 1u : n)
+                                                      : 1u;
+    return app.model_ok && c->max_still_samples > 0u && app.still[ch] >= c->max_still_samples;
 }
 
 static uint32_t min_u32(uint32_t a, uint32_t b)
@@ -295,6 +314,10 @@ static uint16_t sample_channels(uint32_t *valid_mask)
         } else if (r.code < c->min_code || r.code > c->max_code) {
             fault |= CHFAULT_RANGE;
             st |= STATUS_RANGE;
+        } else if (still_stuck(ch, c, r.code)) {
+            /* a frozen converter: a channel fault (its axes hold); the guard counts the
+             * sample as lost, so the first reading that moves again is judged (below) */
+            fault |= CHFAULT_STUCK;
         } else {
             int32_t use = r.code;
             guard_result_t g = GUARD_OK;
@@ -316,6 +339,9 @@ static uint16_t sample_channels(uint32_t *valid_mask)
                 }
             }
             app.model_codes[ch] = use;
+        }
+        if (fault & (uint16_t)~(CHFAULT_IMPLAUSIBLE | CHFAULT_BEYOND | CHFAULT_STUCK)) {
+            app.still[ch] = 0u; /* not a valid reading: the run of one code is broken */
         }
         if (fault & (uint16_t)~(CHFAULT_IMPLAUSIBLE | CHFAULT_BEYOND)) {
             channel_guard_lost(&app.guards[ch]); /* accepted afresh when it comes back */

@@ -94,6 +94,7 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
         crc = crc_i32(crc, m->channels[c].window_hi_code);
         crc = crc_i32(crc, m->channels[c].max_step_code);
         crc = crc_u8(crc, m->channels[c].tc_type);
+        crc = crc_le(crc, m->channels[c].max_still_samples, 2);
     }
     for (uint32_t k = 0; k < m->n_aux; ++k) {
         crc = crc_i32(crc, m->aux[k].min);

@@ -41,6 +41,7 @@ RUNAWAY_N = 4  # docs/firmware.md: the runaway check looks 4 readings back
 BEYOND_SPAN, BEYOND_MIN_CODES = Fraction(1, 2), 640  # box_config.h defaults
 ZERO_BEFORE = (128, 334)  # the CNC side sends ZERO before these samples (no axis holds)
 SR_OPEN = 0x01
+STILL_T07 = 12  # T07's max_still_samples: its code 12 samples in a row is STUCK
 
 
 def term(t, coef: float) -> dict:
@@ -59,6 +60,9 @@ def test_model(period: float = 1.0) -> dict:
     # every channel but T08, which has none and gets codegen's default (1 degC at 1 s).
     for c in channels[:7]:
         c["max_step_c"] = 2.0
+    # Stuck check on T07 only (the others have none, as a model.json from before it): the
+    # steady-state tests of test_app.c keep every other channel at one code for minutes.
+    channels[6]["max_still_samples"] = STILL_T07
     m = {"schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": period,
          "channels": channels,
          "aux": [{"input": 0, "name": "spindle_rpm", "min": 0.0, "max": 12000.0}],
@@ -90,6 +94,12 @@ def session(rng: np.random.Generator) -> dict[str, np.ndarray]:
     temp[10:20, 6] -= 80.0  # negative codes, still inside T07's range: implausible steps
     temp[260, 4] += 100.0  # a one-sample glitch of T05, inside its range: IMPLAUSIBLE, held
     codes = np.round(temp * 128.0).astype(np.int64)
+    # T07 freezes (a stuck converter) for STILL_T07 + 3 samples, twice: its code of sample 29
+    # on 30..44 (stuck from the 12th reading of the run, 40..44: dz holds), then moves again;
+    # and its code of 194 on 195..209 (stuck 205..209), across the warm reset of test_app.c
+    # at 201, which must keep the count.
+    for start in (30, 195):
+        codes[start:start + STILL_T07 + 3, 6] = codes[start - 1, 6]
     sr = np.zeros((n, N_CHANNELS), dtype=np.int64)
     sr[100:120, 2] = SR_OPEN
     sr[250:253, 5] = 0x40  # TC range
@@ -143,6 +153,11 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
     faulted = [False] * len(chans)
     since = [0] * len(chans)  # samples since the last good reading
     recent: list[list[int]] = [[] for _ in chans]  # the latest consecutive readings
+    # stuck check (docs/firmware.md): valid readings in a row with one code, and that code
+    max_still = [c.get("max_still_samples", 0) for c in model["channels"]]
+    still = [0] * len(chans)
+    still_code = [0] * len(chans)
+    stuck_samples = 0
     blocked = False  # an axis held (input fault) or walked at the previous sample: ZERO refused
     referenced = False
     aux_lo, aux_hi = twin.model.aux[0].min, twin.model.aux[0].max
@@ -180,7 +195,15 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
                 bits |= RANGE
             else:
                 in_range = True
-            if not in_range:  # any other fault: one more sample since the last good reading
+            stuck = False
+            if in_range:
+                still[c] = still[c] + 1 if still[c] and code == still_code[c] else 1
+                still_code[c] = code
+                stuck = bool(max_still[c]) and still[c] >= max_still[c]
+                stuck_samples += stuck
+            else:
+                still[c] = 0
+            if not in_range or stuck:  # a fault: one more sample since the last good reading
                 since[c] += 1 if has_ref[c] else 0
                 recent[c], calm[c] = [], 0
                 continue
@@ -281,7 +304,7 @@ def expected(model: dict, s: dict[str, np.ndarray], clamp: int, step: int,
                 blocked = True  # walking: not the model's output, ZERO refused
             out[i, a] = value[a]
         status[i] = bits
-    return {"out": out, "status": status, "shown": shown}
+    return {"out": out, "status": status, "shown": shown, "stuck_samples": stuck_samples}
 
 
 def c_rows(a: np.ndarray) -> str:
@@ -328,6 +351,9 @@ def main(argv: list[str]) -> int:
                       (IMPLAUSIBLE, "IMPLAUSIBLE")):
         if not seen & bit:
             raise SystemExit(f"gen_test_model: the test session never raises {name}")
+    if e["stuck_samples"] != 10:  # 40..44 and 205..209
+        raise SystemExit(f"gen_test_model: T07 is stuck on {e['stuck_samples']} samples, "
+                         "the session is built for 10")
 
     axes = ";".join(gen.model.axes[a].name for a in range(len(gen.model.axes)))
     chmap = ";".join(f"{c.index}:{c.sensor}:{c.tc_type}" for c in gen.model.channels)
@@ -356,6 +382,9 @@ def main(argv: list[str]) -> int:
 #define VEC_COLD_START_SLEW {args.cold_start_slew}
 #define VEC_IMPLAUSIBLE_AFTER {args.implausible_after}
 #define VEC_ZERO_SAMPLES {args.zero_samples}
+/* channel 6 (T07) has a stuck check: its code this many readings in a row is STUCK */
+#define VEC_STILL_CHANNEL 6
+#define VEC_MAX_STILL {STILL_T07}
 
 static const int32_t vec_codes[VEC_N][VEC_N_CHANNELS] = {{
 {c_rows(s["codes"])}

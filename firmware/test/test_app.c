@@ -333,12 +333,20 @@ static void test_App_ShouldReferenceFromTheFirstSampleAfterZero(void **state)
     assert_string_equal(payload + strlen(payload) - 2, ",4");
 }
 
-static void steady_sample(int32_t t05_extra, sample_line_t *out)
+/* Every channel at 25 degC, T05 plus t05_extra; T07, the channel with a stuck check, reads
+ * t07_code if not 0, else dithers by one code every sample as a live thermocouple does. */
+static void steady_sample_t07(int32_t t05_extra, int32_t t07_code, sample_line_t *out)
 {
+    static uint32_t n;
     char payload[300];
+    n++;
     for (int c = 0; c < VEC_N_CHANNELS; c++) {
+        int32_t code = 25 * 128 + (c == 4 ? t05_extra : 0);
+        if (c == VEC_STILL_CHANNEL) {
+            code = t07_code != 0 ? t07_code : code + (int32_t)(n & 1u);
+        }
         fake_chips[c].present = true;
-        max31856_sim_set_temperature(&fake_chips[c], 25 * 128 + (c == 4 ? t05_extra : 0));
+        max31856_sim_set_temperature(&fake_chips[c], code);
         max31856_sim_set_fault(&fake_chips[c], 0);
     }
     fake_aux = 3000;
@@ -346,6 +354,19 @@ static void steady_sample(int32_t t05_extra, sample_line_t *out)
     advance_and_poll(VEC_PERIOD_MS);
     next_line(fake_uart_take(), payload, sizeof payload);
     parse_sample(payload, out);
+}
+
+static void steady_sample(int32_t t05_extra, sample_line_t *out)
+{
+    steady_sample_t07(t05_extra, 0, out);
+}
+
+/* The STATUS reply's per-channel fault words and zero_seq: ",w0;w1;...;w7,-" */
+static void status_words(char *payload, size_t cap)
+{
+    fake_uart_send("STATUS\n");
+    app_poll();
+    next_line(fake_uart_take(), payload, cap);
 }
 
 static void test_App_ShouldFlagAGlitchAndHoldTheChannelsLastGoodValue(void **state)
@@ -372,11 +393,61 @@ static void test_App_ShouldFlagAGlitchAndHoldTheChannelsLastGoodValue(void **sta
     assert_string_equal(payload + strlen(payload) - strlen(words), words);
     assert_int_equal(after.status & 0x1000u, 0);
     /* the model got T05's last good value and its filters never saw the glitch: every axis
-     * is exactly where it was */
+     * is exactly where it was (dz reads T07, which dithers: compare it two samples apart) */
     for (int a = 0; a < VEC_N_AXES; a++) {
-        assert_int_equal(glitch.corr[a], before.corr[a]);
+        if (a != 2) {
+            assert_int_equal(glitch.corr[a], before.corr[a]);
+        }
         assert_int_equal(after.corr[a], before.corr[a]);
     }
+}
+
+static void test_App_ShouldFaultAStuckChannelUntilItMoves(void **state)
+{
+    (void)state;
+    /* Settled with T07 dithering; then T07 (dz reads it) freezes at a code the dither never
+     * produced: its k-th reading of that code is stuck from k = VEC_MAX_STILL on. */
+    sample_line_t s, last_live;
+    char payload[300];
+    const int32_t frozen = 25 * 128 + 5;
+    for (int i = 0; i < 200; i++) {
+        steady_sample(0, &s);
+    }
+    assert_int_equal(s.status & 0x1006u, 0); /* settled */
+    for (int k = 1; k < VEC_MAX_STILL; k++) {
+        steady_sample_t07(0, frozen, &last_live);
+        assert_int_equal(last_live.status & 0x0002u, 0); /* not yet: no HOLD */
+    }
+    for (int k = VEC_MAX_STILL; k < VEC_MAX_STILL + 3; k++) {
+        steady_sample_t07(0, frozen, &s);
+        assert_int_equal(s.status & 0x0002u, 0x0002u); /* HOLD: dz reads a stuck channel */
+        assert_int_equal(s.corr[2], last_live.corr[2]);  /* dz holds its last good value */
+        assert_int_equal(s.corr[0], last_live.corr[0]);  /* dx and dy go on (steady) */
+        assert_int_equal(s.codes[VEC_STILL_CHANNEL], frozen); /* the line shows the code */
+    }
+    status_words(payload, sizeof payload);
+    const char *stuck = ",0000;0000;0000;0000;0000;0000;1000;0000,-"; /* 0x1000 STUCK */
+    assert_string_equal(payload + strlen(payload) - strlen(stuck), stuck);
+    /* The code moves one LSB: judged by the guard against its last good reading (the frozen
+     * code, plausible), accepted; the fault clears at once. */
+    steady_sample_t07(0, frozen + 1, &s);
+    assert_int_equal(s.status & 0x0002u, 0);
+    status_words(payload, sizeof payload);
+    const char *clear = ",0000;0000;0000;0000;0000;0000;0000;0000,-";
+    assert_string_equal(payload + strlen(payload) - strlen(clear), clear);
+    /* A chip fault ends the run: the same code again afterwards counts from 1. */
+    for (int k = 1; k < VEC_MAX_STILL; k++) {
+        steady_sample_t07(0, frozen + 1, &s);
+    }
+    max31856_sim_set_fault(&fake_chips[VEC_STILL_CHANNEL], 0x01); /* one OPEN sample */
+    advance_and_poll(VEC_PERIOD_MS);
+    (void)fake_uart_take();
+    for (int k = 1; k < VEC_MAX_STILL; k++) {
+        steady_sample_t07(0, frozen + 1, &s);
+        assert_int_equal(s.status & 0x0002u, 0);
+    }
+    steady_sample_t07(0, frozen + 1, &s);
+    assert_int_equal(s.status & 0x0002u, 0x0002u);
 }
 
 static void test_App_ShouldEmitEveryNthSampleAfterRate(void **state)
@@ -440,6 +511,7 @@ int main(void)
         cmocka_unit_test_setup(test_App_ShouldAnswerErrorsAndKeepSampling, boot),
         cmocka_unit_test_setup(test_App_ShouldReferenceFromTheFirstSampleAfterZero, boot),
         cmocka_unit_test_setup(test_App_ShouldFlagAGlitchAndHoldTheChannelsLastGoodValue, boot),
+        cmocka_unit_test_setup(test_App_ShouldFaultAStuckChannelUntilItMoves, boot),
     };
     return cmocka_run_group_tests_name("app", tests, NULL, NULL);
 }

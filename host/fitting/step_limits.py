@@ -8,6 +8,13 @@ of ``STEP_MARGIN`` times that (never below a floor) in model.json: ``channels[i]
 header; the box flags a faster reading IMPLAUSIBLE and holds the channel's last good value,
 and never steps an output by more than its limit (docs/firmware.md). A model.json without
 them gets codegen's conservative defaults (docs/codegen.md).
+
+The same runs say how long a live channel reads one code: a thermocouple on a machine changes
+code (1/128 degC) almost every sample, a frozen converter repeats one code forever.
+``channels[i].max_still_samples`` is ``STILL_MARGIN`` times the longest run of identical codes
+(the box's rounding) in any training run, at least ``STILL_FLOOR``, at most
+``MAX_STILL_SAMPLES``; the box faults a channel whose code stayed the same that many samples
+in a row (STUCK, docs/firmware.md). A model.json without it has no stuck check.
 """
 
 from __future__ import annotations
@@ -16,7 +23,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from contract.box import AXIS_STEP_FLOOR_UM, CHANNEL_STEP_FLOOR_C, STEP_MARGIN
+from codegen.fixed import temp_to_code
+from contract.box import (
+    AXIS_STEP_FLOOR_UM,
+    CHANNEL_STEP_FLOOR_C,
+    MAX_STILL_SAMPLES,
+    STEP_MARGIN,
+    STILL_FLOOR,
+    STILL_MARGIN,
+)
 from host.fitting.features import axis_terms, design_matrix
 from host.io import Run
 
@@ -30,6 +45,36 @@ def fastest_step(values: np.ndarray, time_s: np.ndarray, period_s: float) -> flo
         return 0.0
     samples = np.maximum(np.diff(np.asarray(time_s, dtype=float)) / period_s, 1.0)
     return float(np.max(np.abs(np.diff(values)) / samples))
+
+
+def longest_still(values: np.ndarray, time_s: np.ndarray, period_s: float) -> int:
+    """The longest run of identical box codes (``codegen.fixed.temp_to_code``), in samples:
+    a run of one reading is 1; a gap of k periods inside a run counts as k samples (the box
+    would have read the same code all along); a missing reading (NaN) ends a run, as a chip
+    fault resets the box's counter."""
+    values = np.asarray(values, dtype=float)
+    if values.size == 0:
+        return 0
+    ok = np.isfinite(values)
+    codes = np.zeros(values.size, dtype=np.int64)
+    codes[ok] = temp_to_code(values[ok])
+    steps = np.maximum(np.rint(np.diff(np.asarray(time_s, dtype=float)) / period_s), 1)
+    same = (ok[1:] & ok[:-1] & (codes[1:] == codes[:-1])).tolist()
+    best = cur = int(ok[0])
+    for i, (s, k) in enumerate(zip(same, steps.astype(np.int64).tolist(), strict=True)):
+        cur = cur + k if s else int(ok[i + 1])
+        best = max(best, cur)
+    return best
+
+
+def still_limits(model: dict, runs: Sequence[Run]) -> dict[str, int]:
+    """{sensor: max_still_samples} from the training runs."""
+    period = float(model["sample_period_s"])
+    out = {}
+    for c in model["channels"]:
+        longest = max(longest_still(r.column(c["sensor"]), r.time_s, period) for r in runs)
+        out[c["sensor"]] = min(max(STILL_MARGIN * longest, STILL_FLOOR), MAX_STILL_SAMPLES)
+    return out
 
 
 def step_limits(model: dict, runs: Sequence[Run]) -> tuple[dict[str, float], dict[str, float]]:
@@ -52,10 +97,13 @@ def step_limits(model: dict, runs: Sequence[Run]) -> tuple[dict[str, float], dic
 
 
 def add_step_limits(model: dict, runs: Sequence[Run]) -> None:
-    """Write ``max_step_c`` into every channel and ``max_step_um`` into every axis of a
-    model.json dict (both part of what the box computes: hashed, CRC-covered)."""
+    """Write ``max_step_c`` and ``max_still_samples`` into every channel and ``max_step_um``
+    into every axis of a model.json dict (all part of what the box computes: hashed,
+    CRC-covered)."""
     channels, axes = step_limits(model, runs)
+    still = still_limits(model, runs)
     for c in model["channels"]:
         c["max_step_c"] = channels[c["sensor"]]
+        c["max_still_samples"] = still[c["sensor"]]
     for name, ax in model["axes"].items():
         ax["max_step_um"] = axes[name]
