@@ -74,10 +74,6 @@ KNOWN_GAPS = {
     "stuck sensor": (
         "a frozen converter repeats one code; the box does not yet tell it from a steady "
         "temperature (a stuck-channel rule from the training runs is under way)"),
-    "ZERO during a hold": (
-        "the open channel's lag filters resume from their state before a 5 h fault and "
-        "catch up after the datum (needs the filters re-seeded or the axis held until they "
-        "settle)"),
 }
 
 

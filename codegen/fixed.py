@@ -60,6 +60,26 @@ def _filter_update(s: int, target: int, a: int) -> int:
                 else -((-p + _ALPHA_HALF) >> ALPHA_FRAC_BITS))
 
 
+# A filter whose channel came back after a gap of g samples is first run over the gap with
+# inputs interpolated between its last valid reading and the new one (docs/fixed-point.md,
+# "Catch-up"), at most CATCHUP_MAX samples: frozen over a long fault, its lag would lag by the
+# whole change of the gap and then catch up after a datum (issue 41: 10 um off on dy).
+CATCHUP_MAX = 65535
+
+
+def _div_round(v: int, d: int) -> int:
+    """v / d (d > 0) rounded half away from zero, as model_eval.c's tcm_div_round."""
+    return (2 * v + d) // (2 * d) if v >= 0 else -((-2 * v + d) // (2 * d))
+
+
+def _catch_up(s: int, last: int, code: int, gap: int, a: int) -> int:
+    """The state after ``gap`` updates with inputs last + (code - last) * k / (gap + 1)."""
+    g = min(gap, CATCHUP_MAX)
+    for k in range(1, g + 1):
+        s = _filter_update(s, (last + _div_round((code - last) * k, g + 1)) * _STATE_ONE, a)
+    return s
+
+
 def _rdiv_array(v: np.ndarray, f: int) -> np.ndarray:
     half = np.int64((1 << f) >> 1)
     return np.where(v >= 0, (v + half) >> f, -((-v + half) >> f))
@@ -86,6 +106,8 @@ class FixedModel:
         n_states = self.model.n_states
         self.s = [0] * n_states
         self.started = [False] * n_states
+        self.last = [0] * n_states  # the last valid reading of each filter's channel
+        self.gap = [0] * n_states  # samples missed since then (saturating)
         self.k = 0
         self.out = [0] * self.n_axes
 
@@ -133,12 +155,19 @@ class FixedModel:
             if t.kind not in FILTER_KINDS or t.state in updated:
                 continue
             updated.add(t.state)
+            i = t.state
             if ch_ok[t.input]:
-                target = int(temp_codes[t.input]) * _STATE_ONE
-                if not self.started[t.state]:
-                    self.s[t.state], self.started[t.state] = target, True
+                code = int(temp_codes[t.input])
+                if not self.started[i]:
+                    self.s[i], self.started[i] = code * _STATE_ONE, True
                 else:
-                    self.s[t.state] = _filter_update(self.s[t.state], target, t.param)
+                    if self.gap[i]:
+                        self.s[i] = _catch_up(self.s[i], self.last[i], code, self.gap[i],
+                                              t.param)
+                    self.s[i] = _filter_update(self.s[i], code * _STATE_ONE, t.param)
+                self.last[i], self.gap[i] = code, 0
+            elif self.started[i]:
+                self.gap[i] = min(self.gap[i] + 1, 0xFFFFFFFF)
         mask = 0
         for ax in self.model.axes:
             if all(ch_ok[t.input] for t in ax.terms if t.kind in TEMPERATURE_KINDS) and \
@@ -206,18 +235,25 @@ class FixedModel:
 
     @staticmethod
     def _filter_run(codes: list[int], ok: list[bool], a: int) -> np.ndarray:
-        """The state after each sample's update (frozen while faulted); exact Python ints."""
+        """The state after each sample's update (frozen while faulted, caught up over the gap
+        when the channel comes back); exact Python ints."""
         s, started, res = 0, False, []
+        last = gap = 0
         append = res.append
         for code, valid in zip(codes, ok, strict=True):
             if valid:
                 target = code * _STATE_ONE
                 if started:
+                    if gap:
+                        s = _catch_up(s, last, code, gap, a)
                     p = (target - s) * a
                     s += ((p + _ALPHA_HALF) >> ALPHA_FRAC_BITS if p >= 0
                           else -((-p + _ALPHA_HALF) >> ALPHA_FRAC_BITS))
                 else:
                     s, started = target, True
+                last, gap = code, 0
+            elif started:
+                gap += 1
             append(s)
         return np.array(res, dtype=np.int64)
 

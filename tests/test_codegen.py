@@ -678,7 +678,7 @@ def test_a_stuck_limit_that_is_not_a_whole_number_of_samples_is_refused(value):
 
 # ---- the twin: filter states, faults, every kind by hand ------------------------------------
 
-def test_twin_kinds_cold_start_and_frozen_state_by_hand():
+def test_twin_kinds_cold_start_frozen_state_and_catch_up_by_hand():
     # alpha = 1/2 (a = 2^29). lag coef 1.28 um/degC -> 10 nm per code of the lagged value;
     # rate coef 2 um/degC; square 0.01 um/degC^2 about 20 degC; speed2 1e-6 um/rpm^2;
     # time 0.5 um/s saturating after 3 samples. One axis per term so each can be read alone.
@@ -705,9 +705,12 @@ def test_twin_kinds_cold_start_and_frozen_state_by_hand():
         ((3000, 1, 2000), [20000, 15625, 118, 4000, 1000], 0b11111),
         # 3: faulted, absurd code: lag/rate/square held, state frozen at 2000 codes.
         ((10**6, 1, 0), [20000, 15625, 118, 0, 1500], 0b11000),
-        # 4: valid at 0: s = 2000 - 2000/2 = 1000 codes -> lag 10000; rate -1000/128*2000
-        #    = -15625; square (2560/128)^2 * 10 = 4000. time saturates at 3 samples.
-        ((0, 1, 12000), [10000, -15625, 4000, 144000, 1500], 0b11111),
+        # 4: valid at 0 after a gap of one sample (docs/fixed-point.md, "Catch-up"): first
+        #    the missed sample with the interpolated input 3000 + rdiv(-3000 * 1, 2) = 1500:
+        #    s = 2000 + (1500 - 2000)/2 = 1750; then 0: s = 1750 - 1750/2 = 875 codes ->
+        #    lag 8750; rate -875/128 * 2000 = -13671.875 -> -13672; square
+        #    (2560/128)^2 * 10 = 4000. time saturates at 3 samples.
+        ((0, 1, 12000), [8750, -13672, 4000, 144000, 1500], 0b11111),
     ]
     for i, ((code, valid, rpm), outs, mask) in enumerate(steps):
         assert fm.step([code], valid, [rpm]) == (outs, mask), f"step {i}"

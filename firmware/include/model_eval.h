@@ -140,9 +140,15 @@ typedef struct {
 } tcm_model_t;
 
 /* Evaluation state: filter states and the sample counter. Zeroed by tcm_state_init. */
+/* A filter whose channel comes back after a gap is first run over at most this many missed
+ * samples, with inputs interpolated between its last valid reading and the new one. */
+#define TCM_CATCHUP_MAX 65535u
+
 typedef struct {
-    int64_t s[TCM_MAX_STATES]; /* filter state, code * 2^16 units */
-    uint32_t started;          /* bit i: state i had its cold start (first valid sample) */
+    int64_t s[TCM_MAX_STATES];    /* filter state, code * 2^16 units */
+    int32_t last[TCM_MAX_STATES]; /* the last valid reading of the state's channel */
+    uint32_t gap[TCM_MAX_STATES]; /* samples missed since then (saturating) */
+    uint32_t started;             /* bit i: state i had its cold start (first valid sample) */
     uint32_t k;                /* samples since power-up, saturating at UINT32_MAX */
 } tcm_state_t;
 

@@ -30,7 +30,11 @@
  *   value (rdiv(v) = -rdiv(-v) for v < 0). |acc| + 2^(F-1) <= 2^62 + 2^61 < 2^63. The header
  *   asserts rdiv(acc_max, F) <= INT32_MAX, so the conversion to int32_t is exact.
  * Faults: a channel that is not valid freezes its filter states and makes every axis that
- *   reads it skip this sample (output untouched, bit clear in the returned mask). An input the
+ *   reads it skip this sample (output untouched, bit clear in the returned mask). When it is
+ *   valid again after g missed samples, each of its filters is first updated over the gap
+ *   with inputs last + rdiv_d((code - last) * k, g + 1), k = 1..min(g, TCM_CATCHUP_MAX)
+ *   (division rounded half away from zero), then once with the new code: every such input
+ *   lies between two valid codes, so the state bound below still holds. An input the
  *   caller marks valid but whose value is outside its declared range is treated as a fault,
  *   so no input can break the bounds above.
  * Error: |out - real-valued model| <= coefficient + state quantisation + 0.5 nm, written per
@@ -48,10 +52,43 @@ static int64_t tcm_rdiv(int64_t v, uint8_t f)
     return -((-v + half) >> f);
 }
 
+/* v / d (d > 0) rounded half away from zero; |v| <= 2^35 here (a code difference of at
+ * most 2^19 times k <= 2^16), so 2|v| + d fits int64. */
+static int64_t tcm_div_round(int64_t v, int64_t d)
+{
+    if (v >= 0) {
+        return (2 * v + d) / (2 * d);
+    }
+    return -((-2 * v + d) / (2 * d));
+}
+
+/* One filter update towards code (Q16), as in tcm_step. */
+static int64_t tcm_filter(int64_t s, int32_t code, uint32_t a)
+{
+    const int64_t d = (int64_t)code * INT64_C(65536) - s;
+    return s + tcm_rdiv(d * (int64_t)a, TCM_ALPHA_FRAC_BITS);
+}
+
+/* Catch-up: the channel was missing for gap samples; run the filter over them with inputs
+ * interpolated between the last valid reading and the new one (at most TCM_CATCHUP_MAX).
+ * Every input lies between two valid codes, so the state bounds of the header still hold. */
+static int64_t tcm_catch_up(int64_t s, int32_t last, int32_t code, uint32_t gap, uint32_t a)
+{
+    const uint32_t g = gap < TCM_CATCHUP_MAX ? gap : TCM_CATCHUP_MAX;
+    const int64_t diff = (int64_t)code - last;
+    for (uint32_t k = 1u; k <= g; ++k) {
+        const int64_t x = (int64_t)last + tcm_div_round(diff * (int64_t)k, (int64_t)g + 1);
+        s = tcm_filter(s, (int32_t)x, a);
+    }
+    return s;
+}
+
 void tcm_state_init(tcm_state_t *state)
 {
     for (uint32_t i = 0; i < TCM_MAX_STATES; ++i) {
         state->s[i] = 0;
+        state->last[i] = 0;
+        state->gap[i] = 0u;
     }
     state->started = 0u;
     state->k = 0u;
@@ -196,15 +233,22 @@ uint32_t tcm_step(const tcm_model_t *m, tcm_state_t *st, const int32_t *temp_cod
             continue; /* shared with an earlier term: already updated this sample */
         }
         updated |= bit;
+        const uint32_t i = term->state;
         if (bit_set(ch_ok, term->input)) {
-            const int64_t target = (int64_t)temp_codes[term->input] * INT64_C(65536);
+            const int32_t code = temp_codes[term->input];
             if ((st->started & bit) == 0u) {
-                st->s[term->state] = target;
+                st->s[i] = (int64_t)code * INT64_C(65536);
                 st->started |= bit;
             } else {
-                const int64_t d = target - st->s[term->state];
-                st->s[term->state] += tcm_rdiv(d * (int64_t)term->param, TCM_ALPHA_FRAC_BITS);
+                if (st->gap[i] != 0u) {
+                    st->s[i] = tcm_catch_up(st->s[i], st->last[i], code, st->gap[i], term->param);
+                }
+                st->s[i] = tcm_filter(st->s[i], code, term->param);
             }
+            st->last[i] = code;
+            st->gap[i] = 0u;
+        } else if ((st->started & bit) != 0u && st->gap[i] != UINT32_MAX) {
+            st->gap[i]++; /* frozen while missing; caught up when the channel is back */
         }
     }
 
