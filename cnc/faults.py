@@ -71,9 +71,6 @@ KNOWN_GAPS = {
         "a cold box's lag filters start at the current readings: mid warm-up the datum "
         "after the ZERO misses what the lags had still to catch up (needs the lag state kept "
         "over a power cut: battery-backed SRAM, or the controller handing it back)"),
-    "stuck sensor": (
-        "a frozen converter repeats one code; the box does not yet tell it from a steady "
-        "temperature (a stuck-channel rule from the training runs is under way)"),
 }
 
 
