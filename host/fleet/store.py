@@ -331,9 +331,9 @@ class Store:
         return {m: int(c) for m, c in self._rows(
             "SELECT machine, COUNT(*) FROM samples GROUP BY machine")}
 
-    def latencies(self) -> list[float]:
-        """stored_t - t of every sample (seconds): broker + service + commit."""
-        return [float(r[0]) for r in self._rows("SELECT stored_t - t FROM samples")]
+    def latencies(self) -> list[tuple[float, float]]:
+        """(t, stored_t - t) of every sample, seconds: broker + service + commit."""
+        return [(float(t), float(d)) for t, d in self._rows("SELECT t, stored_t - t FROM samples")]
 
 
 def _safe(url: str) -> str:
