@@ -79,7 +79,7 @@ def test_noise_is_counted_and_samples_are_logged(tmp_path):
     box = WirePty()
     log = tmp_path / "live.csv"
     out = io.StringIO()
-    monitor = Monitor(box.path, count=4, log=log, out=out, ansi=False,
+    monitor = Monitor(box.path, count=4, log=log, out=out, screen=False,
                       expected_hash="0123456789abcdef")
     thread, result = run_in_thread(monitor)
     box.wait_for(b"INFO\r\n")
@@ -103,18 +103,29 @@ def test_noise_is_counted_and_samples_are_logged(tmp_path):
     with log.open(newline="") as fh:
         rows = list(csv.reader(fh))
     assert rows[0] == ["time_s", "seq", "status", "corr_dx_um", "corr_dz_um", "T05", "T12",
-                       "host_unix_s"]
+                       "faults", "host_unix_s"]
     for row, (seq, status, corr, codes) in zip(rows[1:], good, strict=True):
         assert float(row[0]) == seq * 1.0 and int(row[1]) == seq
         assert int(row[2], 16) == status
         assert [float(v) for v in row[3:5]] == [c / 1000 for c in corr]
-        assert [float(v) for v in row[5:7]] == pytest.approx([c / 128 for c in codes], abs=1e-4)
+        if status & 0x0020:
+            # OPEN, and the box was never asked which channel (STATUS unanswered): neither
+            # reading is a temperature, both cells are empty and the faults column says why
+            assert row[5:8] == ["", "", "T05=OPEN?;T12=OPEN?"]
+        else:
+            assert [float(v) for v in row[5:7]] == pytest.approx([c / 128 for c in codes],
+                                                                 abs=1e-4)
+            assert row[7] == ""
 
     text = out.getvalue()
     assert "\x1b[" not in text  # plain mode: no escape sequences in a pipe
     assert "status=0220[OPEN,NO_DATA]" in text
-    assert "dx_um=+1.234um" in text and "T12=-0.09C" in text
+    assert "dx_um=+1.234um" in text and "T12=FAULT(OPEN?)" in text and "-0.09C" not in text
     assert text.count("bad line #") == 4
+    # the fault history: each fault when it came and when it cleared
+    assert "fault: HOLD since" in text and "at #1" in text
+    assert "cleared: HOLD at" in text and "at #3" in text
+    assert "cleared: OPEN at" in text and "at #4" in text
     box.unplug()
 
 
@@ -122,7 +133,7 @@ def test_existing_log_is_appended_and_a_different_layout_is_refused(tmp_path):
     log = tmp_path / "live.csv"
     for expected_rows in (2, 3):
         box = WirePty()
-        monitor = Monitor(box.path, count=1, log=log, out=io.StringIO(), ansi=False)
+        monitor = Monitor(box.path, count=1, log=log, out=io.StringIO(), screen=False)
         thread, result = run_in_thread(monitor)
         box.wait_for(b"INFO\r\n")
         box.send(INFO + sample(expected_rows, 0, [1, 2], [3, 4]))
@@ -133,7 +144,7 @@ def test_existing_log_is_appended_and_a_different_layout_is_refused(tmp_path):
 
     box = WirePty()
     other = wire("I,fw-1.2.3,0123456789abcdef,OK,1000,dy_um,0:T05:K")
-    monitor = Monitor(box.path, count=1, log=log, out=io.StringIO(), ansi=False)
+    monitor = Monitor(box.path, count=1, log=log, out=io.StringIO(), screen=False)
     errors: list[BaseException] = []
 
     def target() -> None:
@@ -157,7 +168,7 @@ def test_lost_port_is_retried_and_the_box_asked_again(tmp_path):
     first = WirePty()
     link.symlink_to(first.path)
     out = io.StringIO()
-    monitor = Monitor(str(link), count=4, out=out, ansi=False, retry_s=0.05,
+    monitor = Monitor(str(link), count=4, out=out, screen=False, retry_s=0.05,
                       expected_hash="0123456789abcdef")
     thread, result = run_in_thread(monitor)
     first.wait_for(b"INFO\r\n")
@@ -184,7 +195,7 @@ def test_lost_port_is_retried_and_the_box_asked_again(tmp_path):
 def test_hash_mismatch_is_shown_and_fails_the_run():
     box = WirePty()
     out = io.StringIO()
-    monitor = Monitor(box.path, count=1, out=out, ansi=False, expected_hash="ffffffffffffffff")
+    monitor = Monitor(box.path, count=1, out=out, screen=False, expected_hash="ffffffffffffffff")
     thread, result = run_in_thread(monitor)
     box.wait_for(b"INFO\r\n")
     box.send(INFO + sample(0, 0, [1, 2], [3, 4]))
@@ -194,10 +205,10 @@ def test_hash_mismatch_is_shown_and_fails_the_run():
     box.unplug()
 
 
-def test_terminal_display_redraws_in_place():
+def test_the_screen_shows_the_state_render_gives():
     box = WirePty()
     out = io.StringIO()
-    monitor = Monitor(box.path, count=2, out=out, ansi=True)
+    monitor = Monitor(box.path, count=2, out=out, screen=False)
     thread, result = run_in_thread(monitor)
     box.wait_for(b"INFO\r\n")
     box.send(INFO + sample(7, 0x0008, [-250, 99999], [3200, 3456]) + b"garbage\r\n")
@@ -205,8 +216,6 @@ def test_terminal_display_redraws_in_place():
     box.send(sample(8, 0x0008, [-250, 99999], [3200, 3456]))
     thread.join(10)
     assert result["code"] == 0
-    text = out.getvalue()
-    assert "\x1b[J" in text and "F\x1b[J" in text  # cursor moved back up and frame cleared
     screen = render(monitor.state, time.monotonic())
     assert any("dx_um" in ln and "-0.250 µm" in ln for ln in screen)
     assert any("dz_um" in ln and "+99.999 µm" in ln for ln in screen)
@@ -380,7 +389,7 @@ def test_a_faulted_channel_is_named_greyed_and_its_axes_hold():
     box = WirePty()
     out = io.StringIO()
     # dx reads T05 only, dz reads T05 and T12 (as the model's terms would say)
-    monitor = Monitor(box.path, count=3, out=out, ansi=False, expected_hash="0123456789abcdef",
+    monitor = Monitor(box.path, count=3, out=out, screen=False, expected_hash="0123456789abcdef",
                       axis_inputs={"dx_um": ["T05"], "dz_um": ["T05", "T12"]})
     thread, result = run_in_thread(monitor)
     box.wait_for(b"INFO\r\n")
@@ -408,7 +417,7 @@ def test_a_faulted_channel_is_named_greyed_and_its_axes_hold():
 def test_silence_longer_than_two_periods_raises_stale():
     box = WirePty()
     out = io.StringIO()
-    monitor = Monitor(box.path, duration=1.5, out=out, ansi=False)
+    monitor = Monitor(box.path, duration=1.5, out=out, screen=False)
     thread, result = run_in_thread(monitor)
     box.wait_for(b"INFO\r\n")
     box.send(wire("I,fw-1,0123456789abcdef,OK,100,dx_um,0:T05:K") + wire("C,0,0000,1,5,1,3200"))
@@ -426,7 +435,7 @@ def test_silence_longer_than_two_periods_raises_stale():
 def test_sign_and_reference_are_stated_and_newer_bits_are_named():
     box = WirePty()
     out = io.StringIO()
-    monitor = Monitor(box.path, count=2, out=out, ansi=False)
+    monitor = Monitor(box.path, count=2, out=out, screen=False)
     thread, result = run_in_thread(monitor)
     box.wait_for(b"INFO\r\n")
     box.send(INFO + sample(40, 0x0800, [-1500, 0], [3200, 3328]))  # bit 11: REFERENCED
@@ -477,7 +486,7 @@ def test_after_a_reconnect_an_unidentified_device_shows_nothing_until_its_info(t
     out = io.StringIO()
     # it stops at the second sample it shows; the duration only bounds a broken run (a fixed
     # 4 s window was too short when the machine was loaded)
-    monitor = Monitor(str(link), count=2, duration=30.0, out=out, ansi=False, retry_s=0.05,
+    monitor = Monitor(str(link), count=2, duration=30.0, out=out, screen=False, retry_s=0.05,
                       identify=lambda port: None)  # a pty: cannot say what it is
     thread, result = run_in_thread(monitor)
     first.wait_for(b"INFO\r\n")
@@ -542,3 +551,175 @@ def test_monitor_names_the_faulted_channel_on_the_native_firmware(native_box):
     assert last["faulted_channels"] == {"T12": ["OPEN"]}
     assert last["held_axes"] == ["dz_um"]
     assert last["temperatures_c"]["T12"] is None and last["temperatures_c"]["T05"] == 25.0
+
+
+# ---------------------------------------------------------------- the terminal view, in tmux
+
+class Tmux:
+    """A detached tmux server of its own (private socket) running one command in one pane."""
+
+    def __init__(self, tmp: Path, width: int, height: int, command: list[str]) -> None:
+        self.socket = str(tmp / "tmux.sock")
+        env = " ".join(f"{k}={v}" for k, v in (("LANG", "C.UTF-8"), ("LC_ALL", "C.UTF-8"),
+                                                ("TERM", "tmux-256color")))
+        shell = f"cd {ROOT} && env {env} " + " ".join(command) + " ; sleep 60"
+        self.tmux("new-session", "-d", "-s", "mon", "-x", str(width), "-y", str(height),
+                  shell)
+
+    def tmux(self, *args: str) -> str:
+        return subprocess.run(["tmux", "-S", self.socket, *args], capture_output=True,
+                              text=True, check=True).stdout
+
+    def capture(self) -> list[str]:
+        return self.tmux("capture-pane", "-p", "-t", "mon").split("\n")[:-1]
+
+    def wait_for(self, *needles: str, timeout: float = 10.0) -> list[str]:
+        deadline = time.monotonic() + timeout
+        while True:
+            screen = self.capture()
+            text = "\n".join(screen)
+            if all(n in text for n in needles):
+                return screen
+            assert time.monotonic() < deadline, f"never saw {needles} on:\n{text}"
+            time.sleep(0.1)
+
+    def resize(self, width: int, height: int) -> None:
+        self.tmux("resize-window", "-t", "mon", "-x", str(width), "-y", str(height))
+
+    def close(self) -> None:
+        subprocess.run(["tmux", "-S", self.socket, "kill-server"], capture_output=True)
+
+
+def check_frame(screen: list[str], width: int, height: int) -> None:
+    """One clean frame: at most the pane's size, the header on top exactly once, no line
+    repeated (what wrapped lines used to leave behind)."""
+    assert len(screen) <= height
+    assert all(len(line) <= width for line in screen)
+    assert screen[0].startswith("host monitor on ")
+    assert sum(line.startswith("host monitor on ") for line in screen) == 1
+    body = [line for line in screen if line.strip()]
+    assert len(body) == len(set(body)), "\n".join(screen)
+
+
+def seconds_after(screen: list[str], prefix: str) -> float:
+    line = next(ln for ln in screen if prefix in ln)
+    return float(line.split(prefix, 1)[1].split(" s", 1)[0])
+
+
+def test_the_screen_in_tmux_at_80x24_and_200x50_on_the_native_firmware(native_box, tmp_path):
+    """The curses view against the real (native) firmware in a real terminal (tmux), read back
+    by capture-pane: a clean frame at 80x24 whatever wraps, the same after resizing to 200x50
+    and back, a channel fault named and kept in the history after it clears, and once the box
+    has stopped the age and STALE go on counting."""
+    if shutil.which("tmux") is None:
+        pytest.skip("tmux not installed (scripts/install-system-deps.sh installs it)")
+    binary, model_path = native_box
+    box, pty = start_native(binary)
+    log = tmp_path / "screen.csv"
+    term = Tmux(tmp_path, 80, 24, [sys.executable, "-m", "host", "monitor", pty, "--model",
+                                   str(model_path), "--log", str(log), "--screen"])
+    assert box.stdin is not None
+
+    def feed(text: str) -> None:
+        box.stdin.write(text.encode())
+        box.stdin.flush()
+
+    try:
+        term.wait_for("matches model.json", "no sample yet")
+        feed("S 0 3200 2816\n" * 3)
+        screen = term.wait_for("samples 3 ")
+        check_frame(screen, 80, 24)
+        assert any(ln.startswith("  T05   25.00 °C   T12   22.00 °C") for ln in screen)
+        # the sign note is longer than 80 columns: cut, not wrapped
+        assert any(ln.endswith("…") for ln in screen)
+        # T12 opens: named, its reading shown as the fault, dz (which reads it) holds
+        feed("F 1 01\nS 0 3200 2816\n")
+        screen = term.wait_for("OPEN(T12)", "T12      OPEN", "HOLD(dz_um)")
+        feed("S 0 3200 2816\n")
+        term.wait_for("samples 5 ")
+        feed("F 1 00\nS 0 3200 2816\n")
+        screen = term.wait_for("samples 6 ", "cleared")
+        check_frame(screen, 80, 24)
+        history = screen[screen.index(next(ln for ln in screen if "fault history" in ln)):]
+        assert any("OPEN(T12)" in ln and "cleared" in ln and "#3" in ln and "#5" in ln
+                   for ln in history), "\n".join(screen)
+        assert any("HOLD(dz_um)" in ln and "cleared" in ln for ln in history)
+        assert any("T12   22.00 °C" in ln for ln in screen)  # a temperature again
+
+        term.resize(200, 50)
+        # laid out again for the new width: the lines cut at 80 columns are whole now
+        screen = term.wait_for("samples 6 ", "period 1000 ms", "(no ZERO reference in force)")
+        check_frame(screen, 200, 50)
+        assert len(screen) == 50 and max(len(ln) for ln in screen) > 150
+        assert any(ln.endswith("matches model.json (CRC OK), firmware 0.1.0, period 1000 ms")
+                   for ln in screen), "\n".join(screen)
+
+        feed("Q\n")  # the box stops: its port goes away
+        box.stdin.close()
+        box.wait(10)
+        screen = term.wait_for("STALE: no sample for", "DISCONNECTED for", timeout=15)
+        first = seconds_after(screen, "STALE: no sample for ")
+        time.sleep(1.5)
+        screen = term.capture()
+        check_frame(screen, 200, 50)
+        assert seconds_after(screen, "STALE: no sample for ") >= first + 1.0
+        assert seconds_after(screen, "sample #5, ") >= first + 1.0  # the age counts too
+        assert any("STALE (no samples)" in ln and "ACTIVE" in ln for ln in screen)
+
+        term.resize(80, 24)  # shrinking is where a hand-made redraw left garbage
+        time.sleep(0.5)
+        screen = term.capture()
+        check_frame(screen, 80, 24)
+        assert any("STALE: no sample for" in ln for ln in screen)
+
+        term.tmux("send-keys", "-t", "mon", "q")
+        screen = term.wait_for("monitor: 6 samples", "fault history (newest first):")
+    finally:
+        term.close()
+        if box.poll() is None:
+            box.kill()
+            box.wait()
+    with log.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["T12"] for r in rows] == ["22.0000"] * 3 + ["", "", "22.0000"]
+    assert rows[4]["faults"] == "T12=OPEN"
+
+
+def test_layout_clips_to_the_width_and_gives_way_by_priority():
+    from host.box.screen import RED, RESET, clip, layout, visible
+
+    main = ["host monitor on /dev/x: connected", "x" * 300, f"{RED}STALE{RESET} " + "y" * 100]
+    history = [f"entry {i}" for i in range(10)]
+    events = [f"event {i}" for i in range(10)]
+    frame = layout(main, history, events, 24, 80)
+    assert len(frame) == 24 and all(len(visible(ln)) <= 79 for ln in frame)
+    assert visible(frame[1]) == "x" * 78 + "…"
+    assert frame[2].startswith(RED) and visible(frame[2]).endswith("…")
+    assert "fault history" in frame[3] and frame[4] == "entry 0"
+    assert frame[-1] == "  event 9" and "events" in frame[14]  # the latest events, at the end
+    # short: the live block first, then the newest history, the events go first
+    small = layout(main, history, events, 6, 40)
+    assert [visible(ln)[:5] for ln in small] == ["host ", "xxxxx", "STALE", "─── f", "entry",
+                                                "entry"]
+    assert layout(main, [], [], 5, 80)[3:] == ["─── fault history (newest first) " + "─" * 46,
+                                               "  none since the monitor started"]
+    assert layout(main, history, events, 0, 80) == [] and clip("abc", 0) == ""
+
+
+def test_the_fault_history_opens_refines_and_closes_entries():
+    from host.box.history import LINK, SAMPLE, FaultHistory
+
+    h = FaultHistory()
+    assert [(w, e.label) for w, e in h.update(SAMPLE, {"OPEN": "OPEN", "HOLD": "HOLD"}, 10.0,
+                                               3)] == [("fault", "OPEN"), ("fault", "HOLD")]
+    assert h.update(SAMPLE, {"OPEN": "OPEN(T12)", "HOLD": "HOLD(dz_um)"}, 11.0, 4) == []
+    h.open(LINK, "STALE", "STALE (no samples)", 11.5)
+    changes = h.update(SAMPLE, {"HOLD": "HOLD(dz_um)"}, 12.0, 5)  # OPEN cleared, STALE stays
+    assert [(w, e.label, e.since_seq, e.cleared_seq) for w, e in changes] == [
+        ("cleared", "OPEN(T12)", 3, 5)]
+    assert [e.key for e in h.active()] == ["HOLD", "STALE"]
+    lines = h.lines(now=20.0)
+    assert "STALE (no samples)" in lines[0] and "ACTIVE for 8.5 s" in lines[0]
+    assert any("OPEN(T12)" in ln and "#5 after 2.0 s" in ln for ln in lines)
+    h.close(LINK, "STALE", 21.0)
+    assert [e.key for e in h.active()] == ["HOLD"]

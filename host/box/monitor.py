@@ -9,7 +9,14 @@ names the faulted channel (from the box's per-channel fault words) and the axes 
 floor sends noise and gets unplugged: bad lines are counted and shown, never fatal, silence
 longer than two sample periods raises STALE, and a lost port is reopened; when what reappears
 at the path cannot identify itself (a pty, an adapter without a serial number), nothing it
-sends is shown until its INFO answer names its model.
+sends is shown until its INFO answer names its model. Every fault is kept in a history (what,
+since when, cleared when: host.box.history), and the age and STALE keep counting while the
+port is gone.
+
+Layout: ``MonitorState`` is what is known, ``Monitor`` reads the port and keeps it current,
+and the views only read it: ``render`` (the live lines) in the curses screen
+(host.box.screen), ``plain_sample_line`` for a pipe, ``json_sample`` for --json, ``CsvLog``
+for --log.
 
 The sign (docs/protocol.md): the box's correction is its prediction of the thermal
 displacement, in the sign of the displacement measured in the thermal test (compensated =
@@ -19,7 +26,6 @@ measured − correction), so the offset a CNC applies is −correction.
 from __future__ import annotations
 
 import csv
-import io
 import json
 import os
 import sys
@@ -34,6 +40,8 @@ import serial
 from contract import protocol
 from contract.errors import InputError
 from contract.tilt import unit_of, unit_text
+from host.box.history import LINK, SAMPLE, FaultEntry, FaultHistory, clock, sample_fault_labels
+from host.box.screen import GREY, RED, RESET, Screen
 
 RETRY_S = 1.0
 INFO_TIMEOUT_S = 1.0
@@ -51,7 +59,12 @@ SIGN_NOTE = ("sign: a correction is the box's prediction of the thermal displace
 _EXTRA_STATUS = {11: "REFERENCED", 12: "IMPLAUSIBLE"}
 _EXTRA_CHANNEL_FAULT = {10: "IMPLAUSIBLE"}
 # flags that mean some channel is faulted: ask STATUS which one
-_FAULT_FLAGS = {"HOLD", "RANGE", "OPEN", "TC_FAULT", "AUX_FAULT", "NO_DATA", "IMPLAUSIBLE"}
+_FAULT_FLAGS = {"HOLD", "RANGE", "OPEN", "TC_FAULT", "AUX_FAULT", "NO_DATA", "IMPLAUSIBLE",
+                "BEYOND"}
+# the flags a channel's fault word explains, and the fault word's bits each one stands for
+_CHANNEL_FLAGS = {"TC_FAULT": {"OVUV", "TCLOW", "TCHIGH", "CJLOW", "CJHIGH", "TCRANGE",
+                               "CJRANGE"}, "OPEN": {"OPEN"}, "RANGE": {"RANGE"},
+                  "IMPLAUSIBLE": {"IMPLAUSIBLE"}, "BEYOND": {"BEYOND"}}
 
 
 class MonitorError(InputError):
@@ -105,6 +118,9 @@ class MonitorState:
     windows: dict[str, tuple[int, int]] = field(default_factory=dict)
     # axis -> thermocouples its terms read (from --model): names the axes a fault holds
     axis_inputs: dict[str, list[str]] = field(default_factory=dict)
+    history: FaultHistory = field(default_factory=FaultHistory)
+    period_hint_s: float | None = None  # the last INFO's period: kept while INFO is re-asked
+    disconnected_at: float | None = None  # monotonic time the port was lost
 
     @property
     def hash_ok(self) -> bool | None:
@@ -125,7 +141,11 @@ class MonitorState:
         return status_names(self.sample.status) if self.sample is not None else []
 
     def period_s(self) -> float | None:
-        return self.info.period_ms / 1000.0 if self.info and self.info.period_ms else None
+        """The box's sample period (INFO), or the last one known while INFO is asked again
+        (after a reconnect): the age and STALE keep counting when the box has gone away."""
+        if self.info and self.info.period_ms:
+            return self.info.period_ms / 1000.0
+        return self.period_hint_s
 
     def faulted_channels(self) -> dict[str, list[str]]:
         """Channel name -> fault names, from the latest STATUS reply, while the current
@@ -136,6 +156,26 @@ class MonitorState:
         names = self.channel_names(max(len(rep.channel_faults), len(s.temp_codes)))
         return {names[i]: channel_fault_names(w) or [f"0x{w:04X}"]
                 for i, w in enumerate(rep.channel_faults) if w}
+
+    def unnamed_channel_faults(self) -> list[str]:
+        """Channel-fault flags of the current sample whose channel no STATUS reply has named
+        yet (the reply is on its way): every channel is then suspect."""
+        named = {f for faults in self.faulted_channels().values() for f in faults}
+        return [n for n in self.flags if n in _CHANNEL_FLAGS and not _CHANNEL_FLAGS[n] & named]
+
+    def invalid_channels(self) -> dict[str, str]:
+        """Channel name -> why its reading is not a temperature: its faults from STATUS, or,
+        while a channel-fault flag is up and STATUS has not named the channel yet, every
+        channel ("OPEN?": one of them is open, which one is not known yet)."""
+        s = self.sample
+        if s is None:
+            return {}
+        out = {n: "/".join(f) for n, f in self.faulted_channels().items()}
+        unnamed = self.unnamed_channel_faults()
+        if unnamed:
+            for n in self.channel_names(len(s.temp_codes)):
+                out.setdefault(n, "/".join(f"{u}?" for u in unnamed))
+        return out
 
     def held_axes(self) -> list[str] | None:
         """Axes that read a faulted channel (so hold), when --model says which axes read
@@ -169,13 +209,14 @@ class MonitorState:
         return None if period is None else STALE_PERIODS * period * max(1, self.seq_step)
 
 
-def _flags(state: MonitorState, sep: str) -> str:
+def flag_labels(state: MonitorState) -> list[str]:
     """The status flags of the current sample, each named with what it concerns: EXTRAP and
-    the channel faults with their channels, HOLD with its axes, REFERENCED with its ZERO."""
+    the channel faults with their channels, HOLD with its axes, REFERENCED with its ZERO (in
+    the order of ``state.flags``)."""
     assert state.sample is not None
     names = state.flags
     faulted = state.faulted_channels()
-    out = []
+    out: list[str] = []
     for n in names:
         if n == "EXTRAP":
             beyond = state.beyond_training()
@@ -185,30 +226,32 @@ def _flags(state: MonitorState, sep: str) -> str:
             chans = "+".join(faulted)
             out.append(f"HOLD({'+'.join(held)})" if held else
                        f"HOLD(axes reading {chans})" if chans else n)
-        elif n in ("OPEN", "TC_FAULT", "RANGE", "IMPLAUSIBLE"):
-            want = {"TC_FAULT": {"OVUV", "TCLOW", "TCHIGH", "CJLOW", "CJHIGH", "TCRANGE",
-                                 "CJRANGE"}, "OPEN": {"OPEN"}, "RANGE": {"RANGE"},
-                    "IMPLAUSIBLE": {"IMPLAUSIBLE"}}[n]
-            chans = [c for c, f in faulted.items() if want & set(f)]
+        elif n in _CHANNEL_FLAGS:
+            chans = [c for c, f in faulted.items() if _CHANNEL_FLAGS[n] & set(f)]
             out.append(f"{n}({'+'.join(chans)})" if chans else n)
         elif n == "REFERENCED" and state.zero_seq() is not None:
             out.append(f"REFERENCED(since #{state.zero_seq()})")
         else:
             out.append(n)
-    return sep.join(out) or "ok"
+    return out
+
+
+def _flags(state: MonitorState, sep: str) -> str:
+    return sep.join(flag_labels(state)) or "ok"
 
 
 def _hash_line(state: MonitorState) -> str:
     if state.info is None:
         return "model: (no INFO reply yet)"
     info = state.info
-    text = (f"firmware {info.fw_version}, model {info.model_hash} "
-            f"(CRC {'OK' if info.crc_ok else 'BAD'}), period {info.period_ms} ms")
+    # what matters first: on a narrow terminal the end of the line is what is cut
+    text = f"model {info.model_hash}"
     if state.hash_ok is True:
-        text += ", matches model.json"
+        text += " matches model.json"
     elif state.hash_ok is False:
         text += f", MISMATCH: model.json is {state.expected_hash}"
-    return text
+    return text + (f" (CRC {'OK' if info.crc_ok else 'BAD'}), firmware {info.fw_version}, "
+                   f"period {info.period_ms} ms")
 
 
 def _reference_line(state: MonitorState) -> str:
@@ -219,15 +262,16 @@ def _reference_line(state: MonitorState) -> str:
     return "corrections are absolute (no ZERO reference in force)"
 
 
-GREY, RED, RESET = "\x1b[90m", "\x1b[1;31m", "\x1b[0m"
-
-
 def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
-    """The live screen as lines (the ANSI display redraws exactly these)."""
+    """The live state as lines (the terminal view shows these above the fault history)."""
     grey, red, reset = (GREY, RED, RESET) if colour else ("", "", "")
-    lines = [f"host monitor on {state.port}: "
-             + ("connected" if state.connected else "DISCONNECTED, retrying"),
-             _hash_line(state)]
+    if state.connected:
+        link = "connected"
+    else:
+        gone = ("" if state.disconnected_at is None
+                else f" for {now - state.disconnected_at:.1f} s")
+        link = f"{red}DISCONNECTED{gone}, retrying{reset}"
+    lines = [f"host monitor on {state.port}: {link}", _hash_line(state)]
     silence, limit = state.silence_s(now), state.stale_after_s()
     if silence is not None and limit is not None and silence > limit:
         lines.append(f"{red}STALE: no sample for {silence:.1f} s (expected every "
@@ -238,19 +282,19 @@ def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
     else:
         age = "" if silence is None else f", {silence:.1f} s ago"
         lines.append(f"sample #{s.seq}{age}   status {s.status:04X}: {_flags(state, ', ')}")
-        lines.append(f"  {_reference_line(state)}; offset to apply = −correction")
+        lines.append(f"  offset to apply = −correction; {_reference_line(state)}")
         held = set(state.held_axes() or [])
         for name, nm in zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
                             strict=True):
             mark = "  (HOLD: last good value)" if name in held else ""
             lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} "
                          f"{unit_text(name)}{mark}")
-        faulted = state.faulted_channels()
+        invalid = state.invalid_channels()
         temps = []
         for name, code in zip(state.channel_names(len(s.temp_codes)), s.temp_codes,
                               strict=True):
-            if name in faulted:
-                temps.append(f"{grey}{name} {'/'.join(faulted[name]):>9}{reset}")
+            if name in invalid:
+                temps.append(f"{grey}{name} {invalid[name]:>9}{reset}")
             else:
                 temps.append(f"{name} {code / 128.0:7.2f} °C")
         for i in range(0, len(temps), 4):
@@ -269,8 +313,8 @@ def plain_sample_line(state: MonitorState) -> str:
     assert s is not None
     corr = " ".join(f"{n}={nm / 1000.0:+.3f}{unit_of(n)}" for n, nm in
                     zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm, strict=True))
-    faulted = state.faulted_channels()
-    temps = " ".join(f"{n}=FAULT({'/'.join(faulted[n])})" if n in faulted else
+    invalid = state.invalid_channels()
+    temps = " ".join(f"{n}=FAULT({invalid[n]})" if n in invalid else
                      f"{n}={c / 128.0:.2f}C" for n, c in
                      zip(state.channel_names(len(s.temp_codes)), s.temp_codes, strict=True))
     flags = _flags(state, ",")
@@ -285,6 +329,7 @@ def json_sample(state: MonitorState, received: float) -> dict:
     s = state.sample
     assert s is not None
     faulted = state.faulted_channels()
+    invalid = state.invalid_channels()
     names = state.channel_names(len(s.temp_codes))
     return {
         "type": "sample", "seq": s.seq, "status": f"{s.status:04X}", "flags": state.flags,
@@ -292,7 +337,7 @@ def json_sample(state: MonitorState, received: float) -> dict:
                            zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
                                strict=True)},
         "units": {n: unit_of(n) for n in state.axis_names(len(s.corrections_nm))},
-        "temperatures_c": {n: (None if n in faulted else c / 128.0)
+        "temperatures_c": {n: (None if n in invalid else c / 128.0)
                            for n, c in zip(names, s.temp_codes, strict=True)},
         "faulted_channels": faulted, "held_axes": state.held_axes(),
         "beyond_training": state.beyond_training(),
@@ -303,7 +348,11 @@ def json_sample(state: MonitorState, received: float) -> dict:
 
 class CsvLog:
     """Appends samples as CSV; the header is fixed by the first sample's layout and checked
-    against an existing file so two layouts never mix in one log."""
+    against an existing file so two layouts never mix in one log.
+
+    A faulted channel's reading is not a temperature: its cell is left empty (what a run file
+    calls a missing value) and the ``faults`` column says why (``T12=OPEN``; ``T05=OPEN?`` for
+    every channel while the box has raised OPEN and STATUS has not yet said which one)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -317,17 +366,21 @@ class CsvLog:
         period_s = state.info.period_ms / 1000.0 if state.info else 1.0
         header = (["time_s", "seq", "status"]
                   + [f"corr_{n}" for n in state.axis_names(len(s.corrections_nm))]
-                  + state.channel_names(len(s.temp_codes)) + ["host_unix_s"])
+                  + state.channel_names(len(s.temp_codes)) + ["faults", "host_unix_s"])
         if self._fh is None:
             self._open(header)
         elif header != self.header:
             raise MonitorError(f"{self.path}: the box's layout changed ({', '.join(header)}); "
                                "start a new --log file")
         assert self._writer is not None and self._fh is not None
+        invalid = state.invalid_channels()
+        names = state.channel_names(len(s.temp_codes))
         self._writer.writerow([f"{s.seq * period_s:.6g}", s.seq, f"{s.status:04X}"]
                               + [f"{nm / 1000.0:.3f}" for nm in s.corrections_nm]
-                              + [f"{c / 128.0:.4f}" for c in s.temp_codes]
-                              + [f"{received:.3f}"])
+                              + ["" if n in invalid else f"{c / 128.0:.4f}"
+                                 for n, c in zip(names, s.temp_codes, strict=True)]
+                              + [";".join(f"{n}={why}" for n, why in invalid.items()),
+                                 f"{received:.3f}"])
         self._fh.flush()
 
     def _open(self, header: list[str]) -> None:
@@ -379,16 +432,18 @@ def device_identity(port: str) -> str | None:
 class Monitor:
     """Reads lines from the box, keeps ``state`` current, shows it and logs samples.
 
-    ``count``/``duration`` stop it for scripts; ``ansi`` redraws in place (default: when
-    ``out`` is a terminal), else one plain line per sample and per event; ``json_lines``
-    prints one JSON object per sample and per event instead.
+    ``count``/``duration`` stop it for scripts; ``screen`` shows the full-screen terminal view
+    (curses, host.box.screen; default: when ``out`` is a terminal), else one plain line per
+    sample and per event; ``json_lines`` prints one JSON object per sample and per event
+    instead. Whatever the output, the state (``state``, with its fault history) is the same:
+    another view (a broker, say) reads ``state`` and the events, and needs nothing else.
     """
 
     def __init__(self, port: str, baud: int = 115200, expected_hash: str | None = None,
                  windows: dict[str, tuple[int, int]] | None = None,
                  log: str | Path | None = None, count: int | None = None,
                  duration: float | None = None, out: TextIO | None = None,
-                 ansi: bool | None = None, retry_s: float = RETRY_S,
+                 screen: bool | None = None, retry_s: float = RETRY_S,
                  opener: Callable[[str, int], serial.SerialBase] = open_port,
                  axis_inputs: Mapping[str, Sequence[str]] | None = None,
                  json_lines: bool = False,
@@ -399,7 +454,9 @@ class Monitor:
         self.duration = duration
         self.out = sys.stdout if out is None else out
         self.json = json_lines
-        self.ansi = False if json_lines else (self.out.isatty() if ansi is None else ansi)
+        self.screen = False if json_lines else (self.out.isatty() if screen is None
+                                                 else screen)
+        self._screen: Screen | None = None
         self.retry_s = retry_s
         self.opener = opener
         self.identify = identify
@@ -408,7 +465,6 @@ class Monitor:
         self.log = CsvLog(log) if log else None
         self._port: serial.SerialBase | None = None
         self._buf = bytearray()
-        self._drawn = 0
         self._last_draw = 0.0
         self._info_sent_at: float | None = None
         self._info_attempts = 0
@@ -422,30 +478,45 @@ class Monitor:
 
     # ---- life cycle ------------------------------------------------------------------------
     def run(self) -> int:
-        """Monitor until count/duration is reached (or Ctrl-C); 1 if the model check failed."""
+        """Monitor until count/duration is reached (or Ctrl-C, or q on the screen); 1 if the
+        model check failed."""
         start = time.monotonic()
         try:
             self._port = self.opener(self.port_name, self.baud)
         except (OSError, serial.SerialException) as exc:
             raise MonitorError(f"{self.port_name}: cannot open serial port: {exc}") from None
         self._identity = self.identify(self.port_name)
+        if self.screen:
+            self._screen = Screen()
+            self._screen.start()
         self._connected()
         try:
             while not self._done(start):
                 if self._port is None:
                     self._reconnect(start)
-                    continue
-                try:
-                    self._poll()
-                except (OSError, serial.SerialException) as exc:
-                    self._lost(exc)
+                else:
+                    try:
+                        self._poll()
+                    except (OSError, serial.SerialException) as exc:
+                        self._lost(exc)
+                # also while the port is gone: the age and STALE keep counting on screen
                 self._check_stale(time.monotonic())
                 self._draw()
+                if self._screen is not None and self._screen.key() == "quit":
+                    break
         except KeyboardInterrupt:
             pass
         finally:
             self._flush_pending(force=True)
-            self._draw(force=True)
+            if self._screen is not None:
+                self._screen.stop()
+                self._screen = None
+                # the last frame stays readable in the terminal after the screen is gone
+                now = time.monotonic()
+                self._emit("\n".join([*render(self.state, now),
+                                      "fault history (newest first):",
+                                      *(f"  {ln}" for ln in self.state.history.lines(
+                                          time.time())), ""]), final=True)
             if self._port is not None:
                 self._port.close()
             if self.log:
@@ -455,10 +526,14 @@ class Monitor:
                 f"gaps, {st.reconnects} reconnects"
                 + (f", {st.withheld} withheld from an unidentified device" if st.withheld
                    else ""))
+        faults = len(st.history.entries)
+        if faults:
+            text += f", {faults} fault{'s' if faults != 1 else ''} in the history"
         if self.json:
             self._json({"type": "summary", "samples": st.samples, "bad_lines": st.bad_lines,
                         "seq_gaps": st.seq_gaps, "reconnects": st.reconnects,
-                        "withheld": st.withheld, "model_hash_ok": st.hash_ok})
+                        "withheld": st.withheld, "model_hash_ok": st.hash_ok,
+                        "faults": [e.as_json() for e in st.history.entries]})
         else:
             self._emit(text, final=True)
         if st.hash_ok is False or (st.info is not None and not st.info.crc_ok):
@@ -472,6 +547,8 @@ class Monitor:
 
     def _connected(self) -> None:
         self.state.connected = True
+        self.state.disconnected_at = None
+        self._history(self.state.history.close(LINK, "DISCONNECTED", time.time()))
         self._buf.clear()
         self._info_attempts = 0
         self._ask_info()
@@ -486,6 +563,9 @@ class Monitor:
             pass
         self._port = None
         self.state.connected = False
+        self.state.disconnected_at = time.monotonic()
+        self._history(self.state.history.open(LINK, "DISCONNECTED", "DISCONNECTED (port lost)",
+                                              time.time()))
         self._next_retry = time.monotonic() + self.retry_s
 
     def _reconnect(self, start: float) -> None:
@@ -576,6 +656,8 @@ class Monitor:
                 silence = self.state.silence_s(now)
                 self.state.stale = False
                 self._event(f"samples resumed after {silence or 0:.1f} s", kind="resumed")
+                self._history(self.state.history.close(LINK, "STALE", time.time(),
+                                                       message.seq))
             self.state.last_sample_rx = now
             self._pending.append((message, time.time()))
             self._want_status(message, now)
@@ -584,6 +666,8 @@ class Monitor:
     def _got_info(self, info: protocol.Info) -> None:
         st = self.state
         st.info = info
+        if info.period_ms:
+            st.period_hint_s = info.period_ms / 1000.0
         self._info_sent_at = None
         self._event(_hash_line(st), kind="info")
         if self._previous_hash is not None and info.model_hash != self._previous_hash:
@@ -621,6 +705,9 @@ class Monitor:
         st.stale = True
         self._event(f"STALE: no sample for {silence:.1f} s (expected every "
                     f"{limit / STALE_PERIODS:g} s); the last values shown are old", kind="stale")
+        last = st.sample.seq if st.sample is not None else None
+        self._history(st.history.open(LINK, "STALE", "STALE (no samples)",
+                                      time.time() - silence, last))
 
     def _bad(self, raw: bytes, why: str) -> None:
         self.state.bad_lines += 1
@@ -629,7 +716,7 @@ class Monitor:
         if self.json:
             self._json({"type": "bad_line", "n": self.state.bad_lines, "line": shown,
                         "why": why})
-        elif not self.ansi:
+        elif not self.screen:
             self._emit(f"bad line #{self.state.bad_lines}: {self.state.last_bad}")
 
     def _flush_pending(self, force: bool) -> None:
@@ -652,21 +739,43 @@ class Monitor:
                 self.state.seq_gaps += sample.seq - prev.seq - 1
             self.state.sample = sample
             self.state.samples += 1
+            st = self.state
+            self._history(st.history.update(SAMPLE, sample_fault_labels(
+                st.flags, flag_labels(st)), received, sample.seq))
             if self.log:
                 self.log.write(self.state, received)
             if self.json:
                 self._json(json_sample(self.state, received))
-            elif not self.ansi:
+            elif not self.screen:
                 self._emit(plain_sample_line(self.state))
         self._pending.clear()
 
     # ---- output ----------------------------------------------------------------------------
+    def _history(self, changes: list[tuple[str, FaultEntry]]) -> None:
+        """Announce the fault history's changes as events (a line, a JSON object; on the
+        screen the history itself shows them)."""
+        for what, e in changes:
+            seq = f" at #{e.since_seq}" if e.since_seq is not None else ""
+            if what == "fault":
+                text = f"fault: {e.label} since {clock(e.since)}{seq}"
+            else:
+                assert e.cleared is not None
+                end = f" at #{e.cleared_seq}" if e.cleared_seq is not None else ""
+                text = (f"cleared: {e.label} at {clock(e.cleared)}{end}, after "
+                        f"{e.cleared - e.since:.1f} s (since {clock(e.since)}{seq})")
+            if self.json:
+                self._json({"type": "fault" if what == "fault" else "fault_cleared",
+                            **e.as_json()})
+            elif not self.screen:
+                self._emit(text)
+
     def _event(self, text: str, kind: str = "event") -> None:
         if self.json:
             self._json({"type": "event", "event": kind, "message": text,
                         "host_unix_s": round(time.time(), 3)})
-        elif self.ansi:
-            self.state.messages = (self.state.messages + [text])[-3:]
+        elif self.screen:
+            self.state.messages = (self.state.messages
+                                   + [f"{clock(time.time())} {text}"])[-20:]
         else:
             self._emit(text)
 
@@ -675,24 +784,17 @@ class Monitor:
         self.out.flush()
 
     def _emit(self, text: str, final: bool = False) -> None:
-        if self.ansi and not final:
+        if self._screen is not None or (self.screen and not final):
             return
         self.out.write(text + "\n")
         self.out.flush()
 
     def _draw(self, force: bool = False) -> None:
-        if not self.ansi:
+        if self._screen is None:
             return
         now = time.monotonic()
         if not force and now - self._last_draw < REDRAW_S:
             return
         self._last_draw = now
-        lines = render(self.state, now, colour=True) + [f"  {m}" for m in self.state.messages]
-        buf = io.StringIO()
-        if self._drawn:
-            buf.write(f"\x1b[{self._drawn}F")  # back to the first line of the last frame
-        buf.write("\x1b[J")  # clear it and everything below
-        buf.write("\n".join(lines) + "\n")
-        self.out.write(buf.getvalue())
-        self.out.flush()
-        self._drawn = len(lines)
+        self._screen.draw(render(self.state, now, colour=True),
+                          self.state.history.lines(time.time()), self.state.messages)

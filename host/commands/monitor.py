@@ -1,4 +1,9 @@
-"""`host monitor PORT [--model build/model.json] [--log run.csv]`: watch a box live."""
+"""`host monitor PORT [--model build/model.json] [--log run.csv]`: watch a box live.
+
+The reading and the state live in host.box.monitor; what is shown is chosen here: the
+full-screen terminal view (curses) on a terminal or with --screen, one line per sample with
+--plain or when stdout is not a terminal (a pipe, a file), one JSON object per line with
+--json."""
 
 from __future__ import annotations
 
@@ -16,7 +21,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="model.json whose hash the box must report (checked via INFO); "
                         "also names the channels behind an EXTRAP flag and the axes a faulted "
                         "channel holds")
-    parser.add_argument("--log", metavar="CSV", help="append every sample received to this CSV")
+    parser.add_argument("--log", metavar="CSV", help="append every sample received to this CSV "
+                        "(a faulted channel's cell is left empty, its fault in the 'faults' "
+                        "column)")
     parser.add_argument("--count", type=int, metavar="N", help="stop after N samples")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--retry", type=float, default=1.0, metavar="S",
@@ -27,9 +34,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                          "temperatures in °C, null for a faulted channel, flags, faulted "
                          "channels, held axes), every event, and a closing summary")
     display.add_argument("--plain", action="store_true",
-                         help="one line per sample even on a terminal")
-    display.add_argument("--ansi", action="store_true",
-                         help="redraw in place even when the output is not a terminal")
+                         help="one line per sample (and per event, per fault and its clearing) "
+                         "even on a terminal; the default when stdout is not a terminal")
+    display.add_argument("--screen", "--ansi", dest="screen", action="store_true",
+                         help="the full-screen view (curses: live values, fault history, "
+                         "events; q quits) even when stdout is not known to be a terminal; "
+                         "the default on a terminal")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
         raise MonitorError(f"--count must be at least 1 (got {args.count})")
     if args.duration is not None and args.duration <= 0:
         raise MonitorError(f"--duration must be positive (got {args.duration})")
-    ansi = True if args.ansi else False if args.plain else None
+    screen = True if args.screen else False if args.plain else None
     monitor = Monitor(args.port, args.baud, expected_hash=expected, windows=windows, log=args.log,
-                      count=args.count, duration=args.duration, ansi=ansi, retry_s=args.retry,
+                      count=args.count, duration=args.duration, screen=screen, retry_s=args.retry,
                       axis_inputs=axis_inputs, json_lines=args.json)
     return monitor.run()
