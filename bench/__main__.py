@@ -1,7 +1,9 @@
 """Run every bench/bench_*.py, print one table and write bench/results/bench.json.
 
 Each module defines ``run() -> list[dict]``; a row has at least ``name``, ``value``, ``unit``
-and optionally ``target`` (a human-readable goal such as "< 10 s") and ``detail``.
+and optionally ``target`` (a human-readable goal such as "< 10 s") and ``detail``. A module
+may name options the runner passes on (``RUNNER_FLAGS``; then ``run(flags)``): ``python -m
+bench promise --quick``. Any other option is refused: a suite's own options go to its module.
 """
 
 from __future__ import annotations
@@ -21,6 +23,12 @@ def main() -> int:
     only = sys.argv[1:]
     suites = sorted(m.name.removeprefix("bench_") for m in pkgutil.iter_modules(bench.__path__)
                     if m.name.startswith("bench_"))
+    # a suite's RUNNER_FLAGS (e.g. promise's --quick) go to its run(); any other option is
+    # refused below
+    allowed = {f for n in only if n in suites
+               for f in getattr(importlib.import_module(f"bench.bench_{n}"), "RUNNER_FLAGS", ())}
+    flags = [a for a in only if a in allowed]
+    only = [a for a in only if a not in allowed]
     unknown = [a for a in only if a not in suites]
     if unknown:  # a suite's own options go to its module: python -m bench.bench_accuracy ...
         print(f"bench: not a suite: {' '.join(unknown)} (suites: {', '.join(suites)}; a "
@@ -33,7 +41,8 @@ def main() -> int:
             continue
         mod = importlib.import_module(f"bench.{module}")
         t0 = time.perf_counter()
-        for row in mod.run():
+        mine = [f for f in flags if f in getattr(mod, "RUNNER_FLAGS", ())]
+        for row in (mod.run(mine) if mine else mod.run()):
             row.setdefault("suite", name)
             rows.append(row)
             print(f"  {row['suite']:<10} {row['name']:<48} {row['value']:>12.4g} {row['unit']:<10}"

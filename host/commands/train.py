@@ -20,6 +20,7 @@ from host.fitting.prefilter import PREFILTER_TAU_S
 from host.io import load_runs
 from host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
 from host.train import DEFAULT_FIT, FITS, dropped_reason, ridge_lags_note, summary, train_model
+from host.train.next_day import promise_rule
 
 NAME = "train"
 HELP = "select sensors (paper 000), fit and validate the thermal model; write model.json"
@@ -162,9 +163,9 @@ def print_table(doc: dict, model: dict) -> None:
         folds = a.get("promised_fold_rmse_um") or []
         if a.get("promised_rmse_um") is not None and folds:
             u = unit_of(name)
-            print(f"{name}: promised for an unseen day {_fmt(a['promised_rmse_um'])} {u} (the "
-                  f"lowest of {len(folds)} nested folds, the highest {_fmt(max(folds))} {u}), "
-                  f"fit {a.get('fit')}"
+            print(f"{name}: promised: {a.get('promise') or _fmt(a['promised_rmse_um'])} ("
+                  f"{promise_rule(len(folds))}; folds {_fmt(min(folds))}-{_fmt(max(folds))} "
+                  f"{u}), fit {a.get('fit')}"
                   + (f" (bending: an even warming penalised {_fmt(a['even_warming_penalty'])}x)"
                      if a.get("even_warming_penalty") else "")
                   + (f", free channels read: {','.join(a['free_channels_read'])}"

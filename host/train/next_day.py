@@ -47,6 +47,7 @@ from contract.terms import (
     make_temp,
     term_sensors,
 )
+from contract.tilt import unit_text
 from host.effects import fixed_point_refusal, tau_grid
 from host.fitting import (
     Reference,
@@ -73,6 +74,16 @@ LAG_TAUS_S = (900.0, 3600.0)  # a fast and a slow part of the structure behind e
 # frame does respond to an even warming a little) lost (docs/next-day.md section 12)
 EVEN_WARMING_PENALTY = 3.0
 EVEN_WARMING_KINDS = ("temp", "lag")  # a rate settles to zero: no part of the settled sum
+# the promise (issue 43): "RMS on an unseen day <= X on PROMISE_COVERAGE of days", X the
+# geometric mean of the chosen family's nested fold RMSEs times PROMISE_FACTOR (never below
+# their median): 2.56 is the smallest factor with which every dev source (the project's
+# simulator and its other machines, sim_dev, FL_THERMAL leave-one-cycle-out and forward in
+# time) had at least PROMISE_COVERAGE of its unseen days at or below X and at most
+# PROMISE_TAIL above 2 X; FL forward in time needs it, the others 0.74-1.46 (``python -m
+# bench promise``, docs/next-day.md section 2)
+PROMISE_COVERAGE = 0.80
+PROMISE_TAIL = 0.05
+PROMISE_FACTOR = 2.6
 MIN_FOLD_SAMPLES = 8  # a training piece shorter than this is left out of a nested fold
 NESTED_MAX_ROWS = 20_000  # beyond this the nested folds train on every k-th sample
 PARALLEL_MIN_ROWS = 5_000  # from here the nested folds train in forked processes
@@ -155,13 +166,37 @@ class NestedResult:
         return float(np.sqrt(np.mean(v ** 2))) if v.size else math.nan
 
     def promise(self, family: str) -> float:
-        """The error promised for an unseen day: the lowest fold's. Each fold's pipeline
-        trains on less (one run of two, two blocks or cycles of three) and some fold must
-        predict a regime the rest lacks, which the final model has seen; the RMS over the
-        folds was 2-3x the unseen runs' error on all three sources, the lowest fold 0.98-1.12x
-        (median test / promised; docs/next-day.md section 2). The folds stay the spread."""
-        v = np.asarray(self.fold_rmse_um[family], dtype=float)
-        return float(np.min(v)) if v.size else math.nan
+        """The error promised for an unseen day (promise_from_folds of the family's folds)."""
+        return promise_from_folds(self.fold_rmse_um[family])
+
+
+def promise_from_folds(folds: Sequence[float]) -> float:
+    """The RMS promised for an unseen day from the nested folds' held-out RMSEs: their
+    geometric mean times ``PROMISE_FACTOR``, never below their median; calibrated so that at
+    least ``PROMISE_COVERAGE`` of unseen days come in at or below it (promise_statement says
+    so). NaN without folds.
+
+    Until issue 43 it was the lowest fold, unscaled: a coin toss at best (median test /
+    promised near 1), and forward in time on FL 3 of 20 unseen days came in at or below it
+    (docs/next-day.md section 2 has the table before and after)."""
+    v = np.asarray(folds, dtype=float)
+    if not v.size:
+        return math.nan
+    geometric = float(np.exp(np.mean(np.log(v)))) if np.all(v > 0) else 0.0
+    return max(PROMISE_FACTOR * geometric, float(np.median(v)))
+
+
+def promise_rule(n_folds: int) -> str:
+    """How the promise came from the folds, in words."""
+    return (f"the geometric mean of {n_folds} nested folds x {PROMISE_FACTOR:g}, calibrated "
+            "on the dev sets by python -m bench promise")
+
+
+def promise_statement(promised: float, axis: str) -> str:
+    """The promise as a metrologist reads it, with its coverage: the one wording model.json
+    (``metrics.promise``), ``host train`` and the report give."""
+    return (f"RMS on an unseen day ≤ {promised:.2f} {unit_text(axis)} on "
+            f"{100 * PROMISE_COVERAGE:.0f} % of days")
 
 
 def fold_training(runs: Sequence[Run], groups: np.ndarray, fold: int) -> list[Run]:

@@ -53,6 +53,7 @@ from host.train.next_day import (
     DEFAULT_RIDGE,
     EVEN_WARMING_PENALTY,
     FAMILIES,
+    PROMISE_COVERAGE,
     FoldTerms,
     RidgeOptions,
     channel_fill,
@@ -62,6 +63,7 @@ from host.train.next_day import (
     lag_family_filters,
     lag_taus,
     nested_validation,
+    promise_statement,
     ridge_axis,
     ridge_axis_dict,
     ridge_start,
@@ -72,6 +74,8 @@ from host.train.summary import dropped_reason
 from host.train.training_data import TrainingData, TrainingError
 
 DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
+# the promise's keys in an axis's metrics (fit_for_the_next_day)
+PROMISE_KEYS = ("promised_rmse_um", "promised_fold_rmse_um", "promised_coverage", "promise")
 AUX_HEADROOM = 2.0  # valid aux range: twice the training extremes (see _aux)
 TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
 DEFAULT_TC_TYPE = "K"
@@ -253,8 +257,14 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     if result is not None:
         axis["fit"]["nested"] = {"scheme": result.scheme, "fold_rmse_um": result.fold_rmse_um,
                                  "rmse_um": {f: result.rms(f) for f in result.fold_rmse_um}}
-        axis["metrics"]["promised_rmse_um"] = result.promise(family)
+        promised = result.promise(family)
+        axis["metrics"]["promised_rmse_um"] = promised
         axis["metrics"]["promised_fold_rmse_um"] = result.fold_rmse_um[family]
+        # what the figure means (issue 43): its coverage, in the words host train and the
+        # report print too
+        axis["metrics"]["promised_coverage"] = PROMISE_COVERAGE
+        axis["metrics"]["promise"] = (promise_statement(promised, target)
+                                      if math.isfinite(promised) else None)
     return axis
 
 
@@ -329,7 +339,7 @@ def _refilled_without_dropped_effects(data: TrainingData, searched: dict[str, di
         axis["fit"]["refilled_without_dropped_effects"] = True
         if "nested" in judged[t]["fit"]:
             axis["fit"]["nested"] = judged[t]["fit"]["nested"]
-        for key in ("promised_rmse_um", "promised_fold_rmse_um"):
+        for key in PROMISE_KEYS:
             if key in judged[t]["metrics"]:
                 axis["metrics"][key] = judged[t]["metrics"][key]
         if t in dropped and axis["fit"]["family"] == "ridge":  # its effects are not run

@@ -35,10 +35,13 @@ def summary(model: dict, model_path: str) -> dict:
             "max_abs_um": m.get("max_abs_um"),
             "condition_number": m.get("condition_number"),
             "validation": m.get("validation"),
-            # the error promised for an unseen day: the lowest fold of the pipeline refitted
-            # without each fold (next_day.NestedResult.promise)
+            # the RMS promised for an unseen day, from the folds of the pipeline refitted
+            # without each fold (next_day.promise_from_folds), and its coverage: "RMS on an
+            # unseen day <= X um on 80 % of days" (next_day.promise_statement)
             "promised_rmse_um": m.get("promised_rmse_um"),
             "promised_fold_rmse_um": m.get("promised_fold_rmse_um"),
+            "promised_coverage": m.get("promised_coverage"),
+            "promise": m.get("promise"),
             "fit": (axis.get("fit") or {}).get("family"),
             # > 0 for a --bending axis: its ridge's response to an even warming, penalised
             "even_warming_penalty": (axis.get("fit") or {}).get("even_warming_penalty", 0.0),
