@@ -3,10 +3,12 @@ in the summary agree with an independent computation, and headless Chromium load
 
 from __future__ import annotations
 
+import html
 import json
 import re
 import shutil
 import subprocess
+from html.parser import HTMLParser
 from pathlib import Path
 
 import matplotlib.image as mpimg
@@ -441,3 +443,169 @@ def test_the_axis_table_says_which_axes_were_fitted_as_bending():
     assert fit_label({"family": "ridge", "even_warming_penalty": 0.0}) == "ridge"
     assert fit_label({"family": "ols"}) == "ols"  # a model trained before --bending
     assert fit_label({}) is None
+
+
+@pytest.fixture(scope="module")
+def ridge_report(example, tmp_path_factory):
+    """The example with ch5 as host train writes a ridge: T16 selected, T11 read on a free
+    channel (fit.free_channels_read), the lag effect dropped by the box's ridge, every sensor
+    a c-means group of its own; its coefficients a ridge on the training half."""
+    import copy
+
+    from contract.terms import Term
+    from host.analysis.metrology import ridge_refit, training_design
+
+    model = copy.deepcopy(example["model"])
+    ch5 = model["axes"]["ch5_um"]
+    sel = ch5["selection"]
+    sel["sensors"] = ["T16"]
+    sel["groups"] = [[s] for s in sel["correlations"]]
+    train = load_run(example["runs"][0], list(AXES), "T*")
+    terms = [Term.from_json(t) for t in ch5["terms"]]
+    design = training_design("ch5_um", terms, [train], PERIOD_S)
+    fit = ridge_refit(design.X, design.y, 1e-3, [True, True])
+    ch5["intercept"] = fit.intercept
+    for t, c in zip(ch5["terms"], fit.coef, strict=True):
+        t["coef"] = float(c)
+    ch5["fit"] = {"family": "ridge-baseline", "alpha": 1e-3, "free_channels_read": ["T11"],
+                  "prefilter_tau_s": 0.0}
+    ch5["effects"][0]["dropped_by_box_ridge"] = True
+    ch5["effects_rejected"] = "the box's ridge is not 10 % lower on its own folds with them"
+    model["training"]["groups"] = 10
+    path = tmp_path_factory.mktemp("ridge") / "model.json"
+    path.write_text(json.dumps(model))
+    out = tmp_path_factory.mktemp("ridge_out")
+    return model, build_report(path, example["runs"], out, peers=False, quiet=True)
+
+
+def test_the_equation_gives_gains_with_their_fold_spread_and_errors_only_for_ols(
+        example, ridge_report):
+    model, report = ridge_report
+    summary = json.loads((report.out_dir / "summary.json").read_text())
+    tables = {c["axis"]: c for c in summary["coefficients"]}
+    ols, ridge = tables["ch3_um"], tables["ch5_um"]
+    assert ols["least_squares"] and not ridge["least_squares"]
+    # the steady-state gain of a sensor read through a lag is that lag's coefficient
+    terms = model["axes"]["ch5_um"]["terms"]
+    gains = {g["sensor"]: g for g in ridge["sensors"]}
+    assert gains["T16"]["steady_um_per_k"] == pytest.approx(terms[1]["coef"])
+    assert gains["T16"]["immediate_um_per_k"] == 0.0
+    assert gains["T16"]["modes"] == [{"tau_s": TAU_S, "amplitude_um_per_k": terms[1]["coef"]}]
+    assert gains["T11"]["steady_um_per_k"] == pytest.approx(terms[0]["coef"])
+    # the ridge reproduced from the training runs, then refitted without each of 3 blocks
+    assert ridge["refit_relative_difference"] < 1e-9
+    assert ridge["folds"] == {"scheme": "time-blocked (3 contiguous blocks of one run)",
+                              "count": 3}
+    assert len(gains["T11"]["fold_steady_um_per_k"]) == 3
+    assert 1.0 < ridge["effective_dof"] < 3.0
+    page = report.index.read_text()
+    ch5_part = page[page.index("<h3>ch5_um"):page.index("</details>", page.index("<h3>ch5_um"))]
+    ch3_part = page[page.index("<h3>ch3_um"):page.index("<h3>ch5_um")]
+    assert "effective degrees of freedom" in ch5_part and "VIF" not in ch5_part
+    assert "standard error" not in ch5_part and "(±" not in ch5_part
+    assert "standard error (AR(1))" in ch3_part and "<th>VIF</th>" in ch3_part
+    assert "steady-state gain" in ch5_part and "τ = 1800 s" in ch5_part
+
+
+def test_captions_name_why_an_effect_was_dropped_and_where_a_sensor_came_from(ridge_report):
+    _, report = ridge_report
+    page = html.unescape(report.index.read_text())
+    assert "Why each was added: ." not in page
+    assert ("The box's model runs none of the effects the search added. Dashed grey, added "
+            "by the search on this evidence but dropped because the box's ridge is not "
+            "10 % lower on its own folds with the effects: <b>lag(T16, tau=1800s)</b>") in page
+    assert "no channel left" not in page.split("effects_fl_first_ch5_um")[0].split(
+        'id="effects_fl_first_ch5_um"')[-1]
+    caption = re.search(r'<figure id="selection_ch5_um">.*?</figure>', page, re.S).group(0)
+    assert "Brought in by the effects" not in caption
+    assert "Read by the box's ridge on channels the selection left free" in caption
+    assert "fit.free_channels_read" in caption and ": T11." in caption
+    assert "Each of the 16 candidate sensors is a group of its own" in caption
+    assert "--groups 10 is not below 16" in caption
+    # no table of one-member groups under it
+    table_after = page[page.index('<figure id="selection_ch5_um">'):]
+    assert not table_after.split("</figure>", 1)[1].lstrip().startswith("<table><tr><th>group")
+
+
+class _Captions(HTMLParser):
+    """Each figcaption's text, without its bold title and its file link."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.captions: list[str] = []
+        self._depth: list[str] = []
+        self._in = False
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "figcaption":
+            self._in, self.captions = True, [*self.captions, ""]
+        elif self._in:
+            self._depth.append(tag)
+
+    def handle_endtag(self, tag):
+        if tag == "figcaption":
+            self._in = False
+        elif self._in and self._depth:
+            self._depth.pop()
+
+    def handle_data(self, data):
+        if self._in and not (self._depth and self._depth[-1] in ("a",)) and \
+                not (len(self._depth) == 1 and self._depth[0] == "b" and not self.captions[-1]):
+            self.captions[-1] += data
+
+
+def _chromium_screenshot(page: Path, png: Path, profile: Path) -> subprocess.CompletedProcess:
+    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+           "--no-first-run", "--disable-background-networking", "--disable-component-update",
+           "--disable-sync", f"--user-data-dir={profile}", "--window-size=1280,2400",
+           f"--screenshot={png}", page.as_uri()]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (CI installs it: "
+                                             "scripts/install-system-deps.sh)")
+@pytest.mark.parametrize("which", ["rendered", "ridge_report"])
+def test_report_in_headless_chromium_has_no_clipped_legend_or_label_and_no_empty_caption(
+        which, request, tmp_path):
+    report = request.getfixturevalue(which)
+    report = report[1] if isinstance(report, tuple) else report
+    # the browser draws the page as a reader sees it
+    png = tmp_path / "page.png"
+    done = _chromium_screenshot(report.index, png, tmp_path / "profile")
+    assert done.returncode == 0 and png.is_file(), done.stderr[-2000:]
+    pixels = mpimg.imread(png)
+    assert pixels.shape[:2] == (2400, 1280) and float(pixels[..., :3].std()) > 0.05
+    # every figure: its legends, titles, labels and tick labels inside the PNG, checked when
+    # it was saved (plots.clipped_artists)
+    summary = json.loads((report.out_dir / "summary.json").read_text())
+    assert summary["figures_clipped"] == {}
+    assert all(not f.clipped for f in report.figures)
+    # every caption says something, and no list in it is empty
+    parser = _Captions()
+    parser.feed(report.index.read_text())
+    assert len(parser.captions) == len(report.figures)
+    for text in parser.captions:
+        body = " ".join(text.split()).strip(" ()")
+        assert len(body) > 40, text
+        assert ": ." not in body and ":." not in body and "()" not in body, body
+
+
+def test_the_clip_check_finds_a_legend_wider_than_the_figure(tmp_path):
+    from matplotlib.figure import Figure as MplFigure
+
+    from host.analysis import plots
+
+    fig = MplFigure(figsize=plots.WIDE, layout="constrained")
+    ax = fig.add_subplot()
+    for k in range(4):
+        ax.plot([0, 1], [k, k + 1], label="+ rate(T08, tau=600s) (dropped: the box's ridge is "
+                                          "not 10 % lower on its own folds): RMS 0.99 µm")
+    fig.legend(fontsize=8, loc="outside lower center", ncol=2)
+    clipped = plots.save_png(fig, tmp_path / "wide.png")
+    assert len(clipped) == 1 and clipped[0].startswith("figure legend 0 at x -")
+    # the effects figure wraps the same labels and grows to hold them
+    t = np.arange(100) * 60.0
+    stages = [(f"+ rate(T08, tau={k}00s) (dropped: the box's ridge is not 10 % lower on its "
+               "own folds with the effects)", np.sin(t / 600 + k)) for k in range(5)]
+    fig = plots.residual_steps("run", "dz_um", t, stages, [False, True, True, True, False])
+    assert plots.save_png(fig, tmp_path / "effects.png") == []

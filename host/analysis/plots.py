@@ -1,20 +1,25 @@
 """The report's figures, one idea each, drawn with matplotlib's Agg canvas (no display needed).
 
 Every function takes plain arrays and names (no model or run objects), returns a
-``matplotlib.figure.Figure`` and leaves saving to the caller; ``Figure`` is used directly rather
-than ``pyplot`` so no global state or GUI backend is involved.
+``matplotlib.figure.Figure`` and leaves saving to the caller (``save_png``, which also says
+which legends and labels would be cut off at the PNG's edge: ``clipped_artists``); ``Figure`` is
+used directly rather than ``pyplot`` so no global state or GUI backend is involved.
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 
 import numpy as np  # noqa: E402
+from matplotlib import image  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
@@ -28,6 +33,74 @@ OURS_COLOUR = "tab:blue"
 PEER_COLOURS = ("tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 HEATING_COLOUR = "tab:red"
 COOLING_COLOUR = "tab:blue"
+
+
+PNG_DPI = 100
+CLIP_TOLERANCE_PX = 1.0
+LEGEND_WRAP = 60  # characters per legend line below a WIDE figure (two columns fit 9 inches)
+
+
+def _drawn(fig: Figure, dpi: float) -> FigureCanvasAgg:
+    """``fig`` drawn (its layout engine run) on an Agg canvas at ``dpi``, as savefig draws it."""
+    fig.set_dpi(dpi)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return canvas
+
+
+def clipped_artists(fig: Figure, dpi: float = PNG_DPI,
+                    canvas: FigureCanvasAgg | None = None) -> list[str]:
+    """What of ``fig`` would lie (partly) outside the image saved at ``dpi``: every legend,
+    title, axis label, tick-label row and text, each named; [] when everything is inside.
+    ``canvas``: the figure already drawn at that dpi (else it is drawn here)."""
+    canvas = canvas or _drawn(fig, dpi)
+    renderer = canvas.get_renderer()
+    width, height = fig.bbox.width, fig.bbox.height
+    tol = CLIP_TOLERANCE_PX
+    named: list[tuple[str, object]] = [(f"figure legend {k}", leg)
+                                       for k, leg in enumerate(fig.legends)]
+    named += [(f"figure text {t.get_text()!r}", t) for t in fig.texts]
+    for k, ax in enumerate(fig.axes):
+        where = f"axes {k} ({ax.get_title() or ax.get_ylabel() or ax.get_label()})"
+        if ax.get_legend() is not None:
+            named.append((f"{where}: legend", ax.get_legend()))
+        named += [(f"{where}: {what}", t) for what, t in (
+            ("title", ax.title), ("left title", ax._left_title),
+            ("right title", ax._right_title), ("x label", ax.xaxis.label),
+            ("y label", ax.yaxis.label))]
+        named += [(f"{where}: text {t.get_text()!r}", t) for t in ax.texts]
+        named += [(f"{where}: {name} tick labels", axis)
+                  for name, axis in (("x", ax.xaxis), ("y", ax.yaxis))]
+    out = []
+    for name, artist in named:
+        if not artist.get_visible() or (hasattr(artist, "get_text")
+                                        and not artist.get_text().strip()):
+            continue
+        box = (artist.get_tightbbox(renderer) if hasattr(artist, "get_ticklabels")
+               else artist.get_window_extent(renderer))
+        if box is None or box.width == 0 and box.height == 0:
+            continue
+        if box.x0 < -tol or box.y0 < -tol or box.x1 > width + tol or box.y1 > height + tol:
+            out.append(f"{name} at x {box.x0:.0f}..{box.x1:.0f}, y {box.y0:.0f}..{box.y1:.0f} "
+                       f"px outside the {width:.0f}×{height:.0f} px image")
+    return out
+
+
+def save_png(fig: Figure, path: str | Path, dpi: float = PNG_DPI) -> list[str]:
+    """Write ``fig`` as a PNG at ``path`` (atomically) and return clipped_artists: what a
+    reader would find cut off at its edge."""
+    path = Path(path)
+    canvas = _drawn(fig, dpi)  # drawn once: checked, then written from the same pixels
+    clipped = clipped_artists(fig, dpi, canvas)
+    tmp = path.with_name(path.name + ".tmp")
+    image.imsave(tmp, np.asarray(canvas.buffer_rgba()), format="png", dpi=dpi)
+    tmp.replace(path)
+    return clipped
+
+
+def wrap_label(text: str, width: int = LEGEND_WRAP) -> str:
+    """A legend entry broken into lines of at most ``width`` characters."""
+    return "\n".join(textwrap.wrap(text, width, break_on_hyphens=False)) or text
 
 
 def time_axis(time_s: np.ndarray) -> tuple[np.ndarray, str]:
@@ -82,7 +155,9 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
     channel budget) get a dashed grey circle; sensors whose delay sits at the limit of the
     search (``delay_limit_s``) are marked with a triangle: their true delay may be longer.
 
-    Label -1 marks sensors the channel budget kept out of the selection (grey crosses)."""
+    Label -1 marks sensors the channel budget kept out of the selection (grey crosses).
+    When every group has one member (c-means was capped at the number of candidates), the
+    candidates are drawn in one colour as such, without centres: there are no groups to show."""
     fig = Figure(figsize=(10.0, 6.0), layout="constrained")
     ax = fig.add_subplot()
     raw_delays = np.asarray(delays_s, dtype=float)
@@ -91,12 +166,20 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
     corr = np.asarray(correlations, dtype=float)
     labels_arr = np.asarray(labels, dtype=int)
     groups = sorted(set(labels_arr.tolist()))
+    offered = [g for g in groups if g >= 0]
+    alone = len(offered) > 1 and all(int((labels_arr == g).sum()) == 1 for g in offered)
     cmap = matplotlib.colormaps["tab10" if len(groups) <= 10 else "tab20"]
+    if alone:
+        mask = labels_arr >= 0
+        ax.scatter(delays[mask], corr[mask], s=40, color=OURS_COLOUR, alpha=0.85,
+                   label=f"candidate, a group of its own ({int(mask.sum())})")
     for k, group in enumerate(groups):
         mask = labels_arr == group
         if group < 0:  # not offered to the selection (no box channel left for it)
             ax.scatter(delays[mask], corr[mask], s=40, color="0.75", marker="x",
                        label=f"no channel on the box ({int(mask.sum())})")
+            continue
+        if alone:
             continue
         colour = cmap(k % cmap.N)
         ax.scatter(delays[mask], corr[mask], s=40, color=colour, alpha=0.85,
@@ -104,8 +187,9 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
         cx, cy = float(np.mean(delays[mask])), float(np.mean(corr[mask]))
         ax.scatter([cx], [cy], s=90, marker="D", facecolors="none", edgecolors=colour,
                    linewidths=1.5, zorder=1)
-    ax.scatter([], [], s=90, marker="D", facecolors="none", edgecolors="0.4", linewidths=1.5,
-               label="group centre (mean of members)")
+    if not alone:
+        ax.scatter([], [], s=90, marker="D", facecolors="none", edgecolors="0.4",
+                   linewidths=1.5, label="group centre (mean of members)")
     if delay_limit_s is not None and delay_limit_s > 0:
         edge = np.abs(raw_delays) >= delay_limit_s - 1e-6
         if edge.any():
@@ -144,8 +228,9 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
                    linestyle="--", label="chosen, then dropped (not read by the box)")
     ax.set_xlabel(xlabel)
     ax.set_ylabel("correlation coefficient r with displacement (–)")
-    ax.set_title(f"{axis}: sensors grouped by delay and correlation,\n"
-                 f"{len(chosen_set)} of {len(sensors)} read by the box")
+    ax.set_title(f"{axis}: sensors " + ("by delay and correlation (each its own group)"
+                                        if alone else "grouped by delay and correlation")
+                 + f",\n{len(chosen_set)} of {len(sensors)} read by the box")
     ax.grid(True, alpha=0.3)
     fig.legend(fontsize=8, loc="outside right upper")
     return fig
@@ -260,22 +345,25 @@ def residual_steps(run: str, axis: str, time_s: np.ndarray,
     ``dropped`` marks stages that are not part of the final model (drawn dashed grey); the last
     stage is the final model and is drawn thickest."""
     unit, what = axis_unit(axis)
-    fig = Figure(figsize=WIDE, layout="constrained")
+    labels = [wrap_label(f"{label}: RMS {rms(residual):.2f} {unit}")
+              for label, residual in stages]
+    half = -(-len(labels) // 2)  # two columns, filled column by column
+    rows = max(sum(lb.count("\n") + 1 for lb in col) for col in (labels[:half], labels[half:]))
+    fig = Figure(figsize=(WIDE[0], WIDE[1] + 0.17 * rows), layout="constrained")
     ax = fig.add_subplot()
     t, tlabel = time_axis(np.asarray(time_s, dtype=float))
     cmap = matplotlib.colormaps["viridis"]
     n = len(stages)
     gone = list(dropped) if dropped is not None else [False] * n
     kept = [k for k in range(n) if not gone[k]]
-    for k, (label, residual) in enumerate(stages):
+    for k, ((_, residual), label) in enumerate(zip(stages, labels, strict=True)):
         if gone[k]:
-            ax.plot(t, residual, color="0.6", lw=1.0, ls="--",
-                    label=f"{label}: RMS {rms(residual):.2f} {unit}")
+            ax.plot(t, residual, color="0.6", lw=1.0, ls="--", label=label)
             continue
         pos = kept.index(k)
         colour = cmap(0.85 * pos / max(1, len(kept) - 1))
         ax.plot(t, residual, color=colour, lw=2.0 if k == n - 1 else 1.6 if k == 0 else 1.0,
-                label=f"{label}: RMS {rms(residual):.2f} {unit}")
+                label=label)
     ax.axhline(0.0, color="black", lw=0.8)
     ax.set_xlabel(tlabel)
     ax.set_ylabel(f"residual = measured − predicted ({unit})")

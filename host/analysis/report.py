@@ -29,7 +29,12 @@ from contract.terms import TEMPERATURE_KINDS, Term
 from contract.tilt import available_axes, model_tilts, unit_text
 from host.analysis import plots
 from host.analysis.evaluate import model_reference
-from host.analysis.metrology import coefficient_table, iso230_drift, wiring_rows
+from host.analysis.metrology import (
+    VIF_NOT_IDENTIFIABLE,
+    coefficient_table,
+    iso230_drift,
+    wiring_rows,
+)
 from host.fitting import NO_REFERENCE, Reference, design_matrix, fit_linear
 from host.io import CsvFormat, Run, load_run, read_header
 from host.progress import progress
@@ -266,6 +271,7 @@ class Figure:
     caption: str
     file: str
     groups: list[dict] | None = None  # selection figures: paper 000's Table 1 beside it
+    clipped: list[str] = field(default_factory=list)  # legends/labels cut off at the edge
 
 
 @dataclass
@@ -295,10 +301,9 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
 
 
-def _save(fig, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    fig.savefig(tmp, format="png", dpi=100)
-    tmp.replace(path)
+def _save(fig, path: Path) -> list[str]:
+    """Write the PNG; what of it is cut off at the image's edge (plots.clipped_artists)."""
+    return plots.save_png(fig, path)
 
 
 def _fmt(value, digits: int = 2, unit: str = "") -> str:
@@ -397,7 +402,8 @@ def _figure_jobs(inp: _Inputs) -> list[tuple[str, str | None, Run | None]]:
 
 
 def _fig_selection(inp: _Inputs, axis_name: str, axis: dict, run: Run | None) -> Drawn:
-    fig_obj, title, caption = _selection_figure(axis_name, axis, inp.limit)
+    fig_obj, title, caption = _selection_figure(axis_name, axis, inp.limit,
+                                                inp.model.get("training", {}).get("groups"))
     return fig_obj, title, caption, f"selection_{_slug(axis_name)}.png"
 
 
@@ -499,30 +505,21 @@ def _fig_effects(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
     if len(stages) < 2:
         return None
     fig_obj = plots.residual_steps(run.name, axis_name, run.time_s,
-                                   [(s["label"], s["residual"]) for s in stages],
+                                   [(s["legend"], s["residual"]) for s in stages],
                                    dropped=[s["dropped"] for s in stages])
     inp.run_table[run.name][axis_name]["stages_rms_um"] = [
         {"stage": s["label"], "rms_um": plots.rms(s["residual"]), "effect": s.get("name"),
          "dropped": s["dropped"], "box": s["box"]} for s in stages]
-    kept = [s for s in stages[1:] if not s["dropped"] and s.get("name") is not None]
-    gone = [s for s in stages if s["dropped"]]
     caption = ("Residual of the temperature-only baseline and after each effect the "
-               "close-the-loop step added (RMS on this run in the legend). Why each was "
-               "added: " + "; ".join(f"<b>{html.escape(s['name'])}</b>: "
-                                     f"{html.escape(s['evidence'])}" for s in kept)
-               + ".")
-    if gone:
-        caption += (" Dashed grey: " + ", ".join(
-            f"<b>{html.escape(s['name'])}</b> ({html.escape(s['evidence'])})"
-            for s in gone) + ", added by the search but dropped because the box had no "
-            "channel left for its sensor: it is not in the box's model, and the last "
-            "curve is what the box runs.")
+               "close-the-loop step added (RMS on this run in the legend). "
+               + effects_caption(stages))
     unexplained = axis.get("unexplained") or {}
     if unexplained.get("message"):
         caption += (" Still unexplained"
                     + (" (said of the model before the channel budget)"
                        if axis.get("channel_budget_after_effects") else "")
-                    + ": " + html.escape(str(unexplained["message"])))
+                    + ": " + html.escape(str(unexplained["message"]).rstrip(". "))
+                    + ".")
     return (fig_obj, f"{run.name}, {axis_name}: effects added to close the loop", caption,
             f"effects_{_slug(run.name)}_{_slug(axis_name)}.png")
 
@@ -536,8 +533,11 @@ def _fig_folds(inp: _Inputs, axis_name: str, axis: dict, run: Run | None) -> Dra
                "bars from the best to the worst validation fold and every fold as a "
                "dot (from the effect search's own record). A gain smaller than the "
                "spread between folds would be noise; the search only keeps effects that "
-               "improve every fold that exercises them. Grey: dropped by the channel "
-               "budget, not in the box's model.")
+               "improve every fold that exercises them.")
+    whys = list(dict.fromkeys(r["why"] for r in rows if r.get("why")))
+    if whys:
+        caption += (" Grey: not in the box's model, dropped because "
+                    + "; or because ".join(html.escape(w) for w in whys) + ".")
     return (fig_obj, f"{axis_name}: validation error per stage, across the folds", caption,
             f"folds_{_slug(axis_name)}.png")
 
@@ -610,9 +610,11 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
         if drawn is None:
             continue
         fig_obj, title, caption, file = drawn
-        _save(fig_obj, out / file)
-        report.figures.append(Figure(kind, kind, title, caption, file,
-                                     selection_groups(axis) if kind == "selection" else None))
+        clipped = _save(fig_obj, out / file)
+        groups = selection_groups(axis) if kind == "selection" else None
+        if groups and all(len(g["members"]) == 1 for g in groups):
+            groups = None  # one sensor per group: the caption says why, a table adds nothing
+        report.figures.append(Figure(kind, kind, title, caption, file, groups, clipped))
     report.summary = _summary(model_path, inp, report, hil_results, where)
     _write_wiring_csv(out / "wiring.csv", report.summary["wiring"])
     _write_atomic(out / "summary.json", json.dumps(report.summary, indent=2, default=_json_num))
@@ -631,6 +633,8 @@ def _summary(model_path: str | Path, inp: _Inputs, report: Report, hil_results: 
         "runs": inp.run_table,
         "outside_training": {run.name: outside_training(model, run) for run in inp.runs},
         "figures": [f.file for f in report.figures],
+        # legends and labels cut off at a PNG's edge (plots.clipped_artists): none expected
+        "figures_clipped": {f.file: f.clipped for f in report.figures if f.clipped},
     }
     if hil_results:
         summary["hil"] = hil_results
@@ -638,7 +642,7 @@ def _summary(model_path: str | Path, inp: _Inputs, report: Report, hil_results: 
     units = input_units(model)
     summary["coefficients"] = [
         coefficient_table(name, axis, train_runs, inp.period, units, inp.ref)
-        for name, axis in model["axes"].items()] if train_runs else []
+        for name, axis in model["axes"].items()]
     summary["wiring"] = wiring_rows(model, where)
     summary["locations_given"] = bool(where)
     if inp.matrix is not None:
@@ -775,7 +779,43 @@ def selection_groups(axis: dict) -> list[dict]:
     return rows
 
 
-def _selection_figure(axis_name: str, axis: dict, limit_s: float | None = None):
+def one_per_group(axis: dict) -> bool:
+    """Whether c-means left every candidate sensor in a group of its own."""
+    groups = [g for g in (axis.get("selection") or {}).get("groups") or [] if g]
+    return len(groups) > 1 and all(len(g) == 1 for g in groups)
+
+
+def effect_sensors(axis: dict) -> set[str]:
+    """Sensors whose terms the effects the box runs added."""
+    return {str(t["source"]) for eff in axis.get("effects") or [] if not dropped_reason(eff)
+            for t in eff.get("added") or [] if t.get("source")}
+
+
+def _grouping_note(axis_name: str, axis: dict, requested: int | None = None) -> str:
+    """Why every sensor is a group of its own, when it is (paper 000's grouping did nothing):
+    c-means is capped at the number of candidates, and ``--groups`` (default 10) was not
+    below it; the channel budget's shared pool is often what set that number."""
+    if not one_per_group(axis):
+        return ""
+    sel = axis["selection"]
+    n = sum(1 for g in sel.get("groups") or [] if g)
+    pool = (sel.get("channel_budget") or {}).get("pool")
+    outside = ((sel.get("channel_budget") or {}).get("outside_pool") or {}).get(axis_name, {})
+    n_out = len(outside.get("correlations") or {})
+    text = (f" Each of the {n} candidate sensors is a group of its own: c-means makes at most "
+            "as many groups as there are candidates, and "
+            + (f"--groups {requested}" if requested is not None else "--groups (default 10)")
+            + f" is not below {n}")
+    if pool and n_out:
+        text += (f" (the {n} are the channel budget's shared pool: {n_out} more sensors had "
+                 "no box channel left)")
+    return (text + ". So the grouping of paper 000 narrowed nothing here: every candidate was "
+            "tried as its own representative, and sensors that sit together in the plane "
+            f"were judged one by one. Train with --groups below {n} to group them.")
+
+
+def _selection_figure(axis_name: str, axis: dict, limit_s: float | None = None,
+                      groups_requested: int | None = None):
     sel = axis["selection"]
     names = list(sel.get("correlations", {}))
     delays = [float(sel.get("delays_s", {}).get(n, math.nan)) for n in names]
@@ -797,9 +837,11 @@ def _selection_figure(axis_name: str, axis: dict, limit_s: float | None = None):
     e = html.escape
     title = f"{axis_name}: sensors by delay and correlation"
     caption = (f"Each dot is a thermocouple: how strongly it correlates with {axis_name} and how "
-               "far it lags behind it. Colours are the c-means groups (+: each group's "
-               "centre; the table below lists the members); one representative per group is "
-               f"tried. Circled and named: the sensors the box reads for {axis_name} "
+               "far it lags behind it. "
+               + ("" if one_per_group(axis) else
+                  "Colours are the c-means groups (◇: each group's centre; the table below "
+                  "lists the members); one representative per group is tried. ")
+               + f"Circled and named: the sensors the box reads for {axis_name} "
                f"({e(', '.join(box)) or 'none'}).")
     budget = set(dropped_sensors(axis)) | set((sel.get("channel_budget") or {}).get("dropped")
                                               or [])
@@ -813,9 +855,21 @@ def _selection_figure(axis_name: str, axis: dict, limit_s: float | None = None):
         caption += (f" Dashed: chosen by the selection but not in the box's model "
                     f"({e(', '.join(other))}).")
     added = [n for n in box if n not in selected]
-    if added:
+    free = [n for n in added if n in set((axis.get("fit") or {}).get("free_channels_read")
+                                         or [])]
+    by_effects = [n for n in added if n not in free and n in effect_sensors(axis)]
+    other = [n for n in added if n not in free and n not in by_effects]
+    if free:
+        caption += (" Read by the box's ridge on channels the selection left free, not chosen "
+                    "by the selection (fit.free_channels_read: the best of the other sensors "
+                    f"by an L1 ranking over all axes): {e(', '.join(free))}.")
+    if by_effects:
         caption += (f" Brought in by the effects rather than the selection: "
-                    f"{e(', '.join(added))}.")
+                    f"{e(', '.join(by_effects))}.")
+    if other:
+        caption += (f" Read by the box's model though neither selected nor brought in by an "
+                    f"effect it runs: {e(', '.join(other))}.")
+    caption += _grouping_note(axis_name, axis, groups_requested)
     if limit_s:
         at_edge = [n for n, d in zip(names, delays, strict=True)
                    if math.isfinite(d) and abs(d) >= limit_s - 1e-6]
@@ -842,7 +896,7 @@ def fold_stages(axis: dict) -> list[dict]:
             return []
         rows.append({"stage": "+ " + str(e.get("name", e.get("kind", "?"))),
                      "rmse_um": e["rmse_after_um"], "folds_um": list(ev["fold_rmse_after_um"]),
-                     "dropped": bool(e.get("dropped_for_channels"))})
+                     "dropped": dropped_reason(e) is not None, "why": dropped_reason(e)})
     if any(r["rmse_um"] is None for r in rows):
         return []
     return rows
@@ -864,6 +918,35 @@ def effect_evidence(effect: dict, unit: str = "µm") -> str:
     return ", ".join(parts)
 
 
+def effects_caption(stages: list[dict]) -> str:
+    """What the effects figure's caption says of its stages (HTML): why each effect the box
+    runs was added, and each one it does not run with the reason from its flags
+    (dropped_reason: the channel budget, nested validation, the box's ridge), grouped by it."""
+    e = html.escape
+    kept = [s for s in stages if not s["dropped"] and s.get("name") is not None]
+    gone = [s for s in stages if s["dropped"]]
+    parts = []
+    if kept:
+        parts.append("Why each effect in the box's model was added: " + "; ".join(
+            f"<b>{e(s['name'])}</b>: {e(s['evidence']) or 'no evidence recorded'}"
+            + (f" ({e(s['note'])})" if s.get("note") else "") for s in kept) + ".")
+    else:
+        parts.append("The box's model runs none of the effects the search added.")
+    reasons: dict[str, list[dict]] = {}
+    for s in gone:
+        reasons.setdefault(str(s["why"]), []).append(s)
+    for why, group in reasons.items():
+        parts.append("Dashed grey, added by the search on this evidence but dropped because "
+                     + e(why) + ": " + "; ".join(
+                         f"<b>{e(s['name'])}</b> ({e(s['evidence']) or 'no evidence recorded'})"
+                         for s in group) + ".")
+    box = next((s for s in stages if s["box"]), None)
+    if gone and box is not None:
+        parts.append("The last curve is what the box runs"
+                     + (f": {e(box['note'])}." if box.get("note") else "."))
+    return " ".join(parts)
+
+
 def effect_stages(axis: dict, axis_name: str, run: Run, period: float,
                   reference: Reference = NO_REFERENCE) -> list[dict]:
     """Residual of the baseline model and after each effect, in the order they were added,
@@ -879,7 +962,8 @@ def effect_stages(axis: dict, axis_name: str, run: Run, period: float,
     stages = []
     baseline = axis.get("baseline")
     if baseline and "terms" in baseline:
-        stages.append({"label": "baseline (temperatures only)", "evidence": "",
+        stages.append({"label": "baseline (temperatures only)",
+                       "legend": "baseline (temperatures only)", "evidence": "",
                        "dropped": False, "box": False,
                        "residual": measured - predict(baseline["intercept"], baseline["terms"],
                                                       run, period, reference)})
@@ -889,14 +973,16 @@ def effect_stages(axis: dict, axis_name: str, run: Run, period: float,
             dropped = why is not None
             name = effect.get("name", effect.get("kind", "?"))
             stages.append({"label": f"+ {name}" + (f" (dropped: {why})" if dropped else ""),
+                           "legend": f"+ {name}" + (" (dropped)" if dropped else ""),
                            "name": name, "evidence": effect_evidence(effect, unit_text(axis_name)),
+                           "why": why, "note": ridge_lags_note(effect),
                            "dropped": dropped, "box": False,
                            "residual": measured - predict(effect["intercept"], effect["terms"],
                                                           run, period, reference)})
     note = box_model_note(axis)
     if stages and note:
-        stages.append({"label": f"the box's model ({note})",
-                       "evidence": "", "dropped": False, "box": True,
+        stages.append({"label": f"the box's model ({note})", "legend": "the box's model",
+                       "note": note, "evidence": "", "dropped": False, "box": True,
                        "residual": measured - predict(axis["intercept"], axis["terms"], run,
                                                       period, reference)})
     elif stages:
@@ -985,6 +1071,22 @@ def _beyond_text(rows: list[dict] | None) -> str:
         + f" ({r['samples_outside_pct']:.0f} % of the run)" for r in rows)
 
 
+def _span_text(values: list[float] | None) -> str:
+    """A gain across the folds: ``lowest … highest (n folds)``, or — without folds."""
+    if not values:
+        return "—"
+    if len(values) == 1:
+        return f"{values[0]:.3f} (1 fold)"
+    return f"{min(values):.3f} … {max(values):.3f} ({len(values)} folds)"
+
+
+def _duration_text(seconds: float) -> str:
+    """A time constant as a reader thinks of it: 900 s, 1 h, 4 h."""
+    if seconds >= 3600 and seconds % 1800 == 0:
+        return f"{seconds / 3600:g} h"
+    return f"{seconds:g} s"
+
+
 def _environment():
     import jinja2
 
@@ -993,6 +1095,11 @@ def _environment():
                              trim_blocks=False)
     env.filters["num"] = lambda v, digits=2: _fmt(v, digits)
     env.filters["nm"] = lambda v: _fmt(None if v is None else v * 1000, 3)
+    env.filters["span"] = _span_text
+    env.filters["duration"] = _duration_text
+    env.filters["mode"] = lambda gain, tau: next(
+        (m["amplitude_um_per_k"] for m in gain["modes"] if m["tau_s"] == tau), None)
+    env.globals["vif_limit"] = VIF_NOT_IDENTIFIABLE
     env.globals["status_counts"] = _status_counts_text
     env.globals["hil_checks"] = lambda hil: ", ".join(
         f"{k} {'passed' if v else 'FAILED'}" for k, v in (hil.get("checks") or {}).items()) \
