@@ -295,22 +295,51 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
     model_codes, valid, implausible = guard_channels(
         codes, in_range & ~stuck, [c.max_step_code for c in m.channels], cfg.implausible_after)
     bits |= np.where(implausible.any(axis=1), int(IMPLAUSIBLE), 0)
+    plausible = valid
     far_lo, far_hi = cfg.beyond_limits(wlo, whi)
-    far = valid & ((model_codes < far_lo) | (model_codes > far_hi))
+    starts = list(zeros)  # the references a start-referenced model judges the change from
+    for _ in range(len(zeros) + 2):  # which ZEROs the box accepts depends on BEYOND before
+        if zero_at_powerup:
+            far = referenced_beyond(model_codes, plausible, starts, far_hi - wlo)
+        else:
+            far = plausible & ((model_codes < far_lo) | (model_codes > far_hi))
+        valid = plausible & ~far  # beyond what training supports: a fault, its axes hold
+        computed_nm, computed = twin.evaluate_run(model_codes, aux if m.aux else None, valid,
+                                                  return_mask=True)
+        out, out_bits, ref, accepted = output_stage_ref(
+            computed_nm, computed, cfg, cfg.step_nm(m.period_ms),
+            [ax.max_step_nm for ax in m.axes], zeros, zero_at_powerup, warm_resets)
+        if not zero_at_powerup or accepted == starts:
+            break
+        starts = accepted
     bits |= np.where(far.any(axis=1), int(BEYOND), 0)
-    valid &= ~far  # beyond what training supports: a channel fault, its axes hold
     window = valid & ((model_codes < wlo) | (model_codes > whi))
     bits |= np.where(window.any(axis=1), EXTRAP, 0)
-    computed_nm, computed = twin.evaluate_run(model_codes, aux if m.aux else None, valid,
-                                              return_mask=True)
-    out, out_bits, ref, accepted = output_stage_ref(
-        computed_nm, computed, cfg, cfg.step_nm(m.period_ms), [ax.max_step_nm for ax in m.axes],
-        zeros, zero_at_powerup, warm_resets)
     if accepted:  # REFERENCED from the first sample of the first accepted reference on
         bits |= np.where(np.arange(n) >= accepted[0], int(REFERENCED), 0)
     refused = tuple(z for z in zeros if z not in accepted)
     return Expected(out, computed_nm, computed, bits | out_bits, codes, model_codes, ref,
                     refused)
+
+
+def referenced_beyond(codes: np.ndarray, plausible: np.ndarray, starts: Sequence[int],
+                      limit: np.ndarray) -> np.ndarray:
+    """BEYOND of a start-referenced model (app.c beyond_training): from each accepted
+    reference on, a channel's first plausible reading is its reference reading; a later one
+    whose change from it exceeds the window's span plus its margin (``limit`` per channel,
+    far_hi - window_lo) is beyond."""
+    n, n_ch = codes.shape
+    far = np.zeros((n, n_ch), dtype=bool)
+    bounds = [*sorted(starts), n]
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        for ch in range(n_ch):
+            seen = np.flatnonzero(plausible[lo:hi, ch])
+            if seen.size == 0:
+                continue
+            r = lo + int(seen[0])
+            change = np.abs(codes[r:hi, ch] - codes[r, ch])
+            far[r:hi, ch] = plausible[r:hi, ch] & (change > limit[ch])
+    return far
 
 
 def axis_inputs(twin: FixedModel) -> list[tuple[set[int], set[int]]]:

@@ -57,6 +57,10 @@ typedef struct {
     bool referenced;   /* a ZERO reference is in force (REFERENCED) */
     uint32_t zero_seq; /* seq of the first sample of that reference */
     bool needs_ref;    /* TCM_ZERO_AT_POWERUP: no correction without a reference (NO_REF) */
+    /* A start-referenced model is judged BEYOND on each channel's change since the reference
+     * (its first plausible reading after the ZERO), not on the absolute reading. */
+    int32_t ref_code[BOX_MAX_CHANNELS];
+    uint32_t ref_set; /* bit ch: ref_code[ch] taken for the reference in force */
     bool zero_blocked; /* an axis held (input fault) or walked (SLEW) at the latest sample:
                         * its output is not the model's, so a datum taken now is not the
                         * healthy box's: ZERO is refused */
@@ -95,6 +99,8 @@ typedef struct {
     uint8_t referenced;
     uint8_t zero_pending;
     uint8_t sampled;
+    int32_t ref_code[BOX_MAX_CHANNELS];
+    uint32_t ref_set;
     tcm_state_t tcm;
     channel_guard_t guards[BOX_MAX_CHANNELS];
     axis_output_t axes[BOX_MAX_AXES];
@@ -138,7 +144,9 @@ static void retain_save(void)
     snap.zero_pending = app.zero_pending;
     snap.sampled = app.sampled;
     snap.tcm = app.tcm;
+    snap.ref_set = app.ref_set;
     for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
+        snap.ref_code[ch] = app.ref_code[ch];
         snap.guards[ch] = app.guards[ch];
         snap.codes[ch] = app.codes[ch];
         snap.still[ch] = app.still[ch];
@@ -170,7 +178,9 @@ static bool retain_restore(void)
     app.zero_pending = snap.zero_pending != 0u;
     app.sampled = snap.sampled != 0u;
     app.tcm = snap.tcm;
+    app.ref_set = snap.ref_set;
     for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
+        app.ref_code[ch] = snap.ref_code[ch];
         app.guards[ch] = snap.guards[ch];
         app.codes[ch] = snap.codes[ch];
         app.still[ch] = snap.still[ch];
@@ -181,16 +191,33 @@ static bool retain_restore(void)
     return true;
 }
 
-/* Beyond what training supports: the training window widened by BOX_BEYOND_SPAN_PERCENT of
- * its span, at least BOX_BEYOND_MIN_CODES (docs/firmware.md, "Extrapolation"). */
-static bool beyond_training(const tcm_channel_t *c, int32_t code)
+/* Beyond what training supports (docs/firmware.md, "Extrapolation"): the training window
+ * widened by BOX_BEYOND_SPAN_PERCENT of its span, at least BOX_BEYOND_MIN_CODES. A
+ * start-referenced model judges the change since its reference instead: a warmer day shifts
+ * every reading but not the change, and the model only uses the change; a change larger than
+ * the whole trained span plus that margin is beyond it. Before a reference: nothing to judge
+ * (every axis holds, NO_REF). */
+static bool beyond_training(uint32_t ch, const tcm_channel_t *c, int32_t code)
 {
     int64_t span = (int64_t)c->window_hi_code - c->window_lo_code;
     int64_t margin = span * BOX_BEYOND_SPAN_PERCENT / 100;
     if (margin < BOX_BEYOND_MIN_CODES) {
         margin = BOX_BEYOND_MIN_CODES;
     }
-    return code < (int64_t)c->window_lo_code - margin || code > (int64_t)c->window_hi_code + margin;
+    if (!app.needs_ref) {
+        return code < (int64_t)c->window_lo_code - margin ||
+               code > (int64_t)c->window_hi_code + margin;
+    }
+    if (!app.referenced) {
+        return false;
+    }
+    const uint32_t bit = (uint32_t)1u << ch;
+    if ((app.ref_set & bit) == 0u) {
+        app.ref_code[ch] = code; /* the first plausible reading of this reference */
+        app.ref_set |= bit;
+    }
+    int64_t change = (int64_t)code - app.ref_code[ch];
+    return change < -(span + margin) || change > span + margin;
 }
 
 /* Stuck: a valid reading with the same code as the channel's previous reading extends the
@@ -329,7 +356,7 @@ static uint16_t sample_channels(uint32_t *valid_mask)
                 fault |= CHFAULT_IMPLAUSIBLE;
                 st |= STATUS_IMPLAUSIBLE;
             }
-            if (g != GUARD_FAULT && app.model_ok && beyond_training(c, use)) {
+            if (g != GUARD_FAULT && app.model_ok && beyond_training(ch, c, use)) {
                 fault |= CHFAULT_BEYOND; /* runaway, stuck far off, or a day far outside */
                 st |= STATUS_BEYOND;
             } else if (g != GUARD_FAULT) {
@@ -404,6 +431,7 @@ static void take_sample(void)
         app.zero_pending = false;
         app.referenced = true;
         app.zero_seq = seq;
+        app.ref_set = 0u; /* each channel's reference reading is taken afresh */
         for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
             axis_output_zero(&app.axes[a]);
         }

@@ -136,7 +136,7 @@ void hal_board_init(void)
 }
 
 /* Retained memory (backup SRAM): kept across fake resets until fake_retain_clear(). */
-uint8_t fake_retained[1024];
+uint8_t fake_retained[4096]; /* as the F405's backup SRAM */
 
 void fake_retain_clear(void)
 {
