@@ -197,7 +197,7 @@ def write_model(model: dict, path: str | Path) -> None:
     """
     doc = json.loads(dumps(model))
     doc.pop("model_hash", None)
-    check_model(doc, str(path))
+    check_model(doc, f"{path} (not written)")  # a refusal must not name it as if it existed
     doc["model_hash"] = model_hash(doc)
     check_model_hash(doc, str(path))
     write_text_atomic(path, dumps(doc))

@@ -481,10 +481,11 @@ def test_format_errors_keep_file_line_and_column(tmp_path):
     msg = _refusal(p)
     assert "line 10, column 'T01': not a number" in msg
     text[9] = text[9].replace(";2x", ";2", 1)
-    text[30] = "01.03.2024 08:00:29;" + text[30].split(";", 1)[1]
+    text[30] = "32.03.2024 08:00:29;" + text[30].split(";", 1)[1]  # day-first, no such day
     p.write_text("\n".join(text) + "\n")
     msg = _refusal(p)
-    assert "line 31, column 'timestamp'" in msg and "ISO 8601" in msg
+    assert "line 31, column 'timestamp'" in msg and "nor a timestamp" in msg
+    assert "01.03.2024 12:00:00" in msg  # the day-first form it would read (issue 43)
 
 
 def test_time_col_names_the_time_column(tmp_path):

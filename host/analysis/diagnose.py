@@ -53,6 +53,7 @@ from host.effects import (
 from host.effects import candidate_row as _candidate_row
 from host.fitting import DEFAULT_BLOCKS, axis_terms, fit_linear, fold_groups, rmse
 from host.io import CsvFormat, Run, load_run, read_header
+from host.io.runs import missing_sensors
 from host.train import describe, outside_training
 
 DRIFT_MIN_C = 0.5  # a drift smaller than this over the run is not worth a technician's visit
@@ -97,8 +98,8 @@ def load_for_diagnosis(model: Mapping, path: str | Path, fill_gaps: int = 0,
         sensors = [s for s in pattern if s in header]
     missing = [s for s in model_sensors(model) if s not in header]
     if missing:
-        raise DiagnoseError(f"{path}, line 1: missing sensor column(s) {', '.join(missing)} "
-                            "the model reads")
+        raise DiagnoseError(f"{path}, line 1: " + missing_sensors(
+            missing, [h for h in header if h not in reserved], "the model reads them"))
     for s in model_sensors(model):
         if s not in sensors:
             sensors.append(s)

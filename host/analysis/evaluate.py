@@ -36,7 +36,9 @@ def load_for_model(path: str | Path, model: dict, fill_gaps: int = 0,
     channel ranges)."""
     axes = list(model["axes"]) if axes is None else axes
     return load_run(path, axes, model_sensors(model), model_aux(model), fill_gaps, fmt=fmt,
-                    temperature_ranges=channel_ranges(model), tilts=model_tilts(model))
+                    temperature_ranges=channel_ranges(model), tilts=model_tilts(model),
+                    targets_from="an axis of the model", sensors_from="the model reads them",
+                    aux_from="an input the model reads")
 
 
 def _check_period(model: dict, run: Run) -> None:

@@ -37,6 +37,7 @@ from host.analysis.metrology import (
 )
 from host.fitting import NO_REFERENCE, Reference, design_matrix, fit_linear
 from host.io import CsvFormat, Run, load_run, read_header
+from host.io.runs import missing_sensors
 from host.progress import progress
 from host.selection import default_max_lag
 from host.train import (
@@ -155,8 +156,9 @@ def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0,
                               f"({', '.join(model['axes'])}) is a column of this run")
         missing = sorted(needed - set(header))
         if missing:
-            raise ReportError(f"{path}: missing sensor column(s) the model uses: "
-                              f"{', '.join(missing)}")
+            raise ReportError(f"{path}, line 1: " + missing_sensors(
+                missing, [h for h in header if h not in ("time_s", *targets)],
+                "the model reads them"))
         ranges = channel_ranges(model)
         run = load_run(path, targets, sensors, aux_names, fill_gaps=fill_gaps, fmt=fmt,
                        temperature_ranges=ranges, tilts=tilts)

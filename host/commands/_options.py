@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 
 from host.io import CsvFormat
+from host.io.runs import DISP_UNITS, TEMP_UNITS, TIME_UNITS
 
 
 def non_negative_int(text: str) -> int:
@@ -58,8 +59,22 @@ def add_format_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--time-col", default=None, metavar="COL",
                        help="time column: seconds or ISO 8601 timestamps such as "
                        "2024-03-01T12:00:00 (default time_s, or the one column of timestamps)")
+    units = parser.add_argument_group(
+        "units", "a run is read in seconds, degC and micrometres; one that looks written in "
+        "another unit (minutes, ms, degF, kelvin, mm, nm) is refused, saying which: give its "
+        "unit here and it is converted on reading (or give the default unit to say the data "
+        "really is in it)")
+    units.add_argument("--time-unit", choices=tuple(TIME_UNITS), default=None,
+                       help="unit of a numeric time column (default s)")
+    units.add_argument("--temp-unit", choices=TEMP_UNITS, default=None,
+                       help="unit of the temperature columns: C, F or K (default C)")
+    units.add_argument("--disp-unit", choices=tuple(DISP_UNITS), default=None,
+                       help="unit of the displacement (and gap-probe) columns: um, mm or nm "
+                       "(default um)")
 
 
 def csv_format(args: argparse.Namespace) -> CsvFormat:
     """The CsvFormat the parsed --sep/--decimal/--time-col ask for (InputError if they clash)."""
-    return CsvFormat(args.sep, args.decimal, args.time_col)
+    return CsvFormat(args.sep, args.decimal, args.time_col,
+                     getattr(args, "time_unit", None), getattr(args, "temp_unit", None),
+                     getattr(args, "disp_unit", None))

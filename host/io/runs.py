@@ -17,9 +17,11 @@ filters would restart: cut the run there) and jitter (named with the period it i
 from __future__ import annotations
 
 import csv
+import difflib
 import fnmatch
 import io
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -121,6 +123,19 @@ class Run:
 
 
 DELIMITERS = {",": "comma", ";": "semicolon", "\t": "tab"}
+# Units a run's columns may be written in (CsvFormat), each with its conversion to the
+# project's: seconds, degC, micrometres.
+TIME_UNITS = {"s": 1.0, "min": 60.0, "h": 3600.0, "ms": 0.001}
+TEMP_UNITS = ("C", "F", "K")
+DISP_UNITS = {"um": 1.0, "mm": 1000.0, "nm": 0.001}
+
+
+def to_celsius(values: np.ndarray, unit: str | None) -> np.ndarray:
+    if unit == "F":
+        return (values - 32.0) / 1.8
+    if unit == "K":
+        return values - 273.15
+    return values
 
 
 @dataclass(frozen=True)
@@ -137,11 +152,19 @@ class CsvFormat:
       seconds or ISO 8601 timestamps
       (``2024-03-01T12:00:00``, ``2024-03-01 12:00:00,5``, with or without a UTC offset), which
       become seconds since the first sample; the column is called ``time_s`` from then on.
+    - ``time_unit``, ``temp_unit``, ``disp_unit``: the units the columns are written in,
+      converted on reading to seconds, degC and micrometres (``TIME_UNITS``, ``TEMP_UNITS``,
+      ``DISP_UNITS``). Left ``None``, they are those, and a run that looks written in another
+      unit (minutes, ms; degF, kelvin; mm, nm) is refused with what it looks like and what to
+      pass; given, the columns are read in that unit without a guess.
     """
 
     sep: str | None = None
     decimal: str | None = None
     time_col: str | None = None
+    time_unit: str | None = None
+    temp_unit: str | None = None
+    disp_unit: str | None = None
 
     def __post_init__(self) -> None:
         sep, decimal = self.sep, self.decimal
@@ -151,6 +174,11 @@ class CsvFormat:
             raise InputError(f"--decimal must be '.' or ',', got {decimal!r}")
         if decimal == "," and sep == ",":
             raise InputError("--decimal ',' needs a --sep other than ',' (e.g. --sep ';')")
+        for option, value, known in (("--time-unit", self.time_unit, TIME_UNITS),
+                                     ("--temp-unit", self.temp_unit, TEMP_UNITS),
+                                     ("--disp-unit", self.disp_unit, DISP_UNITS)):
+            if value is not None and value not in known:
+                raise InputError(f"{option} must be one of {', '.join(known)}, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -162,6 +190,7 @@ class _Source:
     sep: str
     decimal: str
     time_col: str | None  # as given (--time-col); None: time_s or sniffed
+    time_unit: str | None = None  # as given (--time-unit); None: seconds
 
 
 def _delimiter_name(d: str) -> str:
@@ -185,7 +214,7 @@ def _source(path: Path, fmt: CsvFormat | None) -> _Source:
                              f"delimited: pass --sep {likely!r} or leave --sep out to sniff it",
                              line=1)
     decimal = fmt.decimal or ("." if sep == "," else ",")
-    return _Source(path, text, sep, decimal, fmt.time_col)
+    return _Source(path, text, sep, decimal, fmt.time_col, fmt.time_unit)
 
 
 def _read_plain_table(src: _Source) -> tuple[list[str], np.ndarray, np.ndarray] | None:
@@ -213,6 +242,8 @@ def _read_plain_table(src: _Source) -> tuple[list[str], np.ndarray, np.ndarray] 
         return None
     if data.shape != (len(body), len(header)) or np.isinf(data).any():
         return None
+    if src.time_unit is not None:
+        data[:, header.index(TIME_COLUMN)] *= TIME_UNITS[src.time_unit]
     return header, data, np.arange(2, 2 + len(body))
 
 
@@ -230,7 +261,10 @@ def _number(src: _Source, text: str, line: int, column: str) -> float:
         value = float(cell)
     except ValueError:
         hint = ""
-        if "," in text and src.decimal == ".":
+        if _DATE.match(text):
+            hint = (f" (a date and time, in a column that is not the time column: name it with "
+                    f"--time-col '{column}', or leave the column out)")
+        elif "," in text and src.decimal == ".":
             hint = " (a decimal comma? pass --decimal ',' with --sep ';')"
         raise RunFormatError(src.path, f"not a number: {text!r}{hint}", line=line,
                              column=column) from None
@@ -254,19 +288,64 @@ def _numbers(src: _Source, cells: list[str], lines: list[int], column: str) -> n
                     dtype=float)
 
 
+# A date written day.month.year (dd.mm.yyyy, as German and many European loggers write it),
+# or with '/' or '-' (dd/mm/yyyy or mm/dd/yyyy: which one the column's dates must tell), with
+# an optional time of day.
+_DATE = re.compile(r"^(\d{1,2})([./-])(\d{1,2})\2(\d{4})"
+                   r"(?:[ T](\d{1,2}):(\d{2})(?::(\d{2})(?:[.,](\d{1,6}))?)?)?$")
+
+
+def _date_order(src: _Source, cells: list[str], lines: list[int], column: str) -> str:
+    """"dmy" or "mdy" for a column's non-ISO dates: dots are day-first; with '/' or '-' a
+    first field above 12 says day-first, a second above 12 month-first; if none does, the
+    column is refused (4/5/2026 is 4 May or 5 April)."""
+    found = [(m, line) for c, line in zip(cells, lines, strict=True) if (m := _DATE.match(c))]
+    if not found:
+        return "dmy"
+    m, line = found[0]
+    if m.group(2) == ".":
+        return "dmy"
+    if any(int(x.group(1)) > 12 for x, _ in found):
+        return "dmy"
+    if any(int(x.group(3)) > 12 for x, _ in found):
+        return "mdy"
+    raise RunFormatError(src.path, f"the dates ({m.group(0)!r}) can be read day-first or "
+                         "month-first and no date in the column tells which (no day above 12): "
+                         "write them as ISO 8601, e.g. 2024-03-01 12:00:00", line=line,
+                         column=column)
+
+
+def _stamp(text: str, order: str) -> datetime:
+    """An ISO 8601 timestamp or a dd.mm.yyyy (``order``: "dmy"/"mdy") one; ValueError if
+    neither."""
+    try:
+        return datetime.fromisoformat(text)
+    except ValueError:
+        pass
+    m = _DATE.match(text)
+    if m is None:
+        raise ValueError(text)
+    a, _, b, year, hh, mm, ss, frac = m.groups()
+    day, month = (int(a), int(b)) if order == "dmy" else (int(b), int(a))
+    return datetime(int(year), month, day, int(hh or 0), int(mm or 0), int(ss or 0),
+                    int((frac or "0").ljust(6, "0")[:6]))
+
+
 def _timestamps(src: _Source, cells: list[str], lines: list[int], column: str) -> np.ndarray:
-    """ISO 8601 timestamps -> seconds since the first one (empty cells NaN)."""
+    """ISO 8601 or day-first (dd.mm.yyyy HH:MM:SS) timestamps -> seconds since the first one
+    (empty cells NaN)."""
     out = np.full(len(cells), math.nan)
     t0: datetime | None = None
+    order = _date_order(src, cells, lines, column)
     for i, (text, line) in enumerate(zip(cells, lines, strict=True)):
         if not text:
             continue
         try:
-            stamp = datetime.fromisoformat(text)
+            stamp = _stamp(text, order)
         except ValueError:
-            raise RunFormatError(src.path, f"not a number of seconds nor an ISO 8601 timestamp: "
-                                 f"{text!r} (e.g. 2024-03-01T12:00:00 or 2024-03-01 12:00:00,5)",
-                                 line=line, column=column) from None
+            raise RunFormatError(src.path, f"not a number of seconds nor a timestamp: "
+                                 f"{text!r} (e.g. 2024-03-01T12:00:00, 2024-03-01 12:00:00,5 "
+                                 "or 01.03.2024 12:00:00)", line=line, column=column) from None
         if t0 is None:
             t0 = stamp
         elif (stamp.tzinfo is None) != (t0.tzinfo is None):
@@ -286,7 +365,7 @@ def _is_timestamp(text: str) -> bool:
         datetime.fromisoformat(text)
         return True
     except ValueError:
-        return False
+        return _DATE.match(text) is not None
 
 
 def _time_column(src: _Source, header: list[str], first_row: list[str] | None) -> int | None:
@@ -377,6 +456,8 @@ def read_table(path: str | Path, fmt: CsvFormat | None = None
             data[:, j] = _timestamps(src, cells, lines, name)
         else:
             data[:, j] = _numbers(src, cells, lines, name)
+            if j == time_idx and src.time_unit is not None:  # numbers in that unit
+                data[:, j] *= TIME_UNITS[src.time_unit]
     if time_idx is not None:
         header[time_idx] = TIME_COLUMN
     return header, data, np.array(lines, dtype=int)
@@ -424,10 +505,10 @@ AUX_LIMIT = float(INT32_MAX)  # the box's aux inputs are int32
 DEFAULT_TEMPERATURE_RANGE = (CHANNEL_MIN_C, CHANNEL_MAX_C)
 
 
-def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray, fill_gaps: int
-                ) -> list[tuple[int, int]]:
-    """Refuse time in ms, gaps and jitter; return the gaps (row index, missing rows) that
-    ``fill_gaps`` allows to fill."""
+def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray, fill_gaps: int,
+                guess: bool = True) -> list[tuple[int, int]]:
+    """Refuse time in ms (unless its unit was given: ``guess`` False), gaps and jitter; return
+    the gaps (row index, missing rows) that ``fill_gaps`` allows to fill."""
     steps = np.diff(time_s)
     if steps.size == 0:
         return []
@@ -442,12 +523,13 @@ def _check_time(path: Path, time_s: np.ndarray, lines: np.ndarray, fill_gaps: in
     period = float(np.median(steps))
     span = float(time_s[-1] - time_s[0])
     whole_seconds_in_ms = period >= 1000 and abs(period / 1000 - round(period / 1000)) < 1e-9
-    if (period >= MS_MIN_PERIOD and span >= MS_MIN_SPAN_S) or whole_seconds_in_ms:
+    if guess and ((period >= MS_MIN_PERIOD and span >= MS_MIN_SPAN_S) or whole_seconds_in_ms):
         raise RunFormatError(
             path, f"time_s looks like milliseconds: steps of {period:g} and a span of "
             f"{span / 86400:.3g} days if these were seconds (a thermal test run lasts hours to "
-            f"days); write time_s in seconds, i.e. divide by 1000 (a step of {period / 1000:g} s, "
-            f"{span / 3600000:.3g} h)", column=TIME_COLUMN)
+            f"days); pass --time-unit ms to read it as milliseconds, or write time_s in seconds, "
+            f"i.e. divide by 1000 (a step of {period / 1000:g} s, {span / 3600000:.3g} h); if "
+            "these really are seconds, pass --time-unit s", column=TIME_COLUMN)
     ratio = steps / period
     gaps = np.flatnonzero(ratio > GAP_FACTOR)
     fill: list[tuple[int, int]] = []
@@ -530,7 +612,11 @@ def _check_temperatures(path: Path, name: str, values: np.ndarray, lines: np.nda
     hint = ""
     if finite.min() >= lo + 273.15 and finite.max() <= hi + 273.15:
         hint = (f"; the whole column ({finite.min():g}..{finite.max():g}) looks like kelvin: "
-                "give degC (subtract 273.15)")
+                "pass --temp-unit K to read it as kelvin, or give degC (subtract 273.15)")
+    elif finite.min() >= lo * 1.8 + 32 and finite.max() <= hi * 1.8 + 32 and finite.max() > hi:
+        hint = (f"; the whole column ({finite.min():g}..{finite.max():g}) could be degF "
+                f"({(finite.min() - 32) / 1.8:.3g}..{(finite.max() - 32) / 1.8:.3g} degC): pass "
+                "--temp-unit F to read it as degF")
     raise RunFormatError(
         path, f"{values[i]:g} degC is outside the thermocouple channel's valid range "
         f"{lo:g}..{hi:g} degC ({bad.size} such cell{'s' if bad.size > 1 else ''}): the box "
@@ -539,11 +625,109 @@ def _check_temperatures(path: Path, name: str, values: np.ndarray, lines: np.nda
         line=int(lines[i]), column=name)
 
 
+def did_you_mean(name: str, candidates: Sequence[str]) -> str:
+    """" (did you mean 'T12'?)" for the closest of ``candidates`` (difflib), else ""."""
+    close = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.6)
+    if not close:
+        close = [c for c in candidates if c.lower() == name.lower()][:1]
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def missing_sensors(missing: Sequence[str], available: Sequence[str], why: str) -> str:
+    """The one phrasing of "the run lacks sensor columns", wherever it is found:
+    "missing sensor column(s) T13 (did you mean 'T12'?), T07x (did you mean 'T07'?): the
+    model reads them; the run's sensor columns: T01, ..., T12"."""
+    named = ", ".join(f"{m}{did_you_mean(m, available)}" for m in missing)
+    shown = ", ".join(available[:16]) + (", ..." if len(available) > 16 else "")
+    return (f"missing sensor column(s) {named}: {why}; the run's columns: {shown or 'none'}")
+
+
+# What a thermal test run in the project's units looks like, and so what another unit looks like
+# (each guess is skipped when the unit is given: CsvFormat, --time-unit/--temp-unit/--disp-unit).
+MINUTES_MAX_SPAN_S = 2 * 3600.0  # "seconds": a run this short ...
+MINUTES_MIN_WARMING_C = 5.0  # ... in which a sensor changes this much: a machine tool does not
+MINUTES_MIN_SAMPLES = 240  # warm 5 degC in minutes of a thermal test; in minutes it is hours
+# (240 samples: 4 h of one a minute; a shorter run at a step of 1 is not told from a hand-made
+# one in seconds. A step below 1 that is whole seconds as minutes, 0.5 or 0.25, needs 120.)
+MINUTES_MAX_STEP_SHARE = 0.02  # ... and a smooth warming, as a machine's: the median change
+# from one sample to the next is under 2 % of the whole change (noise is not a warming)
+FAHRENHEIT_MIN = 45.0  # every sensor of the run at or above this for the whole run (7 degC in
+# degF; as degC the coolest point of the machine, the bed or the air, would be at 45 degC)
+MM_MAX_DRIFT = 0.25  # every displacement moving less than this while a sensor warms ...
+MM_MIN_WARMING_C = 1.0  # ... this much: micrometres do not stay this still (steel: 1.2 um/K/100 mm)
+NM_MIN_DRIFT = 1000.0  # a displacement moving more than this: 1 mm of thermal drift in a test
+
+
+def _sniff_units(path: Path, time_s: np.ndarray, temps: Mapping[str, np.ndarray],
+                 disps: Mapping[str, np.ndarray], fmt: CsvFormat | None) -> None:
+    """Refuse a run that looks written in another unit than seconds, degC and micrometres
+    (minutes, degF, mm, nm), saying what it looks like and what to pass. Kelvin and
+    milliseconds are out of range and refused where the range is checked."""
+    fmt = fmt or CsvFormat()
+    warming = {n: float(np.nanmax(v) - np.nanmin(v)) for n, v in temps.items()
+               if np.isfinite(v).any()}
+    hottest = max(warming, key=lambda n: warming[n]) if warming else None
+    span = float(time_s[-1] - time_s[0]) if time_s.size else 0.0
+    period = float(np.median(np.diff(time_s))) if time_s.size > 1 else 0.0
+    whole_s = 0 < period < 1 and abs(period * 60 - round(period * 60)) < 1e-6
+    enough = time_s.size >= (MINUTES_MIN_SAMPLES // 2 if whole_s else MINUTES_MIN_SAMPLES)
+    if fmt.time_unit is None and hottest is not None and enough and 0 < period <= 1.0 \
+            and 0 < span <= MINUTES_MAX_SPAN_S and warming[hottest] >= MINUTES_MIN_WARMING_C:
+        steps = np.abs(np.diff(temps[hottest]))
+        if float(np.nanmedian(steps)) <= MINUTES_MAX_STEP_SHARE * warming[hottest]:
+            raise RunFormatError(
+                path, f"time_s looks like minutes: steps of {period:g} and a span of {span:g}, "
+                f"{span / 60:.3g} min if these were seconds, while {hottest} changes by "
+                f"{warming[hottest]:.3g} degC (a machine tool does not warm that fast; the "
+                "lags' time constants would come out 60x too short); as minutes it is a step of "
+                f"{period * 60:g} s and a run of {span / 60:.3g} h: pass --time-unit min to read "
+                "it as minutes (or write time_s in seconds); if these really are seconds, pass "
+                "--time-unit s", column=TIME_COLUMN)
+    if fmt.temp_unit is None and len(temps) >= 2:
+        lows = {n: float(np.nanmin(v)) for n, v in temps.items() if np.isfinite(v).any()}
+        if lows and min(lows.values()) >= FAHRENHEIT_MIN:
+            lo = min(lows.values())
+            hi = max(float(np.nanmax(v)) for v in temps.values() if np.isfinite(v).any())
+            coolest = min(lows, key=lambda n: lows[n])
+            raise RunFormatError(
+                path, f"the temperatures look like degF: every sensor reads {lo:g} or more for "
+                f"the whole run ({lo:g}..{hi:g}; the coolest, {coolest}, never below {lo:g}), "
+                f"as degC no part of the machine nor the air would be below {lo:g} degC; as "
+                f"degF they are {(lo - 32) / 1.8:.3g}..{(hi - 32) / 1.8:.3g} degC: pass "
+                "--temp-unit F to read them as degF; if they really are degC, pass "
+                "--temp-unit C", column=coolest)
+    if fmt.disp_unit is None and disps:
+        drift = {n: float(np.nanmax(v) - np.nanmin(v)) for n, v in disps.items()
+                 if np.isfinite(v).any()}
+        if not drift:
+            return
+        widest = max(drift, key=lambda n: drift[n])
+        if drift[widest] > NM_MIN_DRIFT:
+            raise RunFormatError(
+                path, f"the displacements look like nanometres: {widest} moves by "
+                f"{drift[widest]:.6g} over the run, {drift[widest] / 1000:.3g} mm if these were "
+                "micrometres (a thermal drift is microns to a few hundred microns); as "
+                f"nanometres it is {drift[widest] / 1000:.4g} um: pass --disp-unit nm to read "
+                "them as nanometres; if they really are micrometres, pass --disp-unit um",
+                column=widest)
+        if hottest is not None and warming[hottest] >= MM_MIN_WARMING_C \
+                and 0 < drift[widest] < MM_MAX_DRIFT:
+            raise RunFormatError(
+                path, f"the displacements look like millimetres: the most any moves is "
+                f"{drift[widest]:.4g} ({widest}) while {hottest} warms by "
+                f"{warming[hottest]:.3g} degC; as micrometres the machine would not have moved "
+                f"(nothing to compensate), as millimetres it is {drift[widest] * 1000:.4g} um: "
+                "pass --disp-unit mm to read them as millimetres; if they really are "
+                "micrometres, pass --disp-unit um", column=widest)
+
+
 def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T*",
              aux: list[str] | None = None, fill_gaps: int = 0, min_samples: int = 2,
              fmt: CsvFormat | None = None,
              temperature_ranges: Mapping[str, tuple[float, float]] | None = None,
-             tilts: Sequence[Tilt] = ()) -> Run:
+             tilts: Sequence[Tilt] = (), targets_from: str = "given by --target",
+             sensors_from: str = "given by --sensors", aux_from: str = "given by --aux"
+             ) -> Run:
     """Load one run.
 
     ``sensors`` is a glob (``"T*"``) or an explicit list of column names. ``fill_gaps`` > 0
@@ -556,6 +740,8 @@ def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T
     within int32; time_s must be seconds at one fixed period (no gap, no jitter).
     A target named by one of ``tilts`` is computed from its two gap-probe columns (µrad,
     contract/tilt.py); the probes are checked like any displacement column.
+    ``targets_from``, ``sensors_from``, ``aux_from``: where the caller's column names come
+    from, for the refusal of a missing column (a model's axes are no ``--target``).
     """
     path = Path(path)
     aux = list(aux or [])
@@ -572,13 +758,13 @@ def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T
         if name not in header:
             tilt = next((t for t in tilt_of.values() if name in (t.upper, t.lower)), None)
             given = (f"a gap probe of --tilt {tilt.name}" if tilt is not None
-                     else "given by --target")
-            raise RunFormatError(path, f"missing target column ({given})", line=1,
-                                 column=name)
+                     else targets_from)
+            raise RunFormatError(path, f"missing target column ({given})"
+                                 f"{did_you_mean(name, header)}", line=1, column=name)
     for name in aux:
         if name not in header:
-            raise RunFormatError(path, "missing auxiliary column (given by --aux)", line=1,
-                                 column=name)
+            raise RunFormatError(path, f"missing auxiliary column ({aux_from})"
+                                 f"{did_you_mean(name, header)}", line=1, column=name)
     reserved = {TIME_COLUMN, *targets, *aux}
     if isinstance(sensors, str):
         sensor_names = [h for h in header if fnmatch.fnmatchcase(h, sensors) and h not in reserved]
@@ -587,9 +773,10 @@ def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T
                                  line=1)
     else:
         sensor_names = list(sensors)
-        for name in sensor_names:
-            if name not in header:
-                raise RunFormatError(path, "missing sensor column", line=1, column=name)
+        missing = [n for n in sensor_names if n not in header]
+        if missing:
+            raise RunFormatError(path, missing_sensors(
+                missing, [h for h in header if h not in reserved], sensors_from), line=1)
     if data.shape[0] < min_samples:
         raise RunFormatError(path, f"{data.shape[0]} samples, the model needs at least "
                              f"{min_samples}")
@@ -606,11 +793,17 @@ def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T
         i = int(bad[0]) + 1
         raise RunFormatError(path, f"time does not increase ({time_s[i - 1]:g} then "
                              f"{time_s[i]:g})", line=int(lines[i]), column=TIME_COLUMN)
-    fill = _check_time(path, time_s, lines, fill_gaps)
+    fill = _check_time(path, time_s, lines, fill_gaps,
+                       guess=fmt is None or fmt.time_unit is None)
     if fill:
         data, lines = _insert_rows(time_s, data, lines, fill, col[TIME_COLUMN])
         time_s = data[:, col[TIME_COLUMN]].copy()
 
+    if fmt is not None:  # the units given: to degC and micrometres before anything is checked
+        for name in sensor_names:
+            data[:, col[name]] = to_celsius(data[:, col[name]], fmt.temp_unit)
+        for name in targets:
+            data[:, col[name]] *= DISP_UNITS[fmt.disp_unit or "um"]
     ranges = temperature_ranges or {}
     for name in sensor_names:
         lo, hi = ranges.get(name, DEFAULT_TEMPERATURE_RANGE)
@@ -622,6 +815,8 @@ def load_run(path: str | Path, targets: list[str], sensors: str | list[str] = "T
     for name in aux:
         _check_values(path, name, data[:, col[name]], lines, -AUX_LIMIT, AUX_LIMIT,
                       f"is beyond the box's int32 auxiliary input (±{AUX_LIMIT:g})")
+    _sniff_units(path, time_s, {n: data[:, col[n]] for n in sensor_names},
+                 {n: data[:, col[n]] for n in targets}, fmt)
 
     filled = 0
     used = [*sensor_names, *targets, *aux]

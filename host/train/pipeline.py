@@ -37,6 +37,7 @@ from host.fitting import (
 from host.fitting.prefilter import PREFILTER_TAU_S
 from host.fitting.step_limits import add_step_limits
 from host.io import Run, load_runs
+from host.io.runs import missing_sensors
 from host.progress import progress
 from host.selection import (
     DEFAULT_BLOCKS,
@@ -110,8 +111,12 @@ def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str 
         else:
             names = list(sensors)
         missing = [n for n in names if n not in run.sensor_names]
-        if missing or not names:
-            raise TrainingError(f"{run.path}: sensors {missing or sensors!r} not in the run")
+        if missing:
+            raise TrainingError(f"{run.path}: " + missing_sensors(missing, run.sensor_names,
+                                                                   "given by sensors"))
+        if not names:
+            raise TrainingError(f"{run.path}: no sensor column matches {sensors!r}; the run's "
+                                f"columns: {', '.join(run.sensor_names)}")
         idx = [run.sensor_names.index(n) for n in names]
         out.append(Run(run.path, run.time_s, names, run.temperatures[:, idx],
                        list(run.target_names), run.displacements, list(run.aux_names), run.aux,
