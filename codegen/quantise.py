@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from codegen.errors import CodegenError
+from codegen.estimator import FixedParams
 from contract.box import (
     CHANNEL_MAX_C,
     CHANNEL_MIN_C,
@@ -48,6 +49,7 @@ from contract.fixed_point import (
     round_half_away,
 )
 from contract.model_file import SCHEMA, ModelFormatError, check_model
+from contract.service import SERVICE_FIELDS
 from contract.terms import AUX_KINDS, FILTER_KINDS, KIND_CODES, TC_TYPES, TEMPERATURE_KINDS
 from contract.tilt import AXIS_UNITS
 
@@ -145,6 +147,9 @@ class QAxis:
     out_max_nm: int  # rdiv(acc_max, shift)
     max_step_nm: int = 1  # the output never steps more than this per sample (nm, >= 1)
     max_step_source: str = "model"  # "model" (max_step_um) or "default" (older model.json)
+    # the in-service estimator's parameters (codegen.estimator.FixedParams) from the axis's
+    # service block; None: the model has none and the box refuses MEAS for the axis (OFF)
+    service: FixedParams | None = None
 
 
 @dataclass(frozen=True)
@@ -578,5 +583,20 @@ def quantise(model: Mapping) -> QModel:
         raise CodegenError(f"axes: {len(axes_raw)} axes exceed the runtime's {MAX_AXES}")
     axes = [_parse_axis(i, name, ax, channels, aux, period_s, time_max_samples)
             for i, (name, ax) in enumerate(axes_raw.items())]
+    start = (model.get("reference") or {}).get("kind", "none") == "start"
+    axes = [_with_service(ax, axes_raw[ax.name], period_s, start) for ax in axes]
     return QModel(SCHEMA, model_hash(model), period_s, period_ms, time_max_s,
                   time_max_samples, channels, aux, _number_states(axes))
+
+
+def _with_service(ax: QAxis, raw: Mapping, period_s: float, start: bool) -> QAxis:
+    """The axis with its estimator parameters quantised (docs/service.md, "Fixed point"),
+    when model.json has a ``service`` block for it."""
+    block = raw.get("service")
+    if block is None:
+        return ax
+    try:
+        params = FixedParams.of(*(float(block[k]) for k in SERVICE_FIELDS), period_s, start)
+    except CodegenError as exc:
+        raise CodegenError(f"axis '{ax.name}': {exc}") from None
+    return QAxis(**{**ax.__dict__, "service": params})

@@ -155,7 +155,24 @@ def _axis_view(ax: QAxis, b: AxisBound, model: QModel) -> dict:
         "max_step_lit": c_int32(ax.max_step_nm),
         "max_step_um": _num(ax.max_step_nm / 1000),
         "max_step_default": ax.max_step_source == "default",
+        "service": _service_view(ax),
     }
+
+
+def _service_view(ax: QAxis) -> dict:
+    """The axis's estimator parameters as header literals (docs/service.md, "Fixed point");
+    all zero and ``on`` 0 without a service block (the box answers MEAS with OFF)."""
+    sv = ax.service
+    p = f"TCM_AXIS{ax.index}_SVC_"
+    fields = [("q_q8", "Q_Q8", c_int64(sv.q_q8 if sv else 0)),
+              ("r_q8", "R_Q8", c_int64(sv.r_q8 if sv else 0)),
+              ("floor2_nm2", "FLOOR2_NM2", c_int64(sv.floor2_nm2 if sv else 0)),
+              ("pmax_q8", "PMAX_Q8", c_int64(sv.pmax_q8 if sv else 0)),
+              ("g2_q8", "G2_Q8", f"{sv.g2_q8 if sv else 0}u"),
+              ("on", "ON", f"{int(sv is not None)}u"),
+              ("p0_pmax", "P0_PMAX", f"{int(bool(sv and sv.p0_q8))}u")]
+    return {"on": int(sv is not None),
+            "fields": [{"name": n, "macro": p + m, "lit": lit} for n, m, lit in fields]}
 
 
 def _channel_view(ch: QChannel) -> dict:

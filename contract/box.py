@@ -21,8 +21,9 @@ RUNTIME_MAX_TERMS_PER_AXIS = 255
 # TCM_RUNTIME_FORMAT: 2 channels carry the training window (EXTRAP); 3 channels carry their
 # largest plausible step (IMPLAUSIBLE) and axes their output step limit, both CRC-covered; 4 a
 # lag/rate term names its filter state, shared by the terms of one channel and time constant; 5
-# channels carry their stuck limit (max_still_samples, STUCK), CRC-covered
-RUNTIME_FORMAT = 5
+# channels carry their stuck limit (max_still_samples, STUCK), CRC-covered; 6 axes carry the
+# in-service estimator's parameters (issue 42, MEAS), CRC-covered
+RUNTIME_FORMAT = 6
 HEADER_FORMAT = RUNTIME_FORMAT
 ZERO_SAMPLES = 8  # a ZERO's reference is the mean of this many samples (BOX_ZERO_SAMPLES)
 CHANNEL_MIN_C = -40.0  # default valid range of a thermocouple channel

@@ -81,6 +81,13 @@ class ModelHashError(ModelFormatError):
 
 # ---- the model hash ------------------------------------------------------------------------
 
+def _service_core(block: object) -> object:
+    """The fields of an axis's ``service`` block that change the box (not its ``why``)."""
+    if not isinstance(block, Mapping):
+        return block
+    return {k: block[k] for k in SERVICE_FIELDS if k in block}
+
+
 def model_hash(model: Mapping) -> str:
     """First 16 hex digits of SHA-256 over the canonical JSON of the model's function.
 
@@ -90,7 +97,9 @@ def model_hash(model: Mapping) -> str:
     A missing optional key hashes as ``null`` (``aux`` as ``[]``; ``max_step_um``, the box's
     output step limit, is left out when absent so that older models keep their hash). The
     top-level ``reference`` (what zero means; a ``start`` model's box zeroes at power-up) is
-    part of the function too, and likewise left out when absent.
+    part of the function too, and likewise left out when absent. So is an axis's ``service``
+    block (issue 42: its parameters are in the header and decide what the box does with a
+    probe reading), its numeric fields only (``why`` is an explanation), left out when absent.
     """
     core = {
         "sample_period_s": model.get("sample_period_s"),
@@ -100,7 +109,8 @@ def model_hash(model: Mapping) -> str:
         "axes": {
             name: {"unit": ax.get("unit"), "intercept": ax.get("intercept"),
                    "terms": ax.get("terms", []),
-                   **({"max_step_um": ax["max_step_um"]} if "max_step_um" in ax else {})}
+                   **({"max_step_um": ax["max_step_um"]} if "max_step_um" in ax else {}),
+                   **({"service": _service_core(ax["service"])} if "service" in ax else {})}
             for name, ax in model.get("axes", {}).items()
         },
     }

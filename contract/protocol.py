@@ -22,6 +22,19 @@ CMD_MAX_LEN = 64
 RATE_MIN, RATE_MAX = 1, 3600
 ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG", "HOLDING")  # HOLDING: ZERO refused
 TC_TYPES = ("K", "J")
+# MEAS <axis> <nm> <seq> (issue 42, docs/service.md): a probe reading. The box answers $M,
+# applied (A) or refused (R) with one of these reasons, in the order the box checks them:
+#   OFF      the model has no service block for the axis (or its tables failed their CRC)
+#   AXIS     no such axis (index >= the INFO line's axis count)
+#   NO_REF   no reference: a start model before its ZERO, a ZERO pending, or the reference
+#            of the sample still being averaged (the first BOX_ZERO_SAMPLES after ZERO)
+#   SEQ      a sample the box does not remember (older than MEAS_SAMPLES, from before the
+#            latest ZERO or warm reset, or not produced yet)
+#   HOLDING  the axis held or walked back at that sample, or does at the latest one
+#   GATE     the innovation is beyond the gate of the model's own uncertainty
+MEAS_REASONS = ("OFF", "AXIS", "NO_REF", "SEQ", "HOLDING", "GATE")
+MEAS_SAMPLES = 4  # samples per axis the box remembers for MEAS (BOX_MEAS_SAMPLES)
+MEAS_NM_MIN, MEAS_NM_MAX = -(2**31), 2**31 - 1
 
 
 class Status(IntFlag):
@@ -114,11 +127,25 @@ class Sample:
 
 
 @dataclass(frozen=True)
+class AxisService:
+    """One axis of the STATUS line's service field: the in-service estimate (the bias added
+    to the model's output, nm), the last reading's innovation (nm; None: no reading since
+    the last reset or ZERO) and the readings the gate refused in a row since the last
+    accepted one (saturating at 65535)."""
+
+    bias_nm: int
+    innovation_nm: int | None
+    refusals: int
+
+
+@dataclass(frozen=True)
 class StatusReport:
     """``$S``: answer to STATUS.
 
     ``zero_seq``: seq of the first sample of the ZERO reference in force, None when there is
     none (the box sends ``-``) or when the box predates ZERO (no such field).
+    ``service``: per axis the estimator's state (None for an axis without a service block:
+    MEAS is OFF); None as a whole when the box predates MEAS (no such field).
     """
 
     status: int
@@ -127,6 +154,26 @@ class StatusReport:
     channel_faults: tuple[int, ...]
     zero_seq: int | None = None
     has_zero_field: bool = True  # False: a box from before ZERO (the line ends after faults)
+    service: tuple[AxisService | None, ...] | None = None
+
+
+@dataclass(frozen=True)
+class MeasReply:
+    """``$M``: the answer to ``MEAS <axis> <nm> <seq>``.
+
+    ``applied``: the reading moved the estimate (its effect reaches the output from the next
+    sample on, through the step limit); else ``reason`` is one of MEAS_REASONS.
+    ``innovation_nm``: reading - (model + bias) at that sample (None when the box refused
+    before computing it); ``bias_nm`` / ``p_nm2``: the estimate and its variance afterwards
+    (nm, nm^2; None for AXIS)."""
+
+    axis: int
+    seq: int
+    applied: bool
+    reason: str | None
+    innovation_nm: int | None
+    bias_nm: int | None
+    p_nm2: int | None
 
 
 @dataclass(frozen=True)
@@ -145,7 +192,7 @@ class ErrorReply:
     reason: str
 
 
-Message = Info | Sample | StatusReport | Ack | ErrorReply
+Message = Info | Sample | StatusReport | Ack | ErrorReply | MeasReply
 
 _LINE_RE = re.compile(rb"\$([\x20-\x7e]*)\*([0-9A-F]{4})(\r?\n)?")
 _DEC_RE = re.compile(r"-?(0|[1-9][0-9]*)")
@@ -263,8 +310,59 @@ def _decode_status(f: _Fields) -> StatusReport:
         f.take("zero_seq")
     else:
         zero_seq = f.udec("zero_seq", 2**32 - 1)
+    service = None
+    if f.pos < len(f.fields):  # firmware with MEAS: the estimator per axis
+        service = tuple(_axis_service(f, item) for item in f.name_list("service"))
     f.end()
-    return StatusReport(status, seq, uptime, tuple(faults), zero_seq)
+    return StatusReport(status, seq, uptime, tuple(faults), zero_seq, service=service)
+
+
+def _axis_service(f: _Fields, item: str) -> AxisService | None:
+    """``<bias_nm>:<innovation_nm or ->:<refusals>``, or ``-`` (the axis has no estimator)."""
+    if item == "-":
+        return None
+    parts = item.split(":")
+    if (len(parts) != 3 or not _DEC_RE.fullmatch(parts[0])
+            or not (parts[1] == "-" or _DEC_RE.fullmatch(parts[1]))
+            or not _UDEC_RE.fullmatch(parts[2])
+            or not -(2**31) <= int(parts[0]) < 2**31 or int(parts[2]) > 65535
+            or (parts[1] != "-" and not -(2**31) <= int(parts[1]) < 2**31)):
+        f.pos -= 1
+        raise f.fail(f"service entry {item!r} is not <bias_nm>:<innovation_nm|->:<refusals> "
+                     "or -")
+    return AxisService(int(parts[0]), None if parts[1] == "-" else int(parts[1]),
+                       int(parts[2]))
+
+
+def _decode_meas(f: _Fields) -> MeasReply:
+    axis = f.udec("axis", 2**32 - 1)
+    seq = f.udec("seq", 2**32 - 1)
+    verdict = f.take("verdict")
+    if verdict not in ("A", "R"):
+        f.pos -= 1
+        raise f.fail(f"verdict {verdict!r} is neither A nor R")
+    reason_text = f.take("reason")
+    if verdict == "A" and reason_text != "-":
+        f.pos -= 1
+        raise f.fail(f"an applied reading has reason {reason_text!r}, not -")
+    if verdict == "R" and reason_text not in MEAS_REASONS:
+        f.pos -= 1
+        raise f.fail(f"reason {reason_text!r} is not one of {', '.join(MEAS_REASONS)}")
+    values: list[int | None] = []
+    for name in ("innovation_nm", "bias_nm", "p_nm2"):
+        if f.pos < len(f.fields) and f.fields[f.pos] == "-":
+            f.take(name)
+            values.append(None)
+        elif name == "p_nm2":
+            values.append(f.udec(name, 2**32 - 1))
+        else:
+            values.append(f.dec(name, -(2**31), 2**31 - 1))
+    f.end()
+    if verdict == "A" and None in values:
+        raise ProtocolError(f"$M line: an applied reading without innovation, bias or "
+                            f"variance: {_show(f.raw)}")
+    return MeasReply(axis, seq, verdict == "A", None if verdict == "A" else reason_text,
+                     *values)
 
 
 def _decode_ok(f: _Fields) -> Ack:
@@ -290,7 +388,7 @@ def _decode_error(f: _Fields) -> ErrorReply:
 
 
 _DECODERS = {"C": _decode_sample, "I": _decode_info, "S": _decode_status, "OK": _decode_ok,
-             "E": _decode_error}
+             "E": _decode_error, "M": _decode_meas}
 
 
 def decode(raw: bytes | str) -> Message:
@@ -352,7 +450,21 @@ def encode_status(report: StatusReport) -> bytes:
     fields: list[object] = [f"{report.status:04X}", report.seq, report.uptime_s, faults]
     if report.has_zero_field:
         fields.append("-" if report.zero_seq is None else report.zero_seq)
+        if report.service is not None:
+            fields.append(";".join("-" if a is None else
+                                   f"{a.bias_nm}:{_dash(a.innovation_nm)}:{a.refusals}"
+                                   for a in report.service))
     return encode_line("S", fields)
+
+
+def _dash(value: int | None) -> str:
+    return "-" if value is None else str(value)
+
+
+def encode_meas_reply(reply: MeasReply) -> bytes:
+    return encode_line("M", [reply.axis, reply.seq, "A" if reply.applied else "R",
+                             reply.reason or "-", _dash(reply.innovation_nm),
+                             _dash(reply.bias_nm), _dash(reply.p_nm2)])
 
 
 def encode(message: Message) -> bytes:
@@ -368,6 +480,8 @@ def encode(message: Message) -> bytes:
         return encode_line("OK", [message.command, message.value])
     if isinstance(message, ErrorReply):
         return encode_line("E", [message.reason])
+    if isinstance(message, MeasReply):
+        return encode_meas_reply(message)
     raise TypeError(f"not a protocol message: {message!r}")
 
 
@@ -380,4 +494,13 @@ def encode_command(command: str, arg: int | None = None) -> bytes:
         if not RATE_MIN <= arg <= RATE_MAX:
             raise InputError(f"RATE {arg} outside {RATE_MIN}..{RATE_MAX}")
         return f"RATE {arg}\r\n".encode()
-    raise InputError(f"unknown command {command!r} (INFO, STATUS, ZERO or RATE <n>)")
+    raise InputError(f"unknown command {command!r} (INFO, STATUS, ZERO, RATE <n> or MEAS: "
+                     "encode_meas)")
+
+
+def encode_meas(axis: int, nm: int, seq: int) -> bytes:
+    """``MEAS <axis> <nm> <seq>``: a probe reading of axis ``axis`` (0-based, INFO order),
+    the displacement since the reference in nm, of the sample ``seq``."""
+    if not 0 <= axis < 2**32 or not MEAS_NM_MIN <= nm <= MEAS_NM_MAX or not 0 <= seq < 2**32:
+        raise InputError(f"MEAS {axis} {nm} {seq}: axis and seq are uint32, nm int32")
+    return f"MEAS {axis} {nm} {seq}\r\n".encode()

@@ -28,3 +28,13 @@ GATE_FRAC_BITS = 8  # gate_sigma^2 in Q8 (256 .. 65536)
 INNOVATION_MAX_NM = 1 << 22  # |innovation| above 4.19 mm: refused before any product
 BIAS_MAX_NM = 500_000  # |bias| is clamped to 0.5 mm (int32 with room to spare)
 NM_PER_UM = 1000
+
+# ---- the header (codegen: TCM_AXIS<n>_SVC_*, asserted by the compiler) -----------------------
+# The integer ranges the C arithmetic is proven for (docs/service.md, "Fixed point"): the
+# largest values SERVICE_FIELDS and MAX_PERIOD_S allow, in the header's units.
+_NM2 = NM_PER_UM * NM_PER_UM
+Q_Q8_MAX = 100 * _NM2 << P_FRAC_BITS  # q 100 um^2/h over a period of at most 3600 s
+R_Q8_MAX = 100 * _NM2 << P_FRAC_BITS  # probe noise 10 um
+G2_Q8_MIN, G2_Q8_MAX = 1 << GATE_FRAC_BITS, 256 << GATE_FRAC_BITS  # gate_sigma 1..16
+FLOOR2_NM2_MAX = (1000 * NM_PER_UM) ** 2  # gate_floor 1000 um
+PMAX_Q8_MIN, PMAX_Q8_MAX = 1, 1000 * _NM2 << P_FRAC_BITS  # p_max 0.01..1000 um^2

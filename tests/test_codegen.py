@@ -172,6 +172,7 @@ def _one_term_crc() -> int:
     # degC, no training range (window = valid range), no max_step_c (default 1 degC = 128 codes
     # per 1 s sample), type K, no max_still_samples (no stuck check: 0)
     data += struct.pack("<BBqi", ONE_SHIFT, 1, ONE_INTERCEPT_Q, 1000)  # default 1 um/s x 1 s
+    data += struct.pack("<BBI4q", 0, 0, 0, 0, 0, 0, 0)  # no service block: estimator off
     data += struct.pack("<BBBiq", 0, 0, 0, 0, ONE_COEF_Q)  # temp, channel 0, no state, no param
     return zlib.crc32(data)
 
@@ -184,7 +185,7 @@ GOLDEN = """\
  * Model {hash} (schema thermal-model/1), sample period 1000 ms.
  * Output: per axis, int32_t nanometres. Inputs: int32_t temperature codes, LSB 1/128 degC
  * (MAX31856 LTCB >> 5, sign-extended); a code outside its channel's range below is a fault.
- * Arithmetic: docs/fixed-point.md (runtime format 5); bounds: docs/codegen.md.
+ * Arithmetic: docs/fixed-point.md (runtime format 6); bounds: docs/codegen.md.
  * Include this file from exactly one firmware source file.
  */
 #ifndef TCM_GENERATED_MODEL_H
@@ -194,9 +195,9 @@ GOLDEN = """\
 
 #include "model_eval.h"
 
-#define TCM_HEADER_FORMAT 5
+#define TCM_HEADER_FORMAT 6
 #if TCM_HEADER_FORMAT != TCM_RUNTIME_FORMAT
-#error "model.h is header format 5 but model_eval.h is another runtime format: regenerate \
+#error "model.h is header format 6 but model_eval.h is another runtime format: regenerate \
 model.h with the codegen matching this firmware (host codegen)"
 #endif
 
@@ -255,6 +256,14 @@ max_step_c) */
 #define TCM_AXIS0_INPUT_QUANT_PM 5860u /* input quantisation, picometres */
 /* output step limit 1.0 um per sample: the default (model.json has no max_step_um) */
 #define TCM_AXIS0_MAX_STEP_NM INT32_C(1000)
+/* no in-service estimator (model.json has no service block for this axis): MEAS is refused (OFF) */
+#define TCM_AXIS0_SVC_Q_Q8 INT64_C(0)
+#define TCM_AXIS0_SVC_R_Q8 INT64_C(0)
+#define TCM_AXIS0_SVC_FLOOR2_NM2 INT64_C(0)
+#define TCM_AXIS0_SVC_PMAX_Q8 INT64_C(0)
+#define TCM_AXIS0_SVC_G2_Q8 0u
+#define TCM_AXIS0_SVC_ON 0u
+#define TCM_AXIS0_SVC_P0_PMAX 0u
 _Static_assert(TCM_AXIS0_MAX_STEP_NM >= 1, "axis 0 (dz_um): output step limit must be at least \
 1 nm");
 _Static_assert(TCM_AXIS0_SHIFT <= TCM_MAX_SHIFT, "axis 0 (dz_um): shift out of range");
@@ -262,6 +271,8 @@ _Static_assert(TCM_AXIS0_ACC_MAX <= TCM_ACC_LIMIT,
                "axis 0 (dz_um): the int64 accumulator could overflow");
 _Static_assert(TCM_RDIV_CONST(TCM_AXIS0_ACC_MAX, TCM_AXIS0_SHIFT) <= INT32_MAX,
                "axis 0 (dz_um): the output could overflow int32_t");
+_Static_assert(TCM_SVC_PARAMS_OK(TCM_AXIS0_SVC_ON, TCM_AXIS0_SVC_Q_Q8, TCM_AXIS0_SVC_R_Q8, TCM_AXIS0_SVC_G2_Q8, TCM_AXIS0_SVC_FLOOR2_NM2, TCM_AXIS0_SVC_PMAX_Q8, TCM_AXIS0_SVC_P0_PMAX),
+               "axis 0 (dz_um): estimator parameters outside the ranges the fixed-point arithmetic is proven for");
 
 /* ---- Invariants of the tables --------------------------------------------------------- */
 _Static_assert(TCM_N_CHANNELS <= TCM_MAX_CHANNELS, "too many channels for the runtime");
@@ -298,7 +309,7 @@ _Static_assert(sizeof tcm_terms / sizeof tcm_terms[0] == TCM_N_TERMS, "term tabl
 
 static const tcm_axis_t tcm_axes[] = {{
     {{.shift = TCM_AXIS0_SHIFT, .n_terms = TCM_AXIS0_N_TERMS, \
-.intercept_q = TCM_AXIS0_INTERCEPT_Q, .max_step_nm = TCM_AXIS0_MAX_STEP_NM, .name = "dz_um"}},
+.intercept_q = TCM_AXIS0_INTERCEPT_Q, .max_step_nm = TCM_AXIS0_MAX_STEP_NM, .service = {{.q_q8 = TCM_AXIS0_SVC_Q_Q8, .r_q8 = TCM_AXIS0_SVC_R_Q8, .floor2_nm2 = TCM_AXIS0_SVC_FLOOR2_NM2, .pmax_q8 = TCM_AXIS0_SVC_PMAX_Q8, .g2_q8 = TCM_AXIS0_SVC_G2_Q8, .on = TCM_AXIS0_SVC_ON, .p0_pmax = TCM_AXIS0_SVC_P0_PMAX}}, .name = "dz_um"}},
 }};
 _Static_assert(sizeof tcm_axes / sizeof tcm_axes[0] == TCM_N_AXES, "axis table size");
 

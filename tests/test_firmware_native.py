@@ -86,7 +86,10 @@ def test_info_status_and_rate_over_the_pty(fw):
         "0.1.0", header.model.model_hash, True, 1000, ("dx_um", "dy_um", "dz_um"),
         tuple(p.Channel(c["channel"], c["sensor"], c["tc_type"])
               for c in fw["model"]["channels"]))
-    assert status == p.StatusReport(p.Status.NO_DATA, 0, 0, (0,) * 8)
+    # the estimator per axis (issue 42): '-' for an axis without a service block (MEAS OFF)
+    service = tuple(None if "service" not in ax else p.AxisService(0, None, 0)
+                    for ax in fw["model"]["axes"].values())
+    assert status == p.StatusReport(p.Status.NO_DATA, 0, 0, (0,) * 8, service=service)
 
     box.send(p.encode_command("RATE", 4))
     assert p.decode(box.lines(1)[0]) == p.Ack("RATE", 4)

@@ -92,7 +92,14 @@ def test_every_single_bit_flip_is_detected():
     ("OK,ZERO,-1", "seq"),
     ("OK,ZERO", "missing field"),
     ("S,0000,1,2,0001,x", "zero_seq"),
-    ("S,0000,1,2,0001,-,3", "unexpected field"),
+    ("S,0000,1,2,0001,-,0:-:0,3", "unexpected field"),
+    ("S,0000,1,2,0001,-,3", "service entry"),
+    ("S,0000,1,2,0001,-,1:2", "service entry"),
+    ("M,0,5,A,GATE,1,2,3", "applied reading"),
+    ("M,0,5,R,CHIP,1,2,3", "reason"),
+    ("M,0,5,X,-,1,2,3", "verdict"),
+    ("M,0,5,A,-,-,2,3", "applied reading without"),
+    ("M,0,5,R,SEQ,-,2,-3", "p_nm2"),
     ("E,NOPE", "reason"),
     ("X,1", "unknown line type"),
 ])
@@ -150,3 +157,23 @@ def test_commands_are_encoded_and_checked():
         p.encode_command("RATE", 0)
     with pytest.raises(ValueError, match="unknown command"):
         p.encode_command("RESET")
+
+
+def test_meas_reply_and_status_service_field_round_trip():
+    """issue 42: $M answers MEAS; STATUS carries per axis bias:innovation:refusals."""
+    applied = p.MeasReply(0, 17, True, None, 5000, 4706, 235291)
+    refused = p.MeasReply(1, 18, False, "GATE", 45294, 4706, 235391)
+    early = p.MeasReply(7, 18, False, "AXIS", None, None, None)
+    for m in (applied, refused, early):
+        assert p.decode(p.encode(m)) == m
+    assert p.encode(applied) == framed("M,0,17,A,-,5000,4706,235291")
+    assert p.decode(framed("M,2,3,R,OFF,-,-,-")) == p.MeasReply(2, 3, False, "OFF", None,
+                                                                 None, None)
+    status = p.decode(framed("S,0800,9,1,0000,0,4706:5000:0;0:-:2;-"))
+    assert status.service == (p.AxisService(4706, 5000, 0), p.AxisService(0, None, 2), None)
+    assert p.decode(p.encode(status)) == status
+    # a box from before MEAS: no service field
+    assert p.decode(framed("S,0800,9,1,0000,0")).service is None
+    assert p.encode_meas(1, -2500, 42) == b"MEAS 1 -2500 42\r\n"
+    with pytest.raises(p.InputError):
+        p.encode_meas(0, 2**31, 1)

@@ -63,6 +63,14 @@
 #define BOX_ZERO_SAMPLES 8
 #endif
 
+/* MEAS (issue 42): how many of the latest samples the box remembers per axis for a probe
+ * reading that names its sample (docs/service.md, "On the box"). 4 covers a reading that
+ * arrives up to 3 sample periods after the sample it names (3 min at the trained 60 s
+ * period); a probing cycle sends it within seconds. Each costs 5 B per axis of RAM. */
+#ifndef BOX_MEAS_SAMPLES
+#define BOX_MEAS_SAMPLES 4
+#endif
+
 /* Independent-watchdog timeout: the main loop passes at least once per millisecond tick. */
 #ifndef BOX_WATCHDOG_MS
 #define BOX_WATCHDOG_MS 500

@@ -23,7 +23,7 @@
 #include <stdint.h>
 
 /* A generated model.h must carry the same number (nanopb style check in the header). */
-#define TCM_RUNTIME_FORMAT 5
+#define TCM_RUNTIME_FORMAT 6
 
 /* Capacity of the runtime (state is statically sized; codegen refuses bigger models). */
 #define TCM_MAX_CHANNELS 32u /* valid_mask is a uint32_t */
@@ -112,6 +112,32 @@ typedef struct {
     int64_t coef_q; /* nanometres per unit of x_j, times 2^shift */
 } tcm_term_t;
 
+/* The in-service estimator's parameters of one axis (issue 42, docs/service.md "Fixed
+ * point"; the application's estimator.c runs it, this runtime only carries and CRC-checks
+ * them). on == 0: the model has no service block for the axis, MEAS is refused (OFF). */
+typedef struct {
+    int64_t q_q8;       /* process noise per sample, 1/256 nm^2, 0 .. TCM_SVC_Q_Q8_MAX */
+    int64_t r_q8;       /* the probe's variance, 1/256 nm^2, 1 .. TCM_SVC_R_Q8_MAX */
+    int64_t floor2_nm2; /* gate_floor^2, nm^2, 0 .. 10^12 */
+    int64_t pmax_q8;    /* the variance's cap, 1/256 nm^2, 1 .. TCM_SVC_PMAX_Q8_MAX */
+    uint32_t g2_q8;     /* gate_sigma^2 in Q8, 2^8 .. 2^16 */
+    uint8_t on;
+    uint8_t p0_pmax; /* P at power-up / ZERO: 1 pmax_q8 (no start reference), 0 zero */
+} tcm_service_t;
+
+#define TCM_SVC_Q_Q8_MAX INT64_C(25600000000)     /* 100 um^2/h over <= 3600 s, < 2^35 */
+#define TCM_SVC_R_Q8_MAX INT64_C(25600000000)     /* probe noise 10 um, < 2^35 */
+#define TCM_SVC_FLOOR2_MAX INT64_C(1000000000000) /* gate floor 1000 um, < 2^40 */
+#define TCM_SVC_PMAX_Q8_MAX INT64_C(256000000000) /* p_max 1000 um^2, < 2^38 */
+/* The header's check of one axis's parameters (a service-less axis: all zero). */
+#define TCM_SVC_PARAMS_OK(on, q, r, g2, f2, pmax, p0pmax)                                    \
+    ((on) == 0u ? ((q) == 0 && (r) == 0 && (g2) == 0u && (f2) == 0 && (pmax) == 0 &&           \
+                   (p0pmax) == 0u)                                                            \
+                : ((on) == 1u && (q) >= 0 && (q) <= TCM_SVC_Q_Q8_MAX && (r) >= 1 &&             \
+                   (r) <= TCM_SVC_R_Q8_MAX && (g2) >= 256u && (g2) <= 65536u && (f2) >= 0 &&    \
+                   (f2) <= TCM_SVC_FLOOR2_MAX && (pmax) >= 1 && (pmax) <= TCM_SVC_PMAX_Q8_MAX && \
+                   (p0pmax) <= 1u))
+
 /*
  * One output axis. Its terms are the next n_terms entries of tcm_model_t.terms (axes in
  * order, no gaps), derived, not stored. A lag/rate term names its filter state: the lags and
@@ -123,6 +149,7 @@ typedef struct {
     uint8_t n_terms;
     int64_t intercept_q; /* nanometres times 2^shift */
     int32_t max_step_nm; /* the output never steps more than this per sample period, >= 1 */
+    tcm_service_t service; /* the in-service estimator (MEAS) */
     const char *name;    /* e.g. "dz_um" (not part of the CRC) */
 } tcm_axis_t;
 

@@ -8,6 +8,7 @@
 #include "box_config.h"
 #include "channel_guard.h"
 #include "cmd.h"
+#include "estimator.h"
 #include "hal_aux.h"
 #include "hal_board.h"
 #include "hal_retain.h"
@@ -34,6 +35,29 @@ _Static_assert(SAMPLE_LINE_MAX <= LINE_MAX, "a full sample line must fit the lin
      LINE_TRAILER_LEN)
 _Static_assert(INFO_LINE_MAX <= LINE_MAX, "the longest INFO line must fit the line buffer");
 _Static_assert(BOX_MAX_CHANNELS <= 32 && BOX_MAX_AXES <= 32, "masks are uint32_t");
+/* Longest STATUS line: the fixed fields, a fault word per channel, then per axis the
+ * estimator "bias:innovation:refusals" (7 + 11 + 5 characters and their separators). */
+#define STATUS_LINE_MAX                                                                      \
+    (3 + 4 + 1 + 10 + 1 + 10 + 1 + BOX_MAX_CHANNELS * 5 + 1 + 10 + 1 +                       \
+     BOX_MAX_AXES * (7 + 1 + 11 + 1 + 5 + 1) + LINE_TRAILER_LEN)
+_Static_assert(STATUS_LINE_MAX <= LINE_MAX, "the longest STATUS line must fit the line buffer");
+
+/* ---- MEAS: the samples the box remembers (docs/service.md, "On the box") ------------------
+ * A reading names the sample it refers to. The box keeps, per axis, the referenced model
+ * value (before the bias) of the latest BOX_MEAS_SAMPLES samples and whether a reading of
+ * that sample may be used (the axis tracked its model, with a complete reference). */
+#define MEAS_OK 0u
+#define MEAS_NO_REF 1u  /* no reference, or the reference was still being averaged */
+#define MEAS_HOLDING 2u /* the axis held (an input faulted) or walked back */
+
+typedef struct {
+    uint32_t newest_seq; /* seq of the newest entry (valid when count > 0) */
+    uint8_t count;       /* entries held: consecutive samples up to newest_seq */
+    uint8_t head;        /* index of the newest entry */
+    int32_t model_nm[BOX_MEAS_SAMPLES][BOX_MAX_AXES];
+    uint8_t flag[BOX_MEAS_SAMPLES][BOX_MAX_AXES]; /* MEAS_* */
+} meas_ring_t;
+_Static_assert(BOX_MEAS_SAMPLES >= 1 && BOX_MEAS_SAMPLES <= 255, "MEAS samples: 1..255");
 
 #define DEFAULT_PERIOD_MS 1000u
 
@@ -76,6 +100,8 @@ typedef struct {
     axis_output_t axes[BOX_MAX_AXES];
     axis_output_cfg_t out_cfg[BOX_MAX_AXES];
 
+    meas_ring_t ring; /* not retained: after a warm reset MEAS names a new sample (SEQ) */
+
     cmd_reader_t reader;
     line_t line;
 } app_t;
@@ -86,7 +112,7 @@ static app_t app;
  * Everything that makes the next sample line what it would have been without a reset: the
  * sequence, the reference, the filters, the guards and the output stage. Written after every
  * sample; trusted at boot only after a warm reset, for the same model, with a valid CRC. */
-#define RETAIN_MAGIC UINT32_C(0x54434d53) /* "TCMS": the layout with the stuck counters */
+#define RETAIN_MAGIC UINT32_C(0x54434d45) /* "TCME": the layout with the estimator */
 
 typedef struct {
     uint32_t magic;
@@ -106,10 +132,16 @@ typedef struct {
     axis_output_t axes[BOX_MAX_AXES];
     int32_t codes[BOX_MAX_CHANNELS]; /* the latest readings: the stuck check compares with them */
     uint16_t still[BOX_MAX_CHANNELS];
+    /* The in-service estimator lives here and nowhere else (one copy in RAM: the block is
+     * what the box keeps anyway, written after every sample and every MEAS). */
+    est_state_t est[BOX_MAX_AXES];
+    uint16_t est_refusals[BOX_MAX_AXES]; /* readings the gate refused since the last accepted */
+    uint32_t est_seen; /* bit a: axis a had a reading since its last reset (last innovation) */
     uint32_t crc; /* CRC-32 of every byte before it */
 } retained_t;
 
 static retained_t snap;
+static est_state_t *const est = snap.est;
 
 static uint32_t crc32_bytes(const uint8_t *p, size_t n)
 {
@@ -220,6 +252,31 @@ static bool beyond_training(uint32_t ch, const tcm_channel_t *c, int32_t code)
     return change < -(span + margin) || change > span + margin;
 }
 
+/* The estimator parameters of axis a; NULL: no such axis, or no service block (MEAS OFF). */
+static const tcm_service_t *service_of(uint32_t a)
+{
+    return a < app.n_axes && app.model->axes[a].service.on ? &app.model->axes[a].service
+                                                            : NULL;
+}
+
+static void est_reset_all(void)
+{
+    for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
+        const tcm_service_t *svc = service_of(a);
+        est[a] = (est_state_t){0};
+        if (svc) {
+            est_reset(&est[a], svc);
+        }
+        snap.est_refusals[a] = 0u;
+    }
+    snap.est_seen = 0u;
+}
+
+static int32_t sat_i32(int64_t v)
+{
+    return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : (int32_t)v);
+}
+
 /* Stuck: a valid reading with the same code as the channel's previous reading extends the
  * run, any other starts one; a reading that is not valid (chip fault, no answer, out of
  * range) ends it (still 0). The channel is a fault while the run is max_still_samples or
@@ -309,6 +366,9 @@ void app_init(void)
     app.rate = 1u;
     app.rate_left = 1u;
     bool resumed = retain_restore();
+    if (!resumed) {
+        est_reset_all();
+    }
     app.status = app.sticky | (app.n_axes > 0u && !resumed ? STATUS_NO_DATA : 0u) |
                  (app.needs_ref && !app.referenced ? STATUS_NO_REF : 0u);
     cmd_reader_init(&app.reader);
@@ -426,15 +486,37 @@ static void take_sample(void)
     uint32_t valid_mask;
     uint32_t seq = app.seq++;
     uint16_t st = app.sticky;
+    /* the estimators' P grows every sample after their reference sample (power-up, ZERO) */
+    bool est_ticks = app.sampled;
+    meas_ring_t *ring = &app.ring;
+    if (ring->count > 0u && seq != ring->newest_seq + 1u) {
+        ring->count = 0u; /* a stalled loop skipped samples: remember consecutive ones only */
+    }
     if (app.zero_pending) {
         /* ZERO: this sample is the first of the new reference. */
         app.zero_pending = false;
         app.referenced = true;
         app.zero_seq = seq;
         app.ref_set = 0u; /* each channel's reference reading is taken afresh */
+        /* The touch-off takes the machine as it is, the estimate included: the limiter
+         * moves by the bias as it moves by the reference (no step), and the estimate starts
+         * again from the new datum (docs/service.md, "ZERO"). */
         for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
-            axis_output_zero(&app.axes[a]);
+            axis_output_t *ax = &app.axes[a];
+            if (ax->has_output && est[a].bias_nm != 0) {
+                int64_t moved = (int64_t)ax->out_nm - est[a].bias_nm;
+                int32_t lim = app.out_cfg[a].max_abs_nm;
+                if (moved > lim || moved < -(int64_t)lim) {
+                    st |= STATUS_CLAMP;
+                    moved = moved > 0 ? lim : -(int64_t)lim;
+                }
+                ax->out_nm = (int32_t)moved;
+            }
+            axis_output_zero(ax);
         }
+        est_reset_all();
+        est_ticks = false;
+        ring->count = 0u; /* readings refer to the new datum */
     }
     if (app.referenced) {
         st |= STATUS_REFERENCED;
@@ -450,14 +532,28 @@ static void take_sample(void)
         if (no_ref) {
             st |= STATUS_NO_REF; /* the filters run; no axis moves until ZERO */
         }
+        ring->head = (uint8_t)((ring->head + 1u) % BOX_MEAS_SAMPLES);
+        ring->newest_seq = seq;
+        ring->count = (uint8_t)(ring->count < BOX_MEAS_SAMPLES ? ring->count + 1u : ring->count);
         for (uint32_t a = 0; a < app.n_axes; a++) {
             bool valid = ((ok >> a) & 1u) != 0u;
-            uint16_t f = axis_output_update(&app.axes[a], &app.out_cfg[a], valid && !no_ref,
-                                            app.computed_nm[a]);
+            const tcm_service_t *svc = service_of(a);
+            if (svc && est_ticks) {
+                est_tick(&est[a], svc);
+            }
+            /* the estimate adds to the model's value before the output stage: clamp and step
+             * limit apply to the sum (the output walks to a corrected value) */
+            axis_output_t *ax = &app.axes[a];
+            uint16_t f = axis_output_update(ax, &app.out_cfg[a], valid && !no_ref,
+                                            sat_i32((int64_t)app.computed_nm[a] + est[a].bias_nm));
             if (!valid || (f & STATUS_SLEW) != 0u) {
                 app.zero_blocked = true; /* held, or still walking back to the model */
             }
             st |= f;
+            ring->model_nm[ring->head][a] = sat_i32((int64_t)app.computed_nm[a] - ax->ref_nm);
+            ring->flag[ring->head][a] = (uint8_t)((no_ref || ax->zeroing) ? MEAS_NO_REF
+                                                  : (!valid || ax->walking) ? MEAS_HOLDING
+                                                                            : MEAS_OK);
         }
     }
     app.status = st;
@@ -533,6 +629,82 @@ static void send_status(void)
     } else {
         line_put_char(l, '-');
     }
+    line_sep(l);
+    for (uint32_t a = 0; a < app.n_axes; a++) {
+        if (a > 0u) {
+            line_put_char(l, ';');
+        }
+        if (!service_of(a)) {
+            line_put_char(l, '-');
+            continue;
+        }
+        line_put_i32(l, est[a].bias_nm);
+        line_put_char(l, ':');
+        if ((snap.est_seen >> a) & 1u) {
+            line_put_i32(l, est[a].last_innovation_nm);
+        } else {
+            line_put_char(l, '-');
+        }
+        line_put_char(l, ':');
+        line_put_u32(l, snap.est_refusals[a]);
+    }
+    send_line();
+}
+
+/* ---- MEAS <axis> <nm> <seq> (docs/protocol.md, docs/service.md) -------------------------
+ * $M,<axis>,<seq>,<A|R>,<reason|->,<innovation_nm|->,<bias_nm|->,<p_nm2|->; the reasons are
+ * checked in the order of contract.protocol.MEAS_REASONS. */
+static void handle_meas(const cmd_t *c)
+{
+    const uint32_t a = c->arg;
+    const tcm_service_t *svc = service_of(a);
+    const meas_ring_t *ring = &app.ring;
+    const char *reason = NULL;
+    int shown = 2; /* 0: no estimator, 1: its state, 2: the innovation too */
+    uint32_t back = ring->newest_seq - c->seq; /* samples before the newest (wraps) */
+    uint32_t at = (ring->head + BOX_MEAS_SAMPLES - back % BOX_MEAS_SAMPLES) % BOX_MEAS_SAMPLES;
+    if (!svc) {
+        reason = app.model_ok && a >= app.n_axes ? "AXIS" : "OFF";
+        shown = 0;
+    } else if ((app.needs_ref && !app.referenced) || app.zero_pending ||
+               (back < ring->count && ring->flag[at][a] == MEAS_NO_REF)) {
+        reason = "NO_REF";
+    } else if (back >= ring->count) {
+        reason = "SEQ";
+    } else if (ring->flag[at][a] != MEAS_OK || ring->flag[ring->head][a] != MEAS_OK) {
+        reason = "HOLDING";
+    } else {
+        shown = 3;
+    }
+    if (shown == 3) {
+        bool accepted = est_measure(&est[a], svc, c->nm, ring->model_nm[at][a]);
+        snap.est_seen |= (uint32_t)1u << a;
+        snap.est_refusals[a] = accepted ? 0u : (uint16_t)(snap.est_refusals[a] + (snap.est_refusals[a] < UINT16_MAX));
+        reason = accepted ? NULL : "GATE";
+        retain_save(); /* the estimate survives a warm reset before the next sample */
+    } else if (shown == 2) {
+        shown = 1;
+    }
+    line_t *l = &app.line;
+    line_begin(l, "M");
+    line_sep(l);
+    line_put_u32(l, a);
+    line_sep(l);
+    line_put_u32(l, c->seq);
+    line_sep(l);
+    line_put_str(l, reason ? "R" : "A");
+    line_sep(l);
+    line_put_str(l, reason ? reason : "-");
+    for (int k = 0; k < 3; k++) {
+        line_sep(l);
+        if (shown < (k == 0 ? 3 : 1)) {
+            line_put_char(l, '-');
+        } else if (k == 2) {
+            line_put_u32(l, EST_P_NM2(&est[a]));
+        } else {
+            line_put_i32(l, k == 0 ? est[a].last_innovation_nm : est[a].bias_nm);
+        }
+    }
     send_line();
 }
 
@@ -570,6 +742,9 @@ static void handle_command(const cmd_t *c)
         app.zero_pending = true; /* the reference starts with the next sample */
         send_ok("ZERO", app.sampled ? app.seq - 1u : 0u);
         retain_save();
+        break;
+    case CMD_MEAS:
+        handle_meas(c);
         break;
     case CMD_ERROR:
     default:

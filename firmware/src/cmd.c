@@ -11,7 +11,7 @@ void cmd_reader_init(cmd_reader_t *r)
 
 static cmd_t error(const char *reason)
 {
-    cmd_t c = {CMD_ERROR, 0, reason};
+    cmd_t c = {CMD_ERROR, 0, reason, 0, 0};
     return c;
 }
 
@@ -50,37 +50,69 @@ static bool equals(const char *line, uint8_t len, const char *word)
     return len == n && memcmp(line, word, n) == 0;
 }
 
+/* n decimal fields separated by single spaces, each of 1 to 10 digits and below 2^32; field
+ * `neg_field` (-1: none) may start with '-' and must fit int32_t (two's complement in out).
+ * false for any other text. */
+static bool parse_fields(const char *s, uint8_t len, uint32_t *out, uint8_t n, int neg_field)
+{
+    uint8_t f = 0, digits = 0;
+    bool neg = false;
+    uint64_t v = 0;
+    for (uint16_t i = 0; i <= len; i++) {
+        char ch = i < len ? s[i] : ' ';
+        if (ch == ' ') {
+            if (digits == 0u || f >= n || v > (uint64_t)INT32_MAX + (neg ? 1u : 0u) +
+                                                   (f == neg_field ? 0u : UINT32_C(0x80000000))) {
+                return false;
+            }
+            out[f++] = neg ? (uint32_t)0u - (uint32_t)v : (uint32_t)v;
+            v = 0u;
+            digits = 0u;
+            neg = false;
+        } else if (ch == '-' && f == neg_field && digits == 0u && !neg) {
+            neg = true;
+        } else if (ch < '0' || ch > '9' || ++digits > 10u) {
+            return false;
+        } else {
+            v = v * 10u + (uint64_t)(ch - '0');
+        }
+    }
+    return f == n;
+}
+
 static cmd_t parse_rate(const char *arg, uint8_t len)
 {
-    if (len == 0u || len > 4u) { /* "3600" is the longest valid argument */
+    uint32_t n;
+    if (len > 4u || !parse_fields(arg, len, &n, 1u, -1) || n < CMD_RATE_MIN ||
+        n > CMD_RATE_MAX) { /* "3600" is the longest valid argument */
         return error("BAD_ARG");
     }
-    uint32_t n = 0;
-    for (uint8_t i = 0; i < len; i++) {
-        if (arg[i] < '0' || arg[i] > '9') {
-            return error("BAD_ARG");
-        }
-        n = n * 10u + (uint32_t)(arg[i] - '0');
-    }
-    if (n < CMD_RATE_MIN || n > CMD_RATE_MAX) {
+    cmd_t c = {CMD_RATE, n, 0, 0, 0};
+    return c;
+}
+
+static cmd_t parse_meas(const char *arg, uint8_t len)
+{
+    uint32_t v[3];
+    if (!parse_fields(arg, len, v, 3u, 1)) {
         return error("BAD_ARG");
     }
-    cmd_t c = {CMD_RATE, n, 0};
+    cmd_t c = {CMD_MEAS, v[0], 0, (int32_t)v[1], v[2]};
     return c;
 }
 
 cmd_t cmd_parse(const char *line, uint8_t len)
 {
     if (equals(line, len, "INFO")) {
-        cmd_t c = {CMD_INFO, 0, 0};
+        cmd_t c = {CMD_INFO, 0, 0, 0, 0};
         return c;
     }
     if (equals(line, len, "STATUS")) {
-        cmd_t c = {CMD_STATUS, 0, 0};
+        cmd_t c = {CMD_STATUS, 0, 0, 0, 0};
         return c;
     }
     if (equals(line, len, "ZERO")) {
-        cmd_t c = {CMD_ZERO, 0, 0};
+        cmd_t c = {CMD_ZERO, 0, 0, 0, 0};
         return c;
     }
     if (equals(line, len, "RATE")) {
@@ -88,6 +120,12 @@ cmd_t cmd_parse(const char *line, uint8_t len)
     }
     if (len >= 5u && memcmp(line, "RATE ", 5) == 0) {
         return parse_rate(line + 5, (uint8_t)(len - 5u));
+    }
+    if (equals(line, len, "MEAS")) {
+        return error("BAD_ARG");
+    }
+    if (len >= 5u && memcmp(line, "MEAS ", 5) == 0) {
+        return parse_meas(line + 5, (uint8_t)(len - 5u));
     }
     return error("UNKNOWN");
 }

@@ -144,6 +144,14 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
         crc = crc_u8(crc, ax->n_terms);
         crc = crc_i64(crc, ax->intercept_q);
         crc = crc_i32(crc, ax->max_step_nm);
+        const tcm_service_t *sv = &ax->service;
+        crc = crc_u8(crc, sv->on);
+        crc = crc_u8(crc, sv->p0_pmax);
+        crc = crc_le(crc, sv->g2_q8, 4);
+        const int64_t wide[4] = {sv->q_q8, sv->r_q8, sv->floor2_nm2, sv->pmax_q8};
+        for (int i = 0; i < 4; ++i) {
+            crc = crc_i64(crc, wide[i]);
+        }
         for (uint32_t j = 0; j < ax->n_terms; ++j, ++t) {
             const tcm_term_t *term = &m->terms[t];
             crc = crc_u8(crc, term->kind);

@@ -81,7 +81,52 @@ def test_model(period: float = 1.0) -> dict:
     # Output step limits: dx 5 um, dz 3 um per sample; dy none (codegen's default, 1 um/s).
     m["axes"]["dx_um"]["max_step_um"] = 5.0
     m["axes"]["dz_um"]["max_step_um"] = 3.0
+    # In-service estimator (MEAS) on dx and dy; dz has none (a model from before: OFF).
+    for a in ("dx_um", "dy_um"):
+        m["axes"][a]["service"] = dict(SERVICE)
     return m
+
+
+# dx's and dy's service block: P capped at 4 um^2 (a model without a start reference starts
+# there), probe noise 0.5 um, gate 4 sigma (4 sqrt(4.25) = 8.2 um) above a 3 um floor
+SERVICE = {"q_um2_per_h": 0.36, "probe_noise_um": 0.5, "gate_sigma": 4.0,
+           "gate_floor_um": 3.0, "p_max_um2": 4.0}
+
+
+def meas_expectations() -> dict[str, int]:
+    """docs/service.md's "Fixed point" steps written out again from the spec (not from
+    codegen.estimator), for a reading at P = p_max (the test model has no start reference,
+    so P starts at p_max and stays there): innovation +5000 nm (accepted), then +50 um (a
+    chip on the artifact: refused by the gate, nothing changes)."""
+    pmax = 4 * 10**6 * 256  # p_max_um2 * 1e6 nm^2 * 2^8
+    r = 25 * 10**4 * 256  # (0.5 um)^2 = 250 000 nm^2, in Q8
+    g2 = 16 * 256  # gate_sigma^2 in Q8
+    floor2 = 3000 ** 2
+
+    def rdiv16(v: int) -> int:  # half away from zero
+        return (abs(v) + 2**15) // 2**16 * (1 if v >= 0 else -1)
+
+    def gate_ok(nu: int, p: int) -> bool:
+        return nu * nu * 2**16 <= g2 * (p + r) or nu * nu <= floor2
+
+    nu1 = 5000
+    assert gate_ok(nu1, pmax)
+    k = (pmax * 2**16 + (pmax + r) // 2) // (pmax + r)
+    bias1 = rdiv16(k * nu1)
+    p1 = pmax - rdiv16(k * pmax)
+    nu2 = 50000 - bias1  # the reading is the model's value + 50 um; the bias already counts
+    assert not gate_ok(nu2, p1)
+    # P grows by q per sample after the reading: q_um2_per_h (the float's exact value) *
+    # 10^6 nm^2 * 2^8 * period / 3600 s, rounded half away from zero
+    q_exact = Fraction(SERVICE["q_um2_per_h"]) * 10**6 * 256 / 3600
+    q = math.floor(q_exact + Fraction(1, 2))
+    # one sample later, a reading that agrees with the model + bias (innovation 0)
+    p1t = min(p1 + q, pmax)
+    k2 = (p1t * 2**16 + (p1t + r) // 2) // (p1t + r)
+    p2 = p1t - rdiv16(k2 * p1t)
+    return {"VEC_MEAS_BIAS1": bias1, "VEC_MEAS_P1_NM2": (p1 + 128) // 256,
+            "VEC_MEAS_P1_TICK_NM2": (p1t + 128) // 256, "VEC_MEAS_P2_NM2": (p2 + 128) // 256,
+            "VEC_MEAS_PMAX_NM2": pmax // 256, "VEC_MEAS_GATE_NU": nu2}
 
 
 def session(rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -358,6 +403,7 @@ def main(argv: list[str]) -> int:
     axes = ";".join(gen.model.axes[a].name for a in range(len(gen.model.axes)))
     chmap = ";".join(f"{c.index}:{c.sensor}:{c.tc_type}" for c in gen.model.channels)
     zero_before = np.isin(np.arange(N_SAMPLES), ZERO_BEFORE).astype(int)
+    meas = "\n".join(f"#define {k} {v}" for k, v in meas_expectations().items())
     out = args.out_dir
     out.mkdir(parents=True, exist_ok=True)
     (out / "model_test.h").write_text(gen.text)
@@ -407,6 +453,11 @@ static const int32_t vec_out_nm[VEC_N][VEC_N_AXES] = {{
 static const uint16_t vec_status[VEC_N] = {{{c_list(e["status"])}}};
 /* ZERO is sent before these samples */
 static const bool vec_zero_before[VEC_N] = {{{c_list(zero_before)}}};
+
+/* MEAS (docs/service.md): dx and dy run the estimator, dz has none; a reading +5 um above
+ * the model at P = p_max, then +50 um (refused by the gate) */
+#define VEC_SVC_IDLE "0:-:0;0:-:0;-"
+{meas}
 
 #endif
 """)

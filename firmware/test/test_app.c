@@ -271,7 +271,7 @@ static void test_App_ShouldAnswerStatusWithPerChannelFaults(void **state)
     char payload[300];
     next_line(fake_uart_take(), payload, sizeof payload);
     /* Before any sample: NO_DATA, seq 0, uptime 5 s, no channel faults yet. */
-    assert_string_equal(payload, "S,0200,0,5,0000;0000;0000;0000;0000;0000;0000;0000,-");
+    assert_string_equal(payload, "S,0200,0,5,0000;0000;0000;0000;0000;0000;0000;0000,-," VEC_SVC_IDLE);
 
     load_vector(0);
     max31856_sim_set_fault(&fake_chips[1], 0x01); /* OPEN */
@@ -286,7 +286,7 @@ static void test_App_ShouldAnswerStatusWithPerChannelFaults(void **state)
      * vector 0; dz: T07 out of range) and none had data yet: HOLD 0x002 | RANGE 0x010 |
      * OPEN 0x020 | TC_FAULT 0x040 | AUX_FAULT 0x080 | NO_DATA 0x200 = 0x02F2. Channel words:
      * SR OPEN 0x0001, NO_RESPONSE 0x0200, RANGE 0x0100. */
-    assert_string_equal(payload, "S,02F2,0,6,0000;0001;0000;0200;0000;0000;0100;0000,-");
+    assert_string_equal(payload, "S,02F2,0,6,0000;0001;0000;0200;0000;0000;0100;0000,-," VEC_SVC_IDLE);
 }
 
 static void test_App_ShouldReferenceFromTheFirstSampleAfterZero(void **state)
@@ -300,7 +300,7 @@ static void test_App_ShouldReferenceFromTheFirstSampleAfterZero(void **state)
     fake_uart_send("STATUS\n"); /* not in force before its first sample */
     app_poll();
     next_line(fake_uart_take(), payload, sizeof payload);
-    assert_string_equal(payload + strlen(payload) - 2, ",-");
+    assert_string_equal(payload + strlen(payload) - strlen(",-," VEC_SVC_IDLE), ",-," VEC_SVC_IDLE);
     for (int i = 0; i < 3; i++) {
         load_vector(i);
         advance_and_poll(VEC_PERIOD_MS);
@@ -312,7 +312,7 @@ static void test_App_ShouldReferenceFromTheFirstSampleAfterZero(void **state)
     fake_uart_send("STATUS\nZERO\n");
     app_poll();
     const char *rest = next_line(fake_uart_take(), payload, sizeof payload);
-    assert_string_equal(payload + strlen(payload) - 2, ",0");
+    assert_string_equal(payload + strlen(payload) - strlen(",0," VEC_SVC_IDLE), ",0," VEC_SVC_IDLE);
     next_line(rest, payload, sizeof payload);
     /* dy holds on samples 0-2 (spindle input out of range): a datum taken now would not be a
      * healthy box's, so ZERO is refused and the reference stays */
@@ -330,7 +330,7 @@ static void test_App_ShouldReferenceFromTheFirstSampleAfterZero(void **state)
     fake_uart_send("STATUS\n");
     app_poll();
     next_line(fake_uart_take(), payload, sizeof payload);
-    assert_string_equal(payload + strlen(payload) - 2, ",4");
+    assert_string_equal(payload + strlen(payload) - strlen(",4," VEC_SVC_IDLE), ",4," VEC_SVC_IDLE);
 }
 
 /* Every channel at 25 degC, T05 plus t05_extra; T07, the channel with a stuck check, reads
@@ -389,7 +389,7 @@ static void test_App_ShouldFlagAGlitchAndHoldTheChannelsLastGoodValue(void **sta
     assert_int_equal(glitch.status & 0x0002u, 0);       /* no HOLD: the axes keep correcting */
     assert_int_equal(glitch.codes[4], 25 * 128 + 12800); /* the line shows the code as read */
     /* channel 4's word: implausible (0x0400) */
-    const char *words = ",0000;0000;0000;0000;0400;0000;0000;0000,-";
+    const char *words = ",0000;0000;0000;0000;0400;0000;0000;0000,-," VEC_SVC_IDLE;
     assert_string_equal(payload + strlen(payload) - strlen(words), words);
     assert_int_equal(after.status & 0x1000u, 0);
     /* the model got T05's last good value and its filters never saw the glitch: every axis
@@ -426,14 +426,14 @@ static void test_App_ShouldFaultAStuckChannelUntilItMoves(void **state)
         assert_int_equal(s.codes[VEC_STILL_CHANNEL], frozen); /* the line shows the code */
     }
     status_words(payload, sizeof payload);
-    const char *stuck = ",0000;0000;0000;0000;0000;0000;1000;0000,-"; /* 0x1000 STUCK */
+    const char *stuck = ",0000;0000;0000;0000;0000;0000;1000;0000,-," VEC_SVC_IDLE; /* STUCK */
     assert_string_equal(payload + strlen(payload) - strlen(stuck), stuck);
     /* The code moves one LSB: judged by the guard against its last good reading (the frozen
      * code, plausible), accepted; the fault clears at once. */
     steady_sample_t07(0, frozen + 1, &s);
     assert_int_equal(s.status & 0x0002u, 0);
     status_words(payload, sizeof payload);
-    const char *clear = ",0000;0000;0000;0000;0000;0000;0000;0000,-";
+    const char *clear = ",0000;0000;0000;0000;0000;0000;0000;0000,-," VEC_SVC_IDLE;
     assert_string_equal(payload + strlen(payload) - strlen(clear), clear);
     /* A chip fault ends the run: the same code again afterwards counts from 1. */
     for (int k = 1; k < VEC_MAX_STILL; k++) {
@@ -494,6 +494,167 @@ static void test_App_ShouldAnswerErrorsAndKeepSampling(void **state)
     assert_memory_equal(fake_uart_take(), "$C,0,", 5);
 }
 
+/* ---- MEAS (docs/protocol.md, docs/service.md): expectations from gen_test_model.py ------ */
+
+static void meas(uint32_t axis, int32_t nm, uint32_t seq, char *payload, size_t cap)
+{
+    char cmd[64];
+    snprintf(cmd, sizeof cmd, "MEAS %u %d %u\n", (unsigned)axis, (int)nm, (unsigned)seq);
+    fake_uart_send(cmd);
+    app_poll();
+    next_line(fake_uart_take(), payload, cap);
+}
+
+static void expect_line(const char *payload, const char *fmt, ...)
+{
+    char want[300];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(want, sizeof want, fmt, ap);
+    va_end(ap);
+    assert_string_equal(payload, want);
+}
+
+/* Settled at 25 degC (dx tracks its model, P at p_max): the latest sample's seq and line. */
+static uint32_t settle(sample_line_t *s, int n)
+{
+    for (int i = 0; i < n; i++) {
+        steady_sample(0, s);
+    }
+    assert_int_equal(s->status & 0x1006u, 0);
+    return s->seq;
+}
+
+static void test_App_ShouldApplyAReadingThroughTheStepLimit(void **state)
+{
+    (void)state;
+    sample_line_t s, next, last[4];
+    char payload[300];
+    settle(&s, 196);
+    for (int i = 0; i < 4; i++) {
+        steady_sample(0, &last[i]); /* the model drifts slowly (lags): keep each sample's */
+    }
+    s = last[3];
+    uint32_t seq = s.seq;
+    /* dx's model value at seq is what the line carried (no reference, no bias, settled) */
+    meas(0, s.corr[0] + 5000, seq, payload, sizeof payload);
+    expect_line(payload, "M,0,%u,A,-,5000,%d,%d", (unsigned)seq, VEC_MEAS_BIAS1,
+                VEC_MEAS_P1_NM2);
+    steady_sample(0, &next); /* the bias reaches the output from the next sample on */
+    assert_true(labs((long)next.corr[0] - s.corr[0] - VEC_MEAS_BIAS1) <= 200L); /* + the drift */
+    assert_true(next.corr[0] - s.corr[0] <= 5000); /* within dx's 5 um step */
+    status_words(payload, sizeof payload);
+    char tail[64];
+    snprintf(tail, sizeof tail, ",-,%d:5000:0;0:-:0;-", VEC_MEAS_BIAS1);
+    assert_string_equal(payload + strlen(payload) - strlen(tail), tail);
+    /* a reading of a sample 3 back is still remembered (against dx's model value then, plus
+     * the bias now: innovation 0), 4 back is not, nor one not produced yet */
+    meas(0, last[1].corr[0] + VEC_MEAS_BIAS1, last[1].seq, payload, sizeof payload);
+    expect_line(payload, "M,0,%u,A,-,0,%d,%d", (unsigned)last[1].seq, VEC_MEAS_BIAS1,
+                VEC_MEAS_P2_NM2);
+    meas(0, last[0].corr[0], last[0].seq, payload, sizeof payload);
+    expect_line(payload, "M,0,%u,R,SEQ,-,%d,%d", (unsigned)last[0].seq, VEC_MEAS_BIAS1,
+                VEC_MEAS_P2_NM2);
+    meas(0, s.corr[0], next.seq + 1u, payload, sizeof payload);
+    expect_line(payload, "M,0,%u,R,SEQ,-,%d,%d", (unsigned)(next.seq + 1u), VEC_MEAS_BIAS1,
+                VEC_MEAS_P2_NM2);
+}
+
+static void test_App_ShouldRefuseAChipOnTheArtifactAtTheGate(void **state)
+{
+    (void)state;
+    sample_line_t s, next;
+    char payload[300];
+    uint32_t seq = settle(&s, 200);
+    meas(0, s.corr[0] + 5000, seq, payload, sizeof payload);
+    steady_sample(0, &s); /* the bias is in the line now (4.7 um < dx's 5 um step) */
+    /* +50 um on the artifact: the innovation counts the bias already in force */
+    meas(0, s.corr[0] - VEC_MEAS_BIAS1 + 50000, s.seq, payload, sizeof payload);
+    expect_line(payload, "M,0,%u,R,GATE,%d,%d,%d", (unsigned)s.seq, VEC_MEAS_GATE_NU,
+                VEC_MEAS_BIAS1, VEC_MEAS_P1_TICK_NM2);
+    meas(0, s.corr[0] - VEC_MEAS_BIAS1 + 50000, s.seq, payload, sizeof payload);
+    steady_sample(0, &next);
+    assert_int_equal(next.corr[0], s.corr[0]); /* never moves the tool */
+    status_words(payload, sizeof payload);
+    char tail[64];
+    snprintf(tail, sizeof tail, ",-,%d:%d:2;0:-:0;-", VEC_MEAS_BIAS1, VEC_MEAS_GATE_NU);
+    assert_string_equal(payload + strlen(payload) - strlen(tail), tail); /* 2 refusals */
+}
+
+static void test_App_ShouldRefuseMeasWithAReason(void **state)
+{
+    (void)state;
+    sample_line_t s;
+    char payload[300];
+    uint32_t seq = settle(&s, 200);
+    meas(7, 0, seq, payload, sizeof payload);
+    expect_line(payload, "M,7,%u,R,AXIS,-,-,-", (unsigned)seq);
+    meas(2, 0, seq, payload, sizeof payload); /* dz has no service block */
+    expect_line(payload, "M,2,%u,R,OFF,-,-,-", (unsigned)seq);
+    /* dx holds: T02 (dx reads it) open */
+    max31856_sim_set_fault(&fake_chips[1], 0x01);
+    advance_and_poll(VEC_PERIOD_MS);
+    (void)fake_uart_take();
+    meas(0, 0, seq + 1u, payload, sizeof payload);
+    expect_line(payload, "M,0,%u,R,HOLDING,-,0,%d", (unsigned)(seq + 1u), VEC_MEAS_PMAX_NM2);
+    meas(0, 0, seq, payload, sizeof payload); /* a good sample, but dx holds now */
+    expect_line(payload, "M,0,%u,R,HOLDING,-,0,%d", (unsigned)seq, VEC_MEAS_PMAX_NM2);
+    /* ZERO: no reference until it is in force and averaged (BOX_ZERO_SAMPLES) */
+    seq = settle(&s, 30);
+    fake_uart_send("ZERO\n");
+    app_poll();
+    (void)fake_uart_take();
+    meas(1, 0, seq, payload, sizeof payload);
+    expect_line(payload, "M,1,%u,R,NO_REF,-,0,%d", (unsigned)seq, VEC_MEAS_PMAX_NM2);
+    for (int i = 0; i < BOX_ZERO_SAMPLES; i++) {
+        steady_sample(0, &s);
+        meas(1, s.corr[1], s.seq, payload, sizeof payload);
+        if (i + 1 < BOX_ZERO_SAMPLES) {
+            expect_line(payload, "M,1,%u,R,NO_REF,-,0,%d", (unsigned)s.seq, VEC_MEAS_PMAX_NM2);
+        }
+    }
+    /* the reference is complete at the K-th sample: dy's model value there is its line */
+    expect_line(payload, "M,1,%u,A,-,0,0,%d", (unsigned)s.seq, VEC_MEAS_P1_NM2);
+    meas(1, 0, s.seq - 1u, payload, sizeof payload); /* from before: still averaging */
+    expect_line(payload, "M,1,%u,R,NO_REF,-,0,%d", (unsigned)(s.seq - 1u), VEC_MEAS_P1_NM2);
+    fake_uart_send("MEAS 0 x 1\nMEAS 0 1\nMEAS 0 1 2 3\nMEAS 0 2147483648 1\n");
+    app_poll();
+    const char *rest = fake_uart_take();
+    for (int i = 0; i < 4; i++) {
+        rest = next_line(rest, payload, sizeof payload);
+        assert_string_equal(payload, "E,BAD_ARG");
+    }
+}
+
+static void test_App_ShouldKeepTheEstimateOverAWarmReset(void **state)
+{
+    (void)state;
+    sample_line_t s, after;
+    char payload[300], before_status[300];
+    uint32_t seq = settle(&s, 200);
+    meas(0, s.corr[0] + 5000, seq, payload, sizeof payload);
+    status_words(before_status, sizeof before_status);
+    fake_reset_by_watchdog = true; /* the estimate is retained at once, not at the next sample */
+    app_init();
+    (void)fake_uart_take();
+    status_words(payload, sizeof payload);
+    const char *svc_before = strrchr(before_status, ',');
+    assert_string_equal(strrchr(payload, ','), svc_before); /* bias, innovation, refusals */
+    steady_sample(0, &after);
+    assert_int_equal(after.seq, seq + 1u);
+    assert_true(labs((long)after.corr[0] - s.corr[0] - VEC_MEAS_BIAS1) <= 200L); /* + the drift */
+    /* the samples before the reset are forgotten (SEQ); the bias is not */
+    meas(0, after.corr[0], seq, payload, sizeof payload);
+    expect_line(payload, "M,0,%u,R,SEQ,-,%d,%d", (unsigned)seq, VEC_MEAS_BIAS1,
+                VEC_MEAS_P1_TICK_NM2);
+    /* a cold boot forgets it */
+    fake_retain_clear();
+    app_init();
+    (void)fake_uart_take();
+    status_words(payload, sizeof payload);
+    assert_string_equal(payload + strlen(payload) - strlen(VEC_SVC_IDLE), VEC_SVC_IDLE);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -512,6 +673,10 @@ int main(void)
         cmocka_unit_test_setup(test_App_ShouldReferenceFromTheFirstSampleAfterZero, boot),
         cmocka_unit_test_setup(test_App_ShouldFlagAGlitchAndHoldTheChannelsLastGoodValue, boot),
         cmocka_unit_test_setup(test_App_ShouldFaultAStuckChannelUntilItMoves, boot),
+        cmocka_unit_test_setup(test_App_ShouldApplyAReadingThroughTheStepLimit, boot),
+        cmocka_unit_test_setup(test_App_ShouldRefuseAChipOnTheArtifactAtTheGate, boot),
+        cmocka_unit_test_setup(test_App_ShouldRefuseMeasWithAReason, boot),
+        cmocka_unit_test_setup(test_App_ShouldKeepTheEstimateOverAWarmReset, boot),
     };
     return cmocka_run_group_tests_name("app", tests, NULL, NULL);
 }
