@@ -74,7 +74,7 @@ def test_header_compiles_warning_free_on_host_and_cortex_m4(name, tmp_path):
 @pytest.mark.skipif(GCC is None, reason="needs gcc")
 def test_stale_header_format_is_a_compile_error(tmp_path):
     gen = _write_header(tmp_path, "one_term")
-    stale = gen.text.replace("#define TCM_HEADER_FORMAT 5", "#define TCM_HEADER_FORMAT 4")
+    stale = gen.text.replace("#define TCM_HEADER_FORMAT 6", "#define TCM_HEADER_FORMAT 5")
     assert stale != gen.text
     (tmp_path / "model.h").write_text(stale)
     r = _compile(GCC, ["-c", "use.c", "-o", "/dev/null"], tmp_path)
@@ -142,6 +142,7 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
             Fraction(m["sample_period_s"])
         out += struct.pack("<BBqi", fp["shift"], len(ax["terms"]), fp["intercept_q"],
                            max(1, math.ceil(step_um * 1000)))
+        out += _service_bytes(m, ax.get("service"))
         for t, ft in zip(ax["terms"], fp["terms"], strict=True):
             k = t["kind"]
             if k in ("lag", "rate"):
@@ -157,6 +158,23 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
             state = states.setdefault((src, param), len(states)) if k in ("lag", "rate") else 0
             out += struct.pack("<BBBiq", kinds.index(k), src, state, param, ft["coef_q"])
     return out
+
+
+def _service_bytes(m: dict, sv: dict | None) -> bytes:
+    """docs/fixed-point.md's estimator fields, from docs/service.md's table (issue 42)."""
+    if sv is None:
+        return struct.pack("<BBI4q", 0, 0, 0, 0, 0, 0, 0)
+
+    def q(x: Fraction) -> int:  # half away from zero (all non-negative here)
+        return math.floor(x + Fraction(1, 2))
+
+    start = (m.get("reference") or {}).get("kind") == "start"
+    pmax = q(Fraction(sv["p_max_um2"]) * 10**6 * 256)
+    return struct.pack(
+        "<BBI4q", 1, 0 if start else 1, q(Fraction(sv["gate_sigma"]) ** 2 * 256),
+        q(Fraction(sv["q_um2_per_h"]) * 10**6 * 256 * Fraction(m["sample_period_s"]) / 3600),
+        max(1, q(Fraction(sv["probe_noise_um"]) ** 2 * 10**6 * 256)),
+        q(Fraction(sv["gate_floor_um"]) ** 2 * 10**6), pmax)
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))
@@ -333,3 +351,18 @@ def test_c_matches_twin_bit_for_bit_and_float_within_bound(name, tmp_path, capsy
                   f"claimed bound {b.bound_um:.6f} um")
     for ax, b, e in zip(gen.model.axes, gen.bounds, measured, strict=True):
         assert e <= b.bound_um + FLOAT_SLACK_UM, f"{name}/{ax.name}: {e} > {b.bound_um}"
+
+
+def test_crc_covers_the_service_block_as_documented():
+    """A model with per-axis service blocks (issue 42): its header's CRC matches the
+    documented serialisation, and a changed parameter changes the CRC."""
+    m = model("all_kinds")
+    m["reference"] = {"kind": "start", "samples": 8}
+    for i, ax in enumerate(m["axes"].values()):
+        if i % 2 == 0:
+            ax["service"] = {"q_um2_per_h": 0.0137, "probe_noise_um": 0.5, "gate_sigma": 4.0,
+                             "gate_floor_um": 3.0, "p_max_um2": 6.25}
+    gen = codegen.generate(m)
+    assert gen.crc32 == zlib.crc32(independent_serialisation(m, gen.fixed_point))
+    next(iter(m["axes"].values()))["service"]["gate_sigma"] = 5.0
+    assert codegen.generate(m).crc32 != gen.crc32
