@@ -75,6 +75,9 @@ def test_translator_names_samples_and_tolerates_new_lines():
     assert ev["event"] == "probe" and ev["residual_um"] == {"dz_um": -0.8}
     [(_, s2)] = tr.line(protocol.encode_sample(8, 0, (0, 0), (1, 1)), now)
     assert s2["probe"]["residual_um"] == {"dz_um": -0.8}
+    # the firmware's $M answer (issue 42): axis, seq, A|R, reason, innovation nm, ...
+    [(_, ev)] = tr.line(protocol.encode_line("M", ["dx_um", 8, "A", "-", 1200, 300, 40]), now)
+    assert ev["event"] == "probe" and ev["residual_um"] == {"dx_um": 1.2}
     # an unknown kind with a good CRC: passed on, not an error
     [(_, ev)] = tr.line(protocol.encode_line("X", ["1", "2"]), now)
     assert ev["event"] == "unknown_line" and "'X'" in ev["message"]

@@ -137,9 +137,11 @@ class Translator:
         if isinstance(message, protocol.Ack):
             return [self.event("reply", f"OK {message.command} {message.value}", now,
                                reply="OK", command=message.command, value=message.value)]
-        assert isinstance(message, protocol.ErrorReply)
-        return [self.event("reply", f"E {message.reason}", now, reply="E",
-                           reason=message.reason)]
+        if isinstance(message, protocol.ErrorReply):
+            return [self.event("reply", f"E {message.reason}", now, reply="E",
+                               reason=message.reason)]
+        # a kind the decoder knows but this gateway does not (a MEAS answer, a newer line)
+        return self._undecoded(raw, "", now)
 
     def _sample(self, s: protocol.Sample, now: float) -> tuple[str, dict]:
         box, info = self.box, self.box.info
@@ -182,14 +184,20 @@ class Translator:
                            "report)", now, line=text, count=count, total=box.bad_lines)]
 
     def _probe(self, fields: list[str], text: str, now: float) -> tuple[str, dict]:
-        """A MEAS answer (docs/service.md: innovation, accepted, reason, bias, p) whose
-        layout this contract does not fix yet: ``$OK,MEAS,<axis>,<innovation_nm>,...`` or
-        ``$M,<seq>,<axis>,<innovation_nm>,...``. The first axis name and the first integer
-        after it are read as the residual; the raw fields always go along."""
+        """A MEAS answer: the firmware's ``$M,<axis>,<seq>,<A|R>,<reason>,<innovation_nm>,...``
+        (issue 42) gives the residual exactly; any other layout (``$OK,MEAS,...``) is read
+        leniently: the first axis name and the first integer after it. The raw fields always
+        go along."""
         rest = fields[2:] if fields[0] == "OK" else fields[1:]
         axes = list(self.box.info.axes) if self.box.info else []
         residual: dict[str, float] = {}
         seq = None
+        # the firmware's $M,<axis>,<seq>,<A|R>,<reason|->,<innovation_nm|->,<bias_nm|->,<p|->
+        if fields[0] == "M" and len(rest) >= 5 and rest[2] in ("A", "R"):
+            if _INT_RE.fullmatch(rest[4]):
+                residual[rest[0]] = int(rest[4]) / 1000.0
+            seq = int(rest[1]) if _INT_RE.fullmatch(rest[1]) else None
+            rest = []
         for i, f in enumerate(rest):
             if f in axes or (not axes and not _INT_RE.fullmatch(f) and f):
                 nums = [int(x) for x in rest[i + 1:] if _INT_RE.fullmatch(x)]
@@ -198,13 +206,14 @@ class Translator:
                 break
             if seq is None and _INT_RE.fullmatch(f):
                 seq = int(f)
-        accepted = next((f for f in rest if f in ("ACCEPTED", "REFUSED", "1", "0")), None)
+        flags_ = fields[2:] if fields[0] == "OK" else fields[1:]
+        accepted = next((f for f in flags_ if f in ("A", "R", "ACCEPTED", "REFUSED")), None)
         if residual:
             self.box.probe = {"residual_um": residual, "t": round(now, 3), "seq": seq,
                               "accepted": accepted}
         return self.event("probe", "probe answer: " + (", ".join(
             f"{a} residual {v:+.3f}" for a, v in residual.items()) or "no residual read"),
-            now, line=text, fields=rest, residual_um=residual)
+            now, line=text, fields=flags_, residual_um=residual)
 
 
 @dataclass
