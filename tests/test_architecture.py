@@ -21,7 +21,7 @@ BELOW = {
     "host.progress": set(),
     "host.parallel": {"host.progress"},
     "host.io": {"contract"},
-    "host.fitting": {"contract", "host.io"},
+    "host.fitting": {"contract", "host.io", "codegen"},  # step_limits: the box's code quantisation
     "host.sim": {"contract", "host.io", "host.fitting", "host.progress"},
     "host.selection": {"contract", "host.io", "host.fitting", "host.progress"},
     "host.effects": {"contract", "host.io", "host.fitting", "host.selection", "host.progress"},
