@@ -126,6 +126,9 @@ class ReplayReport:
     problems_fatal: bool = False  # the replay itself broke (timeout, crash)
     extra_checks: dict[str, bool] = field(default_factory=dict)  # e.g. qemu_equals_native
 
+    # MEAS (issue 42): per axis static / updated RMS, readings applied and refused
+    service: dict[str, dict] = field(default_factory=dict)
+
     @property
     def float_ok(self) -> bool:
         return all(a.float_max_diff_um is None or a.bound_um is None
@@ -259,6 +262,7 @@ class ReplayReport:
         out = {
             "samples": self.samples,
             "mismatches": self.mismatches,
+            **({"service": self.service} if self.service else {}),
             "max_abs_diff_nm": self.max_abs_diff_nm,
             "axes": {name: a.to_json() for name, a in self.axes.items()},
             "ok": self.ok,
@@ -450,6 +454,9 @@ def _float_differences(session: Session, exp: Expected, model: dict, feed: Feed,
         float_codes[rows] = exp.model_codes
     pred = float_predictions(model, feed, float_codes, rows)
     ref = exp.ref_nm if exp.ref_nm is not None else np.zeros_like(exp.out_nm)
+    # and without the in-service estimate (MEAS, issue 42), which the float model lacks
+    if exp.bias_nm is not None and exp.bias_nm.shape == ref.shape:
+        ref = ref - exp.bias_nm
     d = np.abs((rx.out_nm[rows][local[direct]] + ref[local[direct]]) / 1000.0
                - pred[local[direct]])
     return d.max(axis=0), int(direct.sum())

@@ -45,6 +45,7 @@ def format_table(report: ReplayReport, data: str) -> str:
                      f"{_fmt(a.compensated_rms_um):>9} {_fmt(a.compensated_peak_um):>10} "
                      f"{a.max_abs_diff_nm:>10d} {_fmt(a.float_max_diff_um, 6):>11} "
                      f"{_fmt(a.bound_um, 6):>9}")
+    lines += format_service(report)
     lines.append("")
     checks = {k: "PASS" if v else "FAIL" for k, v in report.checks.items()}
     lines.append(f"1. firmware = twin, bit for bit   {checks['twin_bit_exact']}"
@@ -128,6 +129,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="judge the run by its change since the start (start) or against one "
                         "fixed datum (none), and zero the box at power-up to match "
                         "(default: the model's reference)")
+    g = p.add_argument_group(
+        "probe readings (issue 42)", "a touch probe's readings sent as MEAS <axis> <nm> <seq> "
+        "after the sample they read; the box's $M replies and shifted outputs are checked "
+        "against codegen.estimator. Without --probe-every a run's logged probe_<axis> columns "
+        "are used as they are")
+    g.add_argument("--probe-every", default=None, metavar="DURATION",
+                   help="synthesise a reading every DURATION (30min, 2h, 900s) from the run's "
+                        "measured displacement")
+    g.add_argument("--probe-noise-um", type=float, default=0.5,
+                   help="the synthesised readings' noise, um (default 0.5)")
+    g.add_argument("--probe-seed", type=int, default=0, help="their noise seed (default 0)")
+    g.add_argument("--probe-when", choices=("interval", "stopped"), default="interval",
+                   help="on the clock, or only while the spindle stands (default interval)")
     d = Judging()
     p.add_argument("--max-held-fraction", type=float, default=d.max_held_fraction,
                    help="fail when more than this share of the samples held (HOLD/NO_DATA; "
@@ -158,7 +172,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise ValueError(f"--zero-at {bad[0]}: the run has samples 0..{n - 1}")
     setup.judging = Judging(args.max_held_fraction, args.max_limited_fraction,
                             max_clamped_fraction=args.max_clamped_fraction)
-    events = [Zero(z) for z in sorted(set(args.zero_at))]
+    events: list = [Zero(z) for z in sorted(set(args.zero_at))]
+    events += probe_events(setup, args)
     if args.target == "qemu":
         from hil import qemu
         from hil.checks import capture_differences
@@ -183,6 +198,50 @@ def cmd_replay(args: argparse.Namespace) -> int:
     else:
         print(format_table(report, args.data))
     return 0 if report.ok else 1
+
+
+def probe_events(setup, args: argparse.Namespace) -> list:
+    """MEAS events from synthesised (--probe-every) or logged (probe_<axis>) readings: the
+    reading of sample k goes to the box after k's line, before sample k + 1."""
+    from codegen.estimator import to_nm
+    from hil.runner import Meas
+    from host.service.probes import (
+        ProbePlan,
+        any_logged,
+        duration_s,
+        logged_probes,
+        synthesise_probes,
+    )
+
+    feed = setup.feed
+    if args.probe_every is not None:
+        plan = ProbePlan(duration_s(args.probe_every), args.probe_noise_um, args.probe_seed,
+                         args.probe_when)
+        readings = synthesise_probes(feed.run, feed.measured, plan)
+    elif any_logged(args.data, feed.axes):
+        readings = logged_probes(args.data, feed.run, feed.axes)
+    else:
+        return []
+    events = []
+    for axis, idx in readings.index.items():
+        a = feed.axes.index(axis)
+        for k, v in zip(idx.tolist(), readings.value[axis].tolist(), strict=True):
+            if k + 1 < feed.n_samples:
+                events.append(Meas(k + 1, a, to_nm(v), k))
+    return sorted(events, key=lambda e: (e.at, e.axis))
+
+
+def format_service(report: ReplayReport) -> list[str]:
+    """Per axis: static and updated RMS, readings applied and refused (issue 42)."""
+    if not report.service:
+        return []
+    lines = ["", f"{'axis':<10} {'static rms':>11} {'updated rms':>12} {'probes':>7} "
+             f"{'applied':>8}  refused"]
+    for name, v in report.service.items():
+        refused = ", ".join(f"{k} {n}" for k, n in v["refused"].items()) or "-"
+        lines.append(f"{name:<10} {v['static_rmse_um']:>11.3f} {v['updated_rmse_um']:>12.3f} "
+                     f"{v['probes']:>7d} {v['applied']:>8d}  {refused}")
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from codegen import estimator as est
 from codegen.fixed import (
     GUARD_FAULT,
     GUARD_HELD,
@@ -31,7 +32,7 @@ from codegen.fixed import (
     FixedModel,
 )
 from contract.errors import InputError
-from contract.protocol import STATUS_BITS, ChannelFault, Status, status_names
+from contract.protocol import STATUS_BITS, ChannelFault, MeasReply, Status, status_names
 from contract.terms import AUX_KINDS, TEMPERATURE_KINDS
 
 # The status word has one home, contract.protocol (docs/protocol.md); short names here.
@@ -65,6 +66,7 @@ class OutputConfig:
     zero_samples: int = 8  # BOX_ZERO_SAMPLES
     beyond_span_percent: int = 50  # BOX_BEYOND_SPAN_PERCENT
     beyond_min_codes: int = 640  # BOX_BEYOND_MIN_CODES
+    meas_samples: int = 4  # BOX_MEAS_SAMPLES: samples the box remembers for MEAS
 
     def beyond_limits(self, wlo: np.ndarray, whi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per channel, the codes beyond which a reading is BEYOND (box_config.h)."""
@@ -83,7 +85,7 @@ class OutputConfig:
         for name in ("BOX_SLEW_NM_PER_S", "BOX_MAX_CORRECTION_NM", "BOX_COLD_START_SLEW",
                      "BOX_MAX_CHANNELS", "BOX_MAX_AXES", "BOX_MAX_AUX",
                      "BOX_IMPLAUSIBLE_FAULT_SAMPLES", "BOX_ZERO_SAMPLES",
-                     "BOX_BEYOND_SPAN_PERCENT", "BOX_BEYOND_MIN_CODES"):
+                     "BOX_BEYOND_SPAN_PERCENT", "BOX_BEYOND_MIN_CODES", "BOX_MEAS_SAMPLES"):
             m = re.search(rf"^#define {name} (\d+)\s*$", text, re.M)
             if m is None:
                 raise InputError(f"{config_h}: no '#define {name} <number>' default")
@@ -95,7 +97,8 @@ class OutputConfig:
                    bool(values["BOX_COLD_START_SLEW"]), values["BOX_MAX_CHANNELS"],
                    values["BOX_MAX_AXES"], values["BOX_MAX_AUX"],
                    values["BOX_IMPLAUSIBLE_FAULT_SAMPLES"], values["BOX_ZERO_SAMPLES"],
-                   values["BOX_BEYOND_SPAN_PERCENT"], values["BOX_BEYOND_MIN_CODES"])
+                   values["BOX_BEYOND_SPAN_PERCENT"], values["BOX_BEYOND_MIN_CODES"],
+                   values["BOX_MEAS_SAMPLES"])
 
     def check_fits(self, n_channels: int, n_axes: int, n_aux: int, what: str) -> None:
         """The firmware refuses (MODEL_BAD) a model larger than its build-time capacity."""
@@ -119,6 +122,50 @@ class Expected:
     model_codes: np.ndarray | None = None  # (n, n_channels): what the model got (guarded)
     ref_nm: np.ndarray | None = None  # (n, axes): the ZERO reference in force (0 without)
     zero_refused: tuple[int, ...] = ()  # samples before which ZERO was refused (HOLDING)
+    meas_replies: tuple[MeasReply, ...] = ()  # the $M answers to MEAS, in order
+    bias_nm: np.ndarray | None = None  # (n, axes): the estimate added at each sample
+
+
+@dataclass
+class ServiceOut:
+    """What the in-service estimator twin produced over a session (output_stage_ref)."""
+
+    replies: list[MeasReply]
+    bias_nm: np.ndarray
+
+
+# MEAS (issue 42): a reading of a sample with an incomplete reference / a held axis
+_MEAS_OK, _MEAS_NO_REF, _MEAS_HOLDING = 0, 1, 2
+
+
+def _sat32(v: int) -> int:
+    return max(-(2**31), min(2**31 - 1, v))
+
+
+def _meas_reply(axis: int, seq: int, nm: int, latest: int, ring_start: int, ring: dict,
+                states: list, params: Sequence, no_reference: bool, window: int
+                ) -> MeasReply:
+    """The box's answer to ``MEAS axis nm seq`` before sample ``latest + 1`` (app.c
+    handle_meas; the reasons in contract.protocol.MEAS_REASONS' order)."""
+    box_seq = seq % 2**32
+    if axis >= len(params) or params[axis] is None:
+        return MeasReply(axis, box_seq, False, "AXIS" if axis >= len(params) else "OFF",
+                         None, None, None)
+    st, pa = states[axis], params[axis]
+
+    def refuse(reason: str) -> MeasReply:
+        return MeasReply(axis, box_seq, False, reason, None, st.bias_nm, (st.p_q8 + 128) >> 8)
+
+    held = max(ring_start, latest - window + 1) <= seq <= latest
+    if no_reference or (held and ring[seq][1][axis] == _MEAS_NO_REF):
+        return refuse("NO_REF")
+    if not held:
+        return refuse("SEQ")
+    if ring[seq][1][axis] != _MEAS_OK or ring[latest][1][axis] != _MEAS_OK:
+        return refuse("HOLDING")
+    m = est.measure(st, pa, nm, ring[seq][0][axis])
+    return MeasReply(axis, box_seq, m.accepted, None if m.accepted else "GATE",
+                     st.last_innovation_nm, st.bias_nm, (st.p_q8 + 128) >> 8)
 
 
 def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
@@ -205,8 +252,10 @@ def guard_channels(codes: np.ndarray, in_range: np.ndarray, max_step: Sequence[i
 def output_stage_ref(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
                      step: int, track: Sequence[int] | None = None,
                      zero_before: Sequence[int] = (), needs_ref: bool = False,
-                     resets: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                          list[int]]:
+                     resets: Sequence[int] = (), service: Sequence | None = None,
+                     meas: dict[int, list[tuple[int, int, int, bool]]] | None = None,
+                     meas_samples: int = 4, svc_out: ServiceOut | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
     """The axis output stage over a session (codegen.fixed.AxisOutput per axis):
     (out_nm [n, axes], status bits [n], reference [n, axes], accepted ZEROs).
 
@@ -216,7 +265,11 @@ def output_stage_ref(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputC
     axis's inputs were faulted, or an axis walked (SLEW), at the sample before it (not after
     a reset: nothing sampled).
     ``needs_ref``: a start-referenced model after a cold power-up: until the first accepted
-    ZERO every axis holds (NO_REF). ``resets``: samples before which a warm reset happened."""
+    ZERO every axis holds (NO_REF). ``resets``: samples before which a warm reset happened.
+    ``service``: per axis its estimator parameters (codegen.estimator.FixedParams, None: no
+    service block); ``meas``: sample -> the readings sent before it, (axis, nm, seq,
+    after_zero: sent after a ZERO at the same point); the answers and the bias per sample go
+    to ``svc_out`` (docs/service.md, "On the box")."""
     n, n_axes = computed_nm.shape
     out = np.zeros((n, n_axes), dtype=np.int64)
     ref = np.zeros((n, n_axes), dtype=np.int64)
@@ -228,20 +281,57 @@ def output_stage_ref(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputC
     referenced = False
     ok_rows = computed.tolist()
     val_rows = computed_nm.tolist()
+    params = list(service) if service is not None else [None] * n_axes
+    states = [est.reset(p) if p is not None else est.FixedState() for p in params]
+    bias = np.zeros((n, n_axes), dtype=np.int64)
+    ring: dict[int, tuple[list[int], list[int]]] = {}
+    ring_start = 0
+    replies: list[MeasReply] = []
+    meas = meas or {}
     for i in range(n):
-        if i in zeros and (i == 0 or i in warm
-                           or (all(ok_rows[i - 1]) and not bits[i - 1] & int(Status.SLEW))):
+        zero_now = i in zeros and (i == 0 or i in warm or (
+            all(ok_rows[i - 1]) and not bits[i - 1] & int(Status.SLEW)))
+        if i in warm:
+            ring_start = i  # the box forgets its samples over a reset (not retained)
+        for axis, nm, seq, after_zero in meas.get(i, []):
+            replies.append(_meas_reply(axis, seq, nm, i - 1, ring_start, ring, states, params,
+                                       (needs_ref and not referenced) or
+                                       (after_zero and zero_now), meas_samples))
+        ticks = i > 0
+        if zero_now:
             accepted.append(i)
             referenced = True
-            for ax in axes:
+            for a, ax in enumerate(axes):
+                if ax.has_output and states[a].bias_nm:  # the datum takes the bias too
+                    moved = ax.out_nm - states[a].bias_nm
+                    if abs(moved) > cfg.max_abs_nm:
+                        bits[i] |= CLAMP
+                        moved = cfg.max_abs_nm if moved > 0 else -cfg.max_abs_nm
+                    ax.out_nm = moved
                 ax.zero()
+            states = [est.reset(p) if p is not None else est.FixedState() for p in params]
+            ticks = False
+            ring_start = i
         no_ref = needs_ref and not referenced
         if no_ref:
             bits[i] |= NO_REF
+        entry: tuple[list[int], list[int]] = ([0] * n_axes, [0] * n_axes)
         for a, ax in enumerate(axes):
-            for name in ax.update(bool(ok_rows[i][a]) and not no_ref, int(val_rows[i][a])):
+            if params[a] is not None and ticks:
+                est.tick(states[a], params[a])
+            valid = bool(ok_rows[i][a])
+            value = int(val_rows[i][a])
+            bias[i, a] = states[a].bias_nm
+            for name in ax.update(valid and not no_ref, _sat32(value + states[a].bias_nm)):
                 bits[i] |= Status[name]
             out[i, a], ref[i, a] = ax.out_nm, ax.ref_nm
+            entry[0][a] = _sat32(value - ax.ref_nm)
+            entry[1][a] = (_MEAS_NO_REF if no_ref or ax.zeroing else
+                           _MEAS_HOLDING if not valid or ax.walking else _MEAS_OK)
+        ring[i] = entry
+        ring.pop(i - meas_samples, None)
+    if svc_out is not None:
+        svc_out.replies, svc_out.bias_nm = replies, bias
     return out, bits, ref, accepted
 
 
@@ -256,7 +346,9 @@ def output_stage(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfi
 def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.ndarray,
                    cfg: OutputConfig, wdt_reset: bool = False,
                    model_bad: bool = False, zero_before: Sequence[int] = (),
-                   zero_at_powerup: bool = False, warm_resets: Sequence[int] = ()) -> Expected:
+                   zero_at_powerup: bool = False, warm_resets: Sequence[int] = (),
+                   meas: dict[int, list[tuple[int, int, int, bool]]] | None = None,
+                   meas_samples: int = 4) -> Expected:
     """Expected lines for samples fed to one box from a cold power-up, through any number of
     warm resets (which it survives: docs/firmware.md, "Restart").
 
@@ -288,7 +380,10 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
             bits |= np.where(np.arange(n) >= zeros[0], int(REFERENCED), 0)
         bits |= np.where((in_range & ((codes < wlo) | (codes > whi))).any(axis=1), EXTRAP, 0)
         empty = np.zeros((n, 0), dtype=np.int64)
-        return Expected(empty, empty, empty.astype(bool), bits, codes, codes, empty)
+        off = tuple(MeasReply(a, s % 2**32, False, "OFF", None, None, None)
+                    for i in sorted(meas or {}) for a, _, s, _ in (meas or {})[i])
+        return Expected(empty, empty, empty.astype(bool), bits, codes, codes, empty,
+                        meas_replies=off)
     # stuck: a channel fault like a chip fault (its axes hold, HOLD); the guard counts the
     # sample as lost, so the first reading that moves again is judged
     stuck = stuck_channels(codes, in_range, [c.max_still_samples for c in m.channels])
@@ -306,9 +401,11 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
         valid = plausible & ~far  # beyond what training supports: a fault, its axes hold
         computed_nm, computed = twin.evaluate_run(model_codes, aux if m.aux else None, valid,
                                                   return_mask=True)
+        svc = ServiceOut([], np.zeros((n, len(m.axes)), dtype=np.int64))
         out, out_bits, ref, accepted = output_stage_ref(
             computed_nm, computed, cfg, cfg.step_nm(m.period_ms),
-            [ax.max_step_nm for ax in m.axes], zeros, zero_at_powerup, warm_resets)
+            [ax.max_step_nm for ax in m.axes], zeros, zero_at_powerup, warm_resets,
+            [ax.service for ax in m.axes], meas, meas_samples, svc)
         if not zero_at_powerup or accepted == starts:
             break
         starts = accepted
@@ -319,7 +416,7 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
         bits |= np.where(np.arange(n) >= accepted[0], int(REFERENCED), 0)
     refused = tuple(z for z in zeros if z not in accepted)
     return Expected(out, computed_nm, computed, bits | out_bits, codes, model_codes, ref,
-                    refused)
+                    refused, tuple(svc.replies), svc.bias_nm)
 
 
 def referenced_beyond(codes: np.ndarray, plausible: np.ndarray, starts: Sequence[int],

@@ -17,12 +17,13 @@ import numpy as np
 
 from codegen.fixed import FixedModel
 from contract.fixed_point import CODE_MAX, CODE_MIN
+from contract.protocol import MeasReply, ProtocolError, decode
 from hil.build import ModelBuild, build_firmware, prepare_header
 from hil.checks import Judging, ReplayReport, judge
 from hil.expect import Expected, OutputConfig, expect_session, sr_timeline
 from hil.feed import Feed, build_feed
 from hil.native import NativeBox
-from hil.runner import Box, Capture, ChipFault, Event, Zero, replay
+from hil.runner import Box, Capture, ChipFault, Event, Meas, Zero, replay
 from host.fitting import Reference
 
 
@@ -85,6 +86,14 @@ def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],
     faults = [(e.at, e.channel, e.sr) for e in events if isinstance(e, ChipFault)]
     sr = sr_timeline(capture.n_samples, codes.shape[1], faults)
     zeros = [e.at for e in events if isinstance(e, Zero)]
+    # MEAS readings per sample they are sent before, marked when a ZERO went before them
+    meas_at: dict[int, list[tuple[int, int, int, bool]]] = {}
+    zero_seen: set[int] = set()
+    for e in events:
+        if isinstance(e, Zero):
+            zero_seen.add(e.at)
+        elif isinstance(e, Meas):
+            meas_at.setdefault(e.at, []).append((e.axis, e.nm, e.seq, e.at in zero_seen))
     # A warm reset (wdt_reset) resumes the box where it was: its session continues the one
     # before it, so the expectation runs over every session since the last cold boot.
     spans: list[list[int]] = []
@@ -101,13 +110,20 @@ def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],
         rows = slice(start, stop)
         local = [z - start for z in zeros if start <= z < stop]
         warm = [capture.sessions[k].first_sample - start for k in span[1:]]
+        meas = {at - start: [(a, nm, seq - start, z) for a, nm, seq, z in ms]
+                for at, ms in meas_at.items() if start <= at < stop
+                or (at == stop and last is capture.sessions[-1])}
         exp = expect_session(setup.twin, codes[rows], setup.feed.aux[rows], sr[rows],
                              setup.output, wdt_reset=first.wdt_reset, model_bad=model_bad,
                              zero_before=local, zero_at_powerup=setup.build.zero_at_powerup,
-                             warm_resets=warm)
-        for k in span:
+                             warm_resets=warm, meas=meas,
+                             meas_samples=setup.output.meas_samples)
+        for j, k in enumerate(span):
             s = capture.sessions[k]
-            out.append(_rows(exp, s.first_sample - start, s.n_fed, start))
+            rows_k = _rows(exp, s.first_sample - start, s.n_fed, start)
+            if j == 0:  # the span's replies, in order, kept with its first session
+                rows_k.meas_replies = exp.meas_replies
+            out.append(rows_k)
     return out
 
 
@@ -117,7 +133,8 @@ def _rows(exp: Expected, lo: int, n: int, start: int) -> Expected:
     return Expected(exp.out_nm[sl], exp.computed_nm[sl], exp.computed[sl], exp.status[sl],
                     exp.codes[sl], None if exp.model_codes is None else exp.model_codes[sl],
                     None if exp.ref_nm is None else exp.ref_nm[sl],
-                    tuple(z + start for z in exp.zero_refused))
+                    tuple(z + start for z in exp.zero_refused), (),
+                    None if exp.bias_nm is None else exp.bias_nm[sl])
 
 
 def run(setup: ReplaySetup, events: Sequence[Event] = (), model_bad: bool = False,
@@ -145,4 +162,54 @@ def run(setup: ReplaySetup, events: Sequence[Event] = (), model_bad: bool = Fals
                    [e.at for e in events if isinstance(e, Zero)],
                    box_zeroes=setup.build.zero_at_powerup)
     report.elapsed_s = elapsed
+    if any(isinstance(e, Meas) for e in events):
+        judge_service(report, setup, capture, events, model_bad)
     return report, capture
+
+
+def judge_service(report: ReplayReport, setup: ReplaySetup, capture: Capture,
+                  events: Sequence[Event], model_bad: bool = False) -> None:
+    """MEAS (issue 42): every $M reply against the twin (codegen.estimator), and per axis the
+    RMS of measured - output, static (the same replay without readings, on the host) and
+    updated (with them: what the box sent when it matched), into ``report.service``."""
+    exp = expectations(setup, capture, events, model_bad)
+    want = [r for e in exp for r in e.meas_replies]
+    got: list[MeasReply | str] = []
+    for s in capture.sessions:
+        for line in s.meas_replies:
+            try:
+                got.append(decode(line))  # type: ignore[arg-type]
+            except ProtocolError as exc:
+                got.append(str(exc))
+    bad = [(k, g, w) for k, (g, w) in enumerate(zip(got, want, strict=False)) if g != w]
+    if len(got) != len(want) or bad:
+        report.status_mismatches += max(len(bad), 1)
+        first = bad[0] if bad else (min(len(got), len(want)), "-", "-")
+        report.note(f"MEAS: {len(got)} replies, {len(want)} expected, {len(bad)} differ; "
+                    f"first: reply {first[0]}: box {first[1]}, twin {first[2]}")
+    static = expectations(setup, capture, [e for e in events if not isinstance(e, Meas)],
+                          model_bad)
+    probes = [e for e in events if isinstance(e, Meas)]
+    axes = setup.feed.axes
+    svc: dict[str, dict] = {}
+    for a, name in enumerate(axes):
+        y = setup.feed.measured.get(name)
+        if y is None or model_bad:
+            continue
+        upd = np.concatenate([e.out_nm[:, a] for e in exp]) / 1000.0
+        sta = np.concatenate([e.out_nm[:, a] for e in static]) / 1000.0
+        y = np.asarray(y, dtype=float)[:upd.size]
+        ok = np.isfinite(y)
+        mine = [r for r in want if r.axis == a]
+        svc[name] = {
+            "static_rmse_um": float(np.sqrt(np.mean((y[ok] - sta[ok]) ** 2))),
+            "updated_rmse_um": float(np.sqrt(np.mean((y[ok] - upd[ok]) ** 2))),
+            "probes": sum(1 for e in probes if e.axis == a),
+            "applied": sum(1 for r in mine if r.applied),
+            "refused": {k: sum(1 for r in mine if r.reason == k)
+                        for k in sorted({r.reason for r in mine if r.reason})},
+            "final_bias_um": (int(exp[-1].bias_nm[-1, a]) / 1000.0
+                              if exp and exp[-1].bias_nm is not None
+                              and exp[-1].bias_nm.size else 0.0),
+        }
+    report.service = svc

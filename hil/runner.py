@@ -111,7 +111,19 @@ class Restart:
     wdt_reset: bool = False
 
 
-Event = ChipFault | CodeOverride | CodeOffset | ChannelSwap | SerialNoise | Zero | Restart
+@dataclass(frozen=True)
+class Meas:
+    """Before sample ``at`` (all earlier lines received): the CNC side sends a probe reading,
+    ``MEAS <axis> <nm> <seq>`` (issue 42), of run sample ``seq`` (the runner sends the box's
+    seq: the sample counted from the latest cold boot); it waits for the ``$M`` reply."""
+
+    at: int
+    axis: int
+    nm: int
+    seq: int
+
+
+Event = ChipFault | CodeOverride | CodeOffset | ChannelSwap | SerialNoise | Zero | Restart | Meas
 INPUT_EVENTS = (CodeOverride, CodeOffset, ChannelSwap)  # change what the chips read
 
 
@@ -129,6 +141,7 @@ class Session:
     power_cut: bool = False  # ended by the runner (Restart, or after a timeout), not by Q
     zero_acks: list[bytes] = field(default_factory=list)  # replies to ZERO ($OK or $E), in order
     seq0: int = 0  # seq of its first sample line: 0 after a cold boot, kept after a warm one
+    meas_replies: list[bytes] = field(default_factory=list)  # replies to MEAS ($M), in order
 
 
 @dataclass
@@ -206,6 +219,7 @@ class _Replay:
         self.session = Session(0, False)
         self.sessions = [self.session]
         self.pos = 0  # the next sample to feed
+        self.cold_start = 0  # the run sample of the latest cold boot (the box's seq 0)
 
     def sync(self) -> None:
         """Wait until every sample fed to this session has been answered."""
@@ -255,6 +269,18 @@ class _Replay:
             box.link.wait_for(replied, timeout, f"reply to ZERO before sample {point}")
             self.session.zero_acks.append(next(
                 ln for ln in box.link.lines[start:] if ln.startswith((b"$OK,ZERO,", b"$E,"))))
+        elif isinstance(e, Meas):
+            self.sync()
+            start = box.link.count()
+            seq = (e.seq - self.cold_start) % 2**32
+            box.link.write(f"MEAS {e.axis} {e.nm} {seq}\r\n".encode("ascii"))
+
+            def answered(lines: list[bytes]) -> bool:
+                return any(ln.startswith((b"$M,", b"$E,")) for ln in lines[start:])
+
+            box.link.wait_for(answered, timeout, f"reply to MEAS before sample {point}")
+            self.session.meas_replies.append(next(
+                ln for ln in box.link.lines[start:] if ln.startswith((b"$M,", b"$E,"))))
         elif isinstance(e, Restart):
             self.sync()  # the power cut falls between two samples, not inside one
             self.restart(point, e.wdt_reset)
@@ -262,6 +288,8 @@ class _Replay:
     def restart(self, point: int, wdt_reset: bool) -> None:
         """Power cut and boot: a new session; the chips' faults are still there."""
         self.finish(kill=True)
+        if not wdt_reset:
+            self.cold_start = point
         self.box = self.start_box(wdt_reset)
         self.session = Session(point, wdt_reset, seq0=point if wdt_reset else 0)
         self.sessions.append(self.session)
