@@ -126,14 +126,22 @@ def load_model(path: str | Path) -> dict:
 def export_to_c(model, max_error_um: float = DEFAULT_MAX_ERROR_UM, **options) -> str:
     """The firmware's model header (C text) for a model, the way m2cgen's ``export_to_c`` works.
 
-    ``model`` is a model.json mapping, a path to one, or any object with a ``to_model_json()``
-    method (``host.train.estimator.ThermalModel``, fitted). Raises :class:`BoundError` when the
+    ``model`` is a model.json mapping, a path to one, any object with a ``to_model_json()``
+    method (``host.train.estimator.ThermalModel``, fitted), or a scikit-learn Pipeline ending in
+    one (the steps before it are handed to ``to_model_json(before=...)``, which refuses any
+    that transforms the inputs: the box would not apply it). Raises :class:`BoundError` when the
     proven fixed-point error exceeds ``max_error_um`` and :class:`CodegenError` for a model the
     box cannot run. ``generate`` returns the same text with the fixed_point block and the
     quantised model beside it; ``options`` are generate's (e.g. ``zero_at_powerup``).
     """
     if hasattr(model, "to_model_json"):
         model = model.to_model_json()
+    elif hasattr(model, "steps"):  # a scikit-learn Pipeline: its last step with those before it
+        steps = [step for _, step in model.steps]
+        if not hasattr(steps[-1], "to_model_json"):
+            raise CodegenError(f"the Pipeline ends in {type(steps[-1]).__name__}, not a thermal "
+                               "model (host.train.estimator.ThermalModel): nothing to export")
+        model = steps[-1].to_model_json(before=steps[:-1])
     elif isinstance(model, str | Path):
         model = load_model(Path(model))
     return generate(model, max_error_um, **options).text

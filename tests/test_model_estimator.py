@@ -95,6 +95,9 @@ def test_in_a_pipeline_and_on_to_the_box(data):
     header = codegen.export_to_c(pipe.named_steps["model"])
     assert header == codegen.generate(pipe.named_steps["model"].to_model_json()).text
     assert "#define" in header
+    # the whole Pipeline: its converter cannot be told from a scaler, so it is refused, named
+    with pytest.raises(ValueError, match=r"\(FunctionTransformer\).*export_to_c\(pipeline\[-1\]\)"):
+        codegen.export_to_c(pipe)
 
 
 def test_bad_shapes_are_refused(data):
@@ -130,3 +133,74 @@ def test_a_bending_axis_is_an_estimator_parameter_as_in_host_train(data):
     assert est.model_["axes"]["dz_um"]["terms"] == direct["axes"]["dz_um"]["terms"]
     assert est.model_["axes"]["dz_um"]["terms"] != plain["axes"]["dz_um"]["terms"]
     assert ThermalModel().get_params()["bending"] == ()
+
+
+class Frame:
+    """A DataFrame stand-in (pandas is no dependency): an array with named ``columns``."""
+
+    def __init__(self, data: np.ndarray, columns: list[str]) -> None:
+        self._data = np.asarray(data, dtype=float)
+        self.columns = list(columns)
+        self.shape = self._data.shape
+
+    def __array__(self, dtype=None, copy=None):
+        return self._data if dtype is None else self._data.astype(dtype)
+
+    def __len__(self) -> int:
+        return len(self._data)
+
+
+class Series:
+    def __init__(self, data: np.ndarray, name: str) -> None:
+        self._data, self.name, self.shape = np.asarray(data, dtype=float), name, np.shape(data)
+
+    def __array__(self, dtype=None, copy=None):
+        return self._data if dtype is None else self._data.astype(dtype)
+
+    def __len__(self) -> int:
+        return len(self._data)
+
+
+def test_column_names_reach_model_json_and_the_wiring_sheet(data):
+    from host.analysis.metrology import wiring_rows
+
+    run, X, y = data
+    names = [f"spot_{i:02d}" for i in range(X.shape[1])]
+    rpm = load_run(RUN, ["dz_um"], aux=["spindle_rpm"]).aux[:, 0]
+    # the aux column in the middle: picked by its name, not its position
+    frame = Frame(np.column_stack([X[:, :3], rpm, X[:, 3:]]),
+                  names[:3] + ["spindle_rpm"] + names[3:])
+    est = ThermalModel(aux_names=["spindle_rpm"], period_s=run.period_s, effects=False,
+                       max_sensors=3).fit(frame, Series(y, "dz_um"))
+    model = est.to_model_json()
+    assert est.axes_ == ["dz_um"] and list(model["axes"]) == ["dz_um"]
+    sensors = [c["sensor"] for c in model["channels"]]
+    assert sensors and set(sensors) <= set(names), sensors
+    assert {r["sensor"] for r in wiring_rows(model)} >= set(sensors)
+    # the same model as the plain arrays with the names given by hand
+    ordered = np.column_stack([X, rpm])  # temperatures first, then the aux input
+    plain = ThermalModel(sensor_names=names, aux_names=["spindle_rpm"], target_names=["dz_um"],
+                         period_s=run.period_s, effects=False, max_sensors=3).fit(ordered, y)
+    assert model["axes"]["dz_um"]["terms"] == plain.model_["axes"]["dz_um"]["terms"]
+    np.testing.assert_allclose(est.predict(frame), plain.predict(ordered), atol=1e-9)
+
+
+def test_a_pipeline_exports_when_nothing_transforms_and_refuses_a_scaler(data):
+    from sklearn.linear_model import LinearRegression
+    from sklearn.preprocessing import StandardScaler
+
+    run, X, y = data
+    kw = dict(sensor_names=run.sensor_names, effects=False, period_s=run.period_s,
+              max_sensors=3)
+    plain = Pipeline([("nothing", "passthrough"), ("model", ThermalModel(**kw))]).fit(X, y)
+    assert codegen.export_to_c(plain) == codegen.export_to_c(plain[-1])
+    scaled = Pipeline([("scale", StandardScaler()), ("model", ThermalModel(**kw))]).fit(X, y)
+    with pytest.raises(ValueError, match=r"transforms the inputs before the thermal model "
+                       r"\(StandardScaler\).*neither dropped nor folded"):
+        codegen.export_to_c(scaled)
+    # the model step alone, fitted on the scaler's output, is refused too: never exported
+    # as if the box fed it what the scaler made
+    with pytest.raises(ValueError, match="look standardised"):
+        codegen.export_to_c(scaled[-1])
+    with pytest.raises(codegen.CodegenError, match="ends in LinearRegression"):
+        codegen.export_to_c(Pipeline([("lr", LinearRegression())]).fit(X, y))
