@@ -262,6 +262,35 @@ def _reference_line(state: MonitorState) -> str:
     return "corrections are absolute (no ZERO reference in force)"
 
 
+# ---- in service (issue 42): the estimator per axis, from the STATUS line -----------------
+REFUSALS_WARN = 2  # readings the gate refused in a row that the view calls out
+
+
+def service_lines(state: MonitorState, colour: bool = False) -> list[str]:
+    """Per axis the box's in-service estimate (the bias MEAS taught it) and the last
+    reading's residual (innovation); repeated refusals in red: the model misses by more than
+    the gate lets through (or the artifact is dirty), and the estimate stays where it was."""
+    svc = getattr(state.status_report, "service", None)
+    if not svc:
+        return []
+    red, reset = (RED, RESET) if colour else ("", "")
+    out = []
+    for name, a in zip(state.axis_names(len(svc)), svc, strict=True):
+        if a is None:
+            out.append(f"  estimate   {name:>10}: off (no service block: MEAS refused)")
+            continue
+        unit = unit_text(name)
+        res = "-" if a.innovation_nm is None else f"{a.innovation_nm / 1000.0:+.3f} {unit}"
+        line = f"  estimate   {name:>10}: {a.bias_nm / 1000.0:+10.3f} {unit}, last residual {res}"
+        if a.refusals >= REFUSALS_WARN:
+            line = (f"{red}{line}, {a.refusals} readings REFUSED in a row (beyond the gate: "
+                    f"check the artifact, or ZERO){reset}")
+        elif a.refusals:
+            line += f", {a.refusals} refused"
+        out.append(line)
+    return out
+
+
 def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
     """The live state as lines (the terminal view shows these above the fault history)."""
     grey, red, reset = (GREY, RED, RESET) if colour else ("", "", "")
@@ -289,6 +318,7 @@ def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
             mark = "  (HOLD: last good value)" if name in held else ""
             lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} "
                          f"{unit_text(name)}{mark}")
+        lines += service_lines(state, colour)
         invalid = state.invalid_channels()
         temps = []
         for name, code in zip(state.channel_names(len(s.temp_codes)), s.temp_codes,
