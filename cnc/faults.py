@@ -340,6 +340,11 @@ def demo_model(build: Path) -> Path:
     """The demo's model, trained as `make train` does (host train's defaults: reference
     start, zero at power-up); kept in ``build`` for the next campaign."""
     model_json = build / "model.json"
+    if model_json.is_file():
+        try:  # one kept from before a change of what the model hash covers: train again
+            model_file.read_model(model_json)
+        except model_file.ModelFormatError:
+            model_json.unlink()
     if not model_json.is_file():
         cmd = [sys.executable, "-m", "host", "train", *map(str, DEMO_TRAIN),
                *(x for t in TARGETS for x in ("--target", t)), "--out", str(build),
