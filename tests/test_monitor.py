@@ -264,7 +264,8 @@ NATIVE_MODEL = {
                   "max_step_c": 50.0}],
     "aux": [], "time_max_s": 604800.0,
     "axes": {"dx_um": {"unit": "um", "intercept": -12.5, "max_step_um": 100.0,
-                       "terms": [{"kind": "temp", "source": "T05", "coef": 0.75}]},
+                       "terms": [{"kind": "temp", "source": "T05", "coef": 0.75}],
+                       "metrics": {"promise": "RMS on an unseen day ≤ 1.50 µm on 80 % of days"}},
              "dz_um": {"unit": "um", "intercept": 3.0, "max_step_um": 100.0,
                        "terms": [{"kind": "temp", "source": "T05", "coef": -1.25},
                                  {"kind": "temp", "source": "T12", "coef": 2.0}]}},
@@ -551,6 +552,9 @@ def test_monitor_names_the_faulted_channel_on_the_native_firmware(native_box):
     assert last["faulted_channels"] == {"T12": ["OPEN"]}
     assert last["held_axes"] == ["dz_um"]
     assert last["temperatures_c"]["T12"] is None and last["temperatures_c"]["T05"] == 25.0
+    faults = [o for o in lines if o["type"] == "fault"]
+    assert {o["fault"] for o in faults} >= {"OPEN", "HOLD"}  # opened before STATUS named T12
+    assert next(o for o in faults if o["key"] == "OPEN")["since_seq"] == 2
 
 
 # ---------------------------------------------------------------- the terminal view, in tmux
@@ -616,8 +620,11 @@ def test_the_screen_in_tmux_at_80x24_and_200x50_on_the_native_firmware(native_bo
     binary, model_path = native_box
     box, pty = start_native(binary)
     log = tmp_path / "screen.csv"
+    # --retry 60: once the box has stopped, its /dev/pts number may go to another process's pty
+    # (tests running side by side); the monitor would reconnect there (and say so), not here
     term = Tmux(tmp_path, 80, 24, [sys.executable, "-m", "host", "monitor", pty, "--model",
-                                   str(model_path), "--log", str(log), "--screen"])
+                                   str(model_path), "--log", str(log), "--screen", "--retry",
+                                   "60"])
     assert box.stdin is not None
 
     def feed(text: str) -> None:
@@ -653,6 +660,8 @@ def test_the_screen_in_tmux_at_80x24_and_200x50_on_the_native_firmware(native_bo
         assert len(screen) == 50 and max(len(ln) for ln in screen) > 150
         assert any(ln.endswith("matches model.json (CRC OK), firmware 0.1.0, period 1000 ms")
                    for ln in screen), "\n".join(screen)
+        # the model's promise, in model.json's words, beside the corrections
+        assert "  promised        dx_um: RMS on an unseen day ≤ 1.50 µm on 80 % of days" in screen
 
         feed("Q\n")  # the box stops: its port goes away
         box.stdin.close()

@@ -119,6 +119,9 @@ class MonitorState:
     # axis -> thermocouples its terms read (from --model): names the axes a fault holds
     axis_inputs: dict[str, list[str]] = field(default_factory=dict)
     history: FaultHistory = field(default_factory=FaultHistory)
+    # axis -> the model's promise (model.json metrics.promise, the wording host train and the
+    # report use): shown while the box runs that model
+    promises: dict[str, str] = field(default_factory=dict)
     period_hint_s: float | None = None  # the last INFO's period: kept while INFO is re-asked
     disconnected_at: float | None = None  # monotonic time the port was lost
 
@@ -319,6 +322,10 @@ def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
             lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} "
                          f"{unit_text(name)}{mark}")
         lines += service_lines(state, colour)
+        if state.hash_ok is True:
+            for name in state.axis_names(len(s.corrections_nm)):
+                if state.promises.get(name):
+                    lines.append(f"  promised   {name:>10}: {state.promises[name]}")
         invalid = state.invalid_channels()
         temps = []
         for name, code in zip(state.channel_names(len(s.temp_codes)), s.temp_codes,
@@ -477,7 +484,8 @@ class Monitor:
                  opener: Callable[[str, int], serial.SerialBase] = open_port,
                  axis_inputs: Mapping[str, Sequence[str]] | None = None,
                  json_lines: bool = False,
-                 identify: Callable[[str], str | None] = device_identity) -> None:
+                 identify: Callable[[str], str | None] = device_identity,
+                 promises: Mapping[str, str] | None = None) -> None:
         self.port_name = port
         self.baud = baud
         self.count = count
@@ -491,7 +499,8 @@ class Monitor:
         self.opener = opener
         self.identify = identify
         self.state = MonitorState(port, expected_hash=expected_hash, windows=dict(windows or {}),
-                                  axis_inputs={a: list(v) for a, v in (axis_inputs or {}).items()})
+                                  axis_inputs={a: list(v) for a, v in (axis_inputs or {}).items()},
+                                  promises=dict(promises or {}))
         self.log = CsvLog(log) if log else None
         self._port: serial.SerialBase | None = None
         self._buf = bytearray()

@@ -45,7 +45,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from host.box import Monitor, MonitorError  # pyserial: the [monitor] extra
 
-    expected, windows, axis_inputs = None, {}, {}
+    expected, windows, axis_inputs, promises = None, {}, {}, {}
     if args.model:
         from codegen import generate, model_hash
         from contract.model_file import read_model
@@ -59,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
         axis_inputs = {a: sorted({t["source"] for t in ax["terms"]
                                   if t["kind"] in TEMPERATURE_KINDS})
                        for a, ax in model["axes"].items()}
+        # the model's promise per axis, in the words host train and the report use
+        promises = {a: ax.get("metrics", {}).get("promise") for a, ax in model["axes"].items()
+                    if ax.get("metrics", {}).get("promise")}
     if args.count is not None and args.count < 1:
         raise MonitorError(f"--count must be at least 1 (got {args.count})")
     if args.duration is not None and args.duration <= 0:
@@ -66,5 +69,5 @@ def run(args: argparse.Namespace) -> int:
     screen = True if args.screen else False if args.plain else None
     monitor = Monitor(args.port, args.baud, expected_hash=expected, windows=windows, log=args.log,
                       count=args.count, duration=args.duration, screen=screen, retry_s=args.retry,
-                      axis_inputs=axis_inputs, json_lines=args.json)
+                      axis_inputs=axis_inputs, json_lines=args.json, promises=promises)
     return monitor.run()
