@@ -271,8 +271,10 @@ _Static_assert(TCM_AXIS0_ACC_MAX <= TCM_ACC_LIMIT,
                "axis 0 (dz_um): the int64 accumulator could overflow");
 _Static_assert(TCM_RDIV_CONST(TCM_AXIS0_ACC_MAX, TCM_AXIS0_SHIFT) <= INT32_MAX,
                "axis 0 (dz_um): the output could overflow int32_t");
-_Static_assert(TCM_SVC_PARAMS_OK(TCM_AXIS0_SVC_ON, TCM_AXIS0_SVC_Q_Q8, TCM_AXIS0_SVC_R_Q8, TCM_AXIS0_SVC_G2_Q8, TCM_AXIS0_SVC_FLOOR2_NM2, TCM_AXIS0_SVC_PMAX_Q8, TCM_AXIS0_SVC_P0_PMAX),
-               "axis 0 (dz_um): estimator parameters outside the ranges the fixed-point arithmetic is proven for");
+_Static_assert(TCM_SVC_PARAMS_OK(TCM_AXIS0_SVC_ON, TCM_AXIS0_SVC_Q_Q8, TCM_AXIS0_SVC_R_Q8, \
+TCM_AXIS0_SVC_G2_Q8, TCM_AXIS0_SVC_FLOOR2_NM2, TCM_AXIS0_SVC_PMAX_Q8, TCM_AXIS0_SVC_P0_PMAX),
+               "axis 0 (dz_um): estimator parameters outside the ranges the fixed-point \
+arithmetic is proven for");
 
 /* ---- Invariants of the tables --------------------------------------------------------- */
 _Static_assert(TCM_N_CHANNELS <= TCM_MAX_CHANNELS, "too many channels for the runtime");
@@ -309,7 +311,10 @@ _Static_assert(sizeof tcm_terms / sizeof tcm_terms[0] == TCM_N_TERMS, "term tabl
 
 static const tcm_axis_t tcm_axes[] = {{
     {{.shift = TCM_AXIS0_SHIFT, .n_terms = TCM_AXIS0_N_TERMS, \
-.intercept_q = TCM_AXIS0_INTERCEPT_Q, .max_step_nm = TCM_AXIS0_MAX_STEP_NM, .service = {{.q_q8 = TCM_AXIS0_SVC_Q_Q8, .r_q8 = TCM_AXIS0_SVC_R_Q8, .floor2_nm2 = TCM_AXIS0_SVC_FLOOR2_NM2, .pmax_q8 = TCM_AXIS0_SVC_PMAX_Q8, .g2_q8 = TCM_AXIS0_SVC_G2_Q8, .on = TCM_AXIS0_SVC_ON, .p0_pmax = TCM_AXIS0_SVC_P0_PMAX}}, .name = "dz_um"}},
+.intercept_q = TCM_AXIS0_INTERCEPT_Q, .max_step_nm = TCM_AXIS0_MAX_STEP_NM, .service = {{.q_q8 = TCM_AXIS0_SVC_Q_Q8, \
+.r_q8 = TCM_AXIS0_SVC_R_Q8, .floor2_nm2 = TCM_AXIS0_SVC_FLOOR2_NM2, \
+.pmax_q8 = TCM_AXIS0_SVC_PMAX_Q8, .g2_q8 = TCM_AXIS0_SVC_G2_Q8, .on = TCM_AXIS0_SVC_ON, \
+.p0_pmax = TCM_AXIS0_SVC_P0_PMAX}}, .name = "dz_um"}},
 }};
 _Static_assert(sizeof tcm_axes / sizeof tcm_axes[0] == TCM_N_AXES, "axis table size");
 
