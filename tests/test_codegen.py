@@ -311,7 +311,8 @@ _Static_assert(sizeof tcm_terms / sizeof tcm_terms[0] == TCM_N_TERMS, "term tabl
 
 static const tcm_axis_t tcm_axes[] = {{
     {{.shift = TCM_AXIS0_SHIFT, .n_terms = TCM_AXIS0_N_TERMS, \
-.intercept_q = TCM_AXIS0_INTERCEPT_Q, .max_step_nm = TCM_AXIS0_MAX_STEP_NM, .service = {{.q_q8 = TCM_AXIS0_SVC_Q_Q8, \
+.intercept_q = TCM_AXIS0_INTERCEPT_Q, .max_step_nm = TCM_AXIS0_MAX_STEP_NM, \
+.service = {{.q_q8 = TCM_AXIS0_SVC_Q_Q8, \
 .r_q8 = TCM_AXIS0_SVC_R_Q8, .floor2_nm2 = TCM_AXIS0_SVC_FLOOR2_NM2, \
 .pmax_q8 = TCM_AXIS0_SVC_PMAX_Q8, .g2_q8 = TCM_AXIS0_SVC_G2_Q8, .on = TCM_AXIS0_SVC_ON, \
 .p0_pmax = TCM_AXIS0_SVC_P0_PMAX}}, .name = "dz_um"}},
