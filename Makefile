@@ -3,6 +3,7 @@
 #               replay a run through the native firmware over a pty, write the report
 #   make test   every test suite: Python (host, codegen, HIL) and C (firmware, cmocka)
 #   make cnc    replay a run through the box into a headless LinuxCNC (external offsets)
+#   make probe  probing in service on that LinuxCNC: the residual at each probe, static vs updated
 #   make faults single ordinary events (restart, power cut, loose connector, runaway or stuck
 #               sensor, ZERO in a hold, forged line, garbage, stale, reconnect) against the rule
 #               "never worse than the clean run by more than one step limit" (build/faults/)
@@ -21,7 +22,7 @@ DEMO_TEST  := $(EXAMPLES)/sim_random.csv
 DEMO_TARGETS := --target dx_um --target dy_um --target dz_um
 
 .PHONY: setup system-deps test test-python test-firmware test-floors lint demo train firmware firmware-native \
-        firmware-stm32 hil flash bench examples report clean cnc faults
+        firmware-stm32 hil flash bench examples report clean cnc probe faults
 
 setup: $(STAMP)
 
@@ -93,6 +94,12 @@ report: $(STAMP)
 # The box's corrections through a headless LinuxCNC on external offsets (docs/linuxcnc.md).
 cnc: $(STAMP)
 	$(PY) -m cnc
+
+# Probing in service (issue 42) on the same headless LinuxCNC: a probe on a reference artifact
+# every hour of the replayed run, MEAS to the box, the residual at each probe, static against
+# updated (build/cnc-probe/summary.json).
+probe: $(STAMP)
+	$(PY) -m cnc --probe
 
 # The fault campaign of issue 41: native box + the component's logic, and the controller's
 # events through a real headless LinuxCNC; a table and build/faults/summary.json.

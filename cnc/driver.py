@@ -15,7 +15,13 @@ program's status. It plays the operator and the machine's surroundings, and reco
 - after each sample waits until the component has taken the line and LinuxCNC's external
   offset has settled, then reads ``axis.L.eoffset``, ``joint.N.motor-pos-cmd`` and the
   component's status pins through HAL;
-- optionally runs an NC program in AUTO and records the spindle speed, orient and trigger pins.
+- optionally runs an NC program in AUTO and records the spindle speed, orient and trigger pins;
+- probing in service (issue 42, the plan's ``probe``): before each sample it moves the
+  simulated artifact's surface with the run's thermal drift (``artifact.in0``, probe_sim.hal),
+  touches the reference right after the job's ZERO (``o<probe_ref> call [0]``) and every N
+  samples calls the probing subroutine (``o<probe_ref> call [1]``, MDI), which hands the
+  reading to the component; it records the probed position, the offsets, the component's
+  MEAS pins and the box's ``$M`` answer (one probe with a chip on the artifact: +50 um).
 
 It judges nothing: it writes everything to the plan's results file; cnc/session.py compares.
 Runs under Debian's /usr/bin/python3 (``linuxcnc`` and ``hal`` modules) with the standard
@@ -69,6 +75,7 @@ class Tap:
         self.samples: list[dict] = []  # every $C line the box sent, decoded, in order
         self.replies: list[str] = []  # every other line the box sent
         self.commands: list[str] = []  # every line the component sent
+        self.times: list[tuple[float, str, str]] = []  # (when, > sent / < box, line) but $C
         self.corrupt_next = False
         self.cond = threading.Condition()
         self.stop = False
@@ -166,6 +173,8 @@ class Tap:
                     self._from_comp = bytearray(rest)
                     with self.cond:
                         self.commands += [d.rstrip(b"\r").decode(errors="replace") for d in done]
+                        self.times += [(time.monotonic(), ">", d.rstrip(b"\r").decode(
+                            errors="replace")) for d in done]
                     if self.box_fd is not None:
                         os.write(self.box_fd, data)
 
@@ -194,6 +203,7 @@ class Tap:
                     self.samples.append(record)
                 else:
                     self.replies.append(raw.decode(errors="replace"))
+                    self.times.append((time.monotonic(), "<", raw.decode(errors="replace")))
                 self.cond.notify_all()
         if out and self.master is not None:  # a dropped link loses what the box sent
             os.write(self.master, bytes(out))
@@ -333,6 +343,17 @@ class Machine:
         self.cmd.wait_complete(30)
         self.wait(lambda: self.poll().interp_state == linuxcnc.INTERP_IDLE, 30, f"MDI {line}")
 
+    def mdi_polled(self, line: str, timeout: float) -> None:
+        """MDI without ``wait_complete`` while it runs: that call keeps Python's GIL, so the
+        tap's thread could not carry the component's MEAS to the box while the probing
+        subroutine waits (M66) for the answer. Polls the status instead."""
+        self.cmd.mode(linuxcnc.MODE_MDI)
+        self.cmd.wait_complete()
+        self.cmd.mdi(line)
+        serial = self.cmd.serial
+        self.wait(lambda: self.poll().echo_serial_number >= serial and
+                  self.stat.interp_state == linuxcnc.INTERP_IDLE, timeout, f"MDI {line}")
+
     def get(self, pin: str):
         return hal.get_value(pin)
 
@@ -365,6 +386,7 @@ class Machine:
                 "pos_cmd_mm": {a: self.get(f"joint.{self.joint[a]}.motor-pos-cmd")
                                for a in self.letters},
                 "comp_offset_mm": {a: self.get(f"{COMP}.{a}.offset") for a in self.letters}}
+        snap["bias_nm"] = {a: self.get(f"{COMP}.{a}.bias-nm") for a in self.letters}
         for pin in ("holding", "fault", "stale", "walking", "extrapolating", "referenced",
                     "active", "seq", "bad-lines", "lost-lines", "holds", "zero-acks",
                     "age-s", "status", "restarts", "awaiting-zero", "connected",
@@ -422,7 +444,66 @@ def forged_line(box_line: dict, delta_nm: int) -> bytes:
                                   box_line["temps"])
 
 
-def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap) -> list[dict]:
+_MEAS_PINS = ("meas-applied", "meas-refused", "meas-reason", "meas-nm", "meas-seq", "meas-count",
+              "meas-refusals", "meas-refused-in-row")
+
+
+def probe_touch(machine: Machine, tap: Tap, probe: dict, mode: int, sample: int,
+                chip_mm: float = 0.0) -> dict:
+    """Call the probing subroutine in MDI (mode 0: the reference touch, 1: a reading) and
+    record what it did: the probed position (``linuxcnc.stat().probed_position``), the
+    offsets LinuxCNC applied before and after, the line the component sent, the box's
+    answer and the component's MEAS pins."""
+    letter = probe["axis"]
+    with tap.cond:
+        n_cmd, n_rep = len(tap.commands), len(tap.replies)
+    if chip_mm:
+        hal.set_p("artifact.in1", repr(chip_mm))  # a chip on the artifact, for this touch
+    before = machine.snapshot()
+    t0 = time.monotonic()
+    machine.mdi_polled(f"o<{probe['sub']}> call [{mode}]", 30.0)
+    error = _drain_errors(machine)
+    if error:
+        raise DriverError(f"the probing subroutine at sample {sample}: {error}")
+    if mode == 1:
+        tap.wait(lambda: any(r.startswith(("$M", "$E")) for r in tap.replies[n_rep:]), 5.0,
+                 "the box's answer to MEAS")
+    if chip_mm:
+        hal.set_p("artifact.in1", "0")
+    machine.mdi(probe["return_mdi"])
+    s = machine.poll()
+    with tap.cond:
+        sent = [c for c in tap.commands[n_cmd:] if c.startswith("MEAS")]
+        replies = [r for r in tap.replies[n_rep:] if r.startswith(("$M", "$E"))]
+    rec = {"sample": sample, "phase": "probe_ref" if mode == 0 else "probe",
+           "probed_mm": list(s.probed_position)[:3], "probe_tripped": bool(s.probe_tripped),
+           "drift_mm": machine.get("artifact.in0"), "chip_mm": chip_mm,
+           "eoffset_before_mm": before["eoffset_mm"][letter],
+           "request_before_mm": before["request_mm"][letter],
+           "pos_cmd_before_mm": before["pos_cmd_mm"][letter],
+           "meas_sent": sent, "meas_replies": replies, "probe_s": time.monotonic() - t0,
+           "error": _drain_errors(machine)}
+    after = machine.snapshot()
+    rec["eoffset_after_mm"] = after["eoffset_mm"][letter]
+    rec.update({pin: machine.get(f"{COMP}.{pin}") for pin in _MEAS_PINS})
+    rec.update({f"{pin}": machine.get(f"{COMP}.{letter}.{pin}")
+                for pin in ("bias-nm", "innovation-nm", "p-nm2")})
+    return rec
+
+
+def _drain_errors(machine: Machine) -> str:
+    """LinuxCNC's errors since the last call (its DEBUG and MSG texts are not errors)."""
+    errors = []
+    while True:
+        err = machine.errors.poll()
+        if not err:
+            return "; ".join(errors)
+        if err[0] in (linuxcnc.NML_ERROR, linuxcnc.OPERATOR_ERROR):
+            errors.append(str(err[1]).strip())
+
+
+def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap,
+           records: list[dict] | None = None) -> list[dict]:
     """Feed every sample, apply the plan's events, record what LinuxCNC does after each."""
     feed = Path(plan["feed"]).read_text().splitlines()
     ev = plan.get("events", {})
@@ -433,17 +514,29 @@ def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap) -> list[dic
     zero_after_cut = {c["at"] + int(c["zero_after"]): c for c in cuts.values()}
     noise, link = ev.get("garbage"), ev.get("reconnect")
     faults: dict[int, int] = {}
-    records: list[dict] = []
     start_mdi = plan["start_mdi"]
     timeout = float(plan.get("timeout_s", 10.0))
+    records = records if records is not None else []
+    probe = plan.get("probe")
+    probe_at = set(probe["at"]) if probe else set()
+    chips = {int(k): float(v) for k, v in probe.get("chips", {}).items()} if probe else {}
     for k, line in enumerate(feed):
         phase = "track"
+        if probe:
+            # the machine's thermal drift at this sample moves the artifact's surface
+            hal.set_p("artifact.in0", repr(float(probe["drift_mm"][k])))
         # before any injection: garbage is counted as soon as the component reads it
         bad_before = machine.get(f"{COMP}.bad-lines")
         if k == 0 and plan.get("zero_at_start"):
             # a start-referenced box holds (NO_REF) until ZERO: the job's touch-off
             records.append({"sample": k, "phase": "zero_start",
                             "reply": _pulse_zero(machine, tap, timeout)})
+            if probe:
+                # the reference touch right after ZERO (the offsets are 0)
+                machine.wait(lambda: all(abs(machine.get(f"axis.{a}.eoffset")) < 1e-9
+                                         for a in machine.letters), timeout,
+                             "the offsets at 0 after ZERO")
+                records.append(probe_touch(machine, tap, probe, 0, k))
         if open_tc and k == open_tc["at"]:
             faults[open_tc["channel"]] = 1
             boxes[-1].feed(f"F {open_tc['channel']} 01\n")
@@ -551,6 +644,8 @@ def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap) -> list[dic
             _settle(machine, timeout, k)
             records.append({"sample": k, "phase": "forged",
                             "line": fake.decode().strip(), **machine.snapshot()})
+        if k in probe_at:
+            records.append(probe_touch(machine, tap, probe, 1, k, chips.get(k, 0.0)))
     return records
 
 
@@ -647,7 +742,7 @@ def main(argv: list[str]) -> int:
         machine.mdi(plan["start_mdi"])
         out["base_pos_mm"] = {a: machine.get(f"joint.{machine.joint[a]}.motor-pos-cmd")
                               for a in letters}
-        out["records"] = replay(plan, machine, boxes, tap)
+        replay(plan, machine, boxes, tap, out["records"])  # kept when it stops half-way
         for prog in plan.get("programs", []):
             out["programs"].append(run_program(prog, machine))
         out["ok"] = True
@@ -659,6 +754,7 @@ def main(argv: list[str]) -> int:
             out["box_samples"] = tap.samples
             out["box_replies"] = tap.replies
             out["commands"] = tap.commands
+            out["line_times"] = tap.times
             tap.close()
         if boxes:
             out["box_exit"] = boxes[-1].stop()

@@ -16,6 +16,12 @@ driver recorded against the box's own sample lines, decoded by the project's dec
 - a corrupted line (one digit flipped by the tap): refused (``bad-lines``), offsets unchanged;
 - machine off/on: after machine-on (and the next move) the offset is the box's value again;
 - ZERO: the first sample after it is 0 on the box and in LinuxCNC.
+
+``python -m cnc --probe`` (``make probe``) runs the in-service probing session instead (issue
+42, ``probe_scenario``): no faults; the simulated artifact's surface moves with the run's
+drift, the probing subroutine touches it every ``probe_every`` samples and the box corrects
+its estimate; ``judge_probes`` checks each reading against the true remaining error, each
+answer against the estimator's twin, the chip's refusal, and updated against static.
 """
 
 from __future__ import annotations
@@ -68,14 +74,14 @@ class Scenario:
     until the operator's ZERO) each; the box boots cold, NO_REF)."""
 
     n_samples: int = 961
-    open_at: int = 200
+    open_at: int | None = 200
     open_stop: int = 260
     open_channel: int = 0
-    stale_at: int = 350
-    bad_at: int = 420
-    off_at: int = 500
+    stale_at: int | None = 350
+    bad_at: int | None = 420
+    off_at: int | None = 500
     off_samples: int = 5
-    disable_at: int = 600
+    disable_at: int | None = 600
     disable_samples: int = 5
     zero_at: int | None = 700
     forged_at: int | None = 120
@@ -89,15 +95,37 @@ class Scenario:
     stale_period_s: float = 0.1  # the component's stale clock in the time-compressed replay
     stale_periods: float = 3.0
     testplans: tuple[ThermalTestPlan, ...] = ()  # run after the replay, in AUTO (linuxcnc)
+    # probing in service (issue 42): the probing subroutine every probe_every samples (from
+    # sample probe_every on), a chip on the artifact (+chip_um) at probe number chip_probe
+    probe_every: int | None = None
+    chip_probe: int | None = None
+    chip_um: float = 50.0
+
+    def probe_samples(self) -> list[int]:
+        if not self.probe_every:
+            return []
+        # not after the last sample: its answer would act on no sample
+        return list(range(self.probe_every, self.n_samples - 1, self.probe_every))
+
+    def chip_sample(self) -> int | None:
+        at = self.probe_samples()
+        return at[self.chip_probe] if self.chip_probe is not None and \
+            self.chip_probe < len(at) else None
 
     def events(self) -> dict:
-        ev: dict = {"open": {"at": self.open_at, "stop": self.open_stop,
-                             "channel": self.open_channel},
-                    "stale": {"at": self.stale_at,
-                              "pause_s": 3 * self.stale_period_s * self.stale_periods},
-                    "bad_line": {"at": self.bad_at},
-                    "machine_off": {"at": self.off_at, "samples": self.off_samples},
-                    "disable": {"at": self.disable_at, "samples": self.disable_samples}}
+        ev: dict = {}
+        if self.open_at is not None:
+            ev["open"] = {"at": self.open_at, "stop": self.open_stop,
+                          "channel": self.open_channel}
+        if self.stale_at is not None:
+            ev["stale"] = {"at": self.stale_at,
+                           "pause_s": 3 * self.stale_period_s * self.stale_periods}
+        if self.bad_at is not None:
+            ev["bad_line"] = {"at": self.bad_at}
+        if self.off_at is not None:
+            ev["machine_off"] = {"at": self.off_at, "samples": self.off_samples}
+        if self.disable_at is not None:
+            ev["disable"] = {"at": self.disable_at, "samples": self.disable_samples}
         if self.zero_at is not None:
             ev["zero"] = {"at": self.zero_at}
         if self.forged_at is not None:
@@ -133,6 +161,27 @@ def campaign_scenario() -> Scenario:
     whole replay, without the test programs: run it with ``run_session`` and turn the result
     into rows with ``fault_rows``."""
     return Scenario(testplans=())
+
+
+def probe_scenario(n_samples: int = 961, every: int = 60, chip_probe: int | None = 8
+                   ) -> Scenario:
+    """In-service probing (``make probe``): the job's ZERO and reference touch, then the
+    probing subroutine every ``every`` samples (60: hourly in the replayed run), a chip on
+    the artifact at probe number ``chip_probe``; no faults, no test programs."""
+    return Scenario(n_samples=n_samples, open_at=None, stale_at=None, bad_at=None,
+                    off_at=None, disable_at=None, zero_at=None, forged_at=None,
+                    garbage_at=None, reconnect_at=None, wdt_at=None, power_cuts=(),
+                    probe_every=every, chip_probe=chip_probe)
+
+
+# The session's model carries this estimator block when it probes (docs/service.md): train's
+# fields, set here rather than derived (the example model is not fitted by host train). q:
+# the wander of this model's residual on the replayed day is about 4 um^2 per hour.
+SESSION_SERVICE = {"q_um2_per_h": 4.0, "probe_noise_um": 0.5, "gate_sigma": 4.0,
+                   "gate_floor_um": 3.0, "p_max_um2": 100.0,
+                   "why": "make probe: q 4 um^2/h (this example model's residual on the "
+                          "replayed day wanders by about 2 um per hour); p_max 100 um^2 keeps "
+                          "the gate below 41 um, so a +50 um chip is refused"}
 
 
 def _inside(event: dict, n: int) -> bool:
@@ -175,8 +224,9 @@ def run_as() -> str | None:
 
 
 # --- model, firmware, feed -----------------------------------------------------------------
-def prepare_box(build: Path, n_samples: int):
-    """A 3-axis model fitted on TRAIN_RUN, the native firmware for it, the replay's feed."""
+def prepare_box(build: Path, n_samples: int, service: dict | None = None):
+    """A 3-axis model fitted on TRAIN_RUN, the native firmware for it, the replay's feed;
+    ``service``: the estimator block every axis gets (MEAS; None: none, MEAS is OFF)."""
     from hil import replay as hil_replay
     from hil.example_model import default_terms, fit_example_model, write_model
     from host.io import load_run, write_run
@@ -190,6 +240,9 @@ def prepare_box(build: Path, n_samples: int):
     # the default users get (host train --reference start): the box zeroes at the job's ZERO,
     # boots NO_REF after a power cut (the header's zero_at_powerup follows the reference)
     fitted["reference"] = {"kind": "start", "samples": 1}
+    if service is not None:
+        for ax in fitted["axes"].values():
+            ax["service"] = dict(service)
     model = write_model(fitted, build / "model.json")
     run = load_run(REPLAY_RUN, targets=[a for _, a in AXES], sensors=sensors + ["T07"],
                    aux=["spindle_rpm"])
@@ -210,7 +263,8 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
     for f in CONFIG_DIR.iterdir():
         if f.is_file():
             shutil.copy2(f, stage_dir / "cnc" / "config" / f.name)
-    shutil.copytree(CONFIG_DIR / "mcodes", stage_dir / "cnc" / "config" / "mcodes")
+    for sub in ("mcodes", "subroutines"):
+        shutil.copytree(CONFIG_DIR / sub, stage_dir / "cnc" / "config" / sub)
     # the stdlib-only contract package the component imports its decoder from
     (stage_dir / "contract").mkdir()
     for f in (ROOT / "contract").glob("*.py"):
@@ -253,10 +307,35 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
             "start_mdi": START_MDI, "events": scenario.events(), "timeout_s": 10.0,
             "retain": str(stage_dir / "retain.bin"), "zero_at_start": scenario.zero_at_start,
             "programs": programs}
+    if scenario.probe_every:
+        plan["probe"] = probe_plan(setup, scenario)
     (cfg / "plan.json").write_text(json.dumps(plan, indent=1))
     for p in (stage_dir, *stage_dir.rglob("*")):
         p.chmod(0o755 if p.is_dir() or os.access(p, os.X_OK) else 0o644)
     return cfg / "thermal_sim_session.ini"
+
+
+PROBE_AXIS = "z"  # the axis the probe measures ([probe] axis in thermalcomp.conf)
+
+
+def drift_nm(setup, letter: str = PROBE_AXIS) -> list[float]:
+    """The machine's thermal displacement of the tool along the axis at each sample (nm, the
+    box's sign: tool relative to work), since the run's first sample: the replayed run's
+    measured displacement, which the simulated artifact's surface follows."""
+    box_axis = dict(AXES)[letter]
+    d = [float(v) for v in setup.feed.measured[box_axis]]
+    return [(v - d[0]) * 1000.0 for v in d]
+
+
+def probe_plan(setup, scenario: Scenario) -> dict:
+    """The driver's probing plan: where the artifact's surface is at each sample (its drift
+    along Z in machine coordinates: with sign -1 the box's displacement is the machine's),
+    when to probe and where the chip is."""
+    chip = scenario.chip_sample()
+    return {"axis": PROBE_AXIS, "sub": "probe_ref", "return_mdi": START_MDI,
+            "at": scenario.probe_samples(),
+            "drift_mm": [-SIGN * v / 1e6 for v in drift_nm(setup)],
+            "chips": {} if chip is None else {str(chip): scenario.chip_um / 1000.0}}
 
 
 def launch(ini: Path, stage_dir: Path, user: str | None,
@@ -490,7 +569,7 @@ def clean_reference(setup, scenario: Scenario) -> dict:
     n = feed.n_samples
     codes = np.clip(np.asarray(feed.codes, dtype=np.int64), CODE_MIN, CODE_MAX)
     faults = []
-    if scenario.open_at < n:
+    if scenario.open_at is not None and scenario.open_at < n:
         faults = [(scenario.open_at, scenario.open_channel, 1),
                   (min(scenario.open_stop, n), scenario.open_channel, 0)]
     sr = sr_timeline(n, codes.shape[1], [f for f in faults if f[0] < n])
@@ -727,6 +806,205 @@ def judge(raw: dict, nm_per_count: float = 1.0, step_nm: float = 60_000.0,
     return Result(summary, raw, problems)
 
 
+# --- probing in service (issue 42) ----------------------------------------------------------
+# The probe's resolution: the slow touch's travel in one servo period ([PROBE]SLOW_FEED 3 mm/min
+# x [EMCMOT]SERVO_PERIOD 1 ms = 50 nm), plus one count of the offset (1 nm).
+PROBE_RESOLUTION_NM = 3.0 / 60.0 * 1e-3 * 1e6 + 1.0
+
+
+def _probe_records(raw: dict) -> tuple[dict | None, list[dict]]:
+    recs = raw.get("records", [])
+    ref = next((r for r in recs if r.get("phase") == "probe_ref"), None)
+    return ref, [r for r in recs if r.get("phase") == "probe"]
+
+
+def judge_probes(raw: dict, setup, scenario: Scenario, static: dict) -> dict:
+    """Each probe against the truth and the box's twin, and updated against static.
+
+    - the reading: the remaining error the probe measured (sign x the probed change since the
+      reference touch, minus the correction LinuxCNC applied) equals the simulated truth (the
+      run's drift since the reference touch minus that correction) within
+      PROBE_RESOLUTION_NM, and the component sent sign x the probed change (within a count);
+    - the box's answer ($M: verdict, reason, innovation, bias, variance) and its lines after
+      every reading equal the twin's (hil.expect with the readings the component sent,
+      codegen.estimator inside: bit-exact);
+    - the chip (+``chip_um`` on the artifact) is refused (GATE), the offset does not move
+      during its probe, and the box's lines are the same as if it had never been sent;
+    - the tool's remaining error over the run (from the first probe on) is lower updated
+      than static (the twin without readings, through the component's rules)."""
+    import numpy as np
+
+    from cnc import thermalcomp
+    from contract import protocol
+    from contract.fixed_point import CODE_MAX, CODE_MIN
+    from hil.expect import expect_session, sr_timeline
+
+    problems: list[str] = []
+    ref, probes = _probe_records(raw)
+    out: dict = {"problems": problems, "rows": [], "resolution_nm": PROBE_RESOLUTION_NM}
+    if ref is None or not probes:
+        problems.append("probing: the reference touch or the probes did not run")
+        return out
+    names = list(setup.model["axes"])
+    box_axis = dict(AXES)[PROBE_AXIS]
+    ai = names.index(box_axis)
+    letter = PROBE_AXIS
+    drift = drift_nm(setup)
+    samples = {r["sample"]: r for r in raw.get("records", []) if "box" in r}
+    period_s = float(setup.model["sample_period_s"])
+    chip = scenario.chip_sample()
+    meas: dict[int, list[tuple[int, int, int, bool]]] = {}
+    rows = out["rows"]
+    for p in probes:
+        k = p["sample"]
+        row: dict = {"sample": k, "time_h": k * period_s / 3600.0, "chip": k == chip,
+                     "error": p.get("error", "")}
+        rows.append(row)
+        if p.get("error"):
+            problems.append(f"probe at sample {k}: LinuxCNC reported {p['error']}")
+        # the probed position contains the external offset (LinuxCNC 2.9): its change is the
+        # drift's, the remaining error is that minus the correction applied
+        dp_nm = (p["probed_mm"][2] - ref["probed_mm"][2]) * 1e6
+        corr_nm = SIGN * p["eoffset_before_mm"] * 1e6  # the correction LinuxCNC applied
+        row["measured_um"] = (SIGN * dp_nm - corr_nm) / 1000.0  # the remaining error seen
+        row["true_um"] = (drift[k] - corr_nm) / 1000.0
+        row["static_um"] = (drift[k] - SIGN * static["offset_nm"][letter][k]) / 1000.0
+        row["probe_s"] = p.get("probe_s")
+        # a chip on the artifact is touched chip_um early: the tool looks that much shorter
+        truth = row["true_um"] - (scenario.chip_um if k == chip else 0.0) * -SIGN
+        off = abs(row["measured_um"] - truth) * 1000.0
+        row["measure_ok"] = off <= PROBE_RESOLUTION_NM
+        if not row["measure_ok"]:
+            problems.append(f"probe at sample {k}: measured {row['measured_um']:.4f} um, the "
+                            f"true remaining error is {truth:.4f} um ({off:.1f} nm apart, "
+                            f"resolution {PROBE_RESOLUTION_NM:g} nm)")
+        if len(p["meas_sent"]) != 1 or len(p["meas_replies"]) != 1:
+            problems.append(f"probe at sample {k}: sent {p['meas_sent']}, box answered "
+                            f"{p['meas_replies']} (one MEAS and one $M expected)")
+            continue
+        _, axis_s, nm_s, seq_s = p["meas_sent"][0].split()
+        axis, nm, seq = int(axis_s), int(nm_s), int(seq_s)
+        row.update({"reading_um": nm / 1000.0, "seq": seq})
+        want_nm = SIGN * dp_nm
+        if axis != ai or seq != samples[k]["box"]["seq"] or abs(nm - want_nm) > 1.0 + 1e-6:
+            problems.append(f"probe at sample {k}: sent MEAS {axis} {nm} {seq}, expected axis "
+                            f"{ai}, seq {samples[k]['box']['seq']}, {want_nm:.1f} nm (sign x "
+                            "the probed change)")
+        meas[k + 1] = [(axis, nm, k, False)]
+        reply = protocol.decode(p["meas_replies"][0])
+        row["reply"] = reply
+        row.update({"applied": reply.applied, "reason": reply.reason,
+                    "innovation_um": None if reply.innovation_nm is None
+                    else reply.innovation_nm / 1000.0,
+                    "bias_um": None if reply.bias_nm is None else reply.bias_nm / 1000.0})
+        pins_ok = (bool(p["meas-applied"]) == reply.applied
+                   and bool(p["meas-refused"]) != reply.applied
+                   and p["meas-reason"] == thermalcomp.MEAS_REASON_CODES.get(reply.reason or "",
+                                                                              0)
+                   and p["innovation-nm"] == (reply.innovation_nm or 0)
+                   and p["bias-nm"] == (reply.bias_nm or 0))
+        if not pins_ok:
+            problems.append(f"probe at sample {k}: the component's pins (applied "
+                            f"{p['meas-applied']}, reason {p['meas-reason']}, innovation "
+                            f"{p['innovation-nm']}, bias {p['bias-nm']}) do not show "
+                            f"{p['meas_replies'][0]}")
+        if k == chip:
+            moved = abs(p["eoffset_after_mm"] - p["eoffset_before_mm"]) * 1e6
+            row["chip_moved_nm"] = moved
+            if reply.applied or reply.reason != "GATE" or moved > MOVED_NM:
+                problems.append(f"the chip (+{scenario.chip_um:g} um) at sample {k}: "
+                                f"{p['meas_replies'][0]}, the offset moved {moved:.3f} nm "
+                                "(want: refused, GATE, not moved)")
+    # the twin with the readings the component sent, and without the chip's
+    feed = setup.feed
+    n = feed.n_samples
+    codes = np.clip(np.asarray(feed.codes, dtype=np.int64), CODE_MIN, CODE_MAX)
+    sr = sr_timeline(n, codes.shape[1], [])
+
+    def twin(readings: dict):
+        return expect_session(setup.twin, codes, feed.aux, sr, setup.output, zero_before=[0],
+                              zero_at_powerup=setup.build.zero_at_powerup, meas=readings)
+
+    upd = twin(meas)
+    replies = [r["reply"] for r in rows if "reply" in r]
+    twin_replies = list(upd.meas_replies)
+    out["twin_replies_equal"] = bool(replies) and replies == twin_replies
+    if replies != twin_replies:
+        bad = [(r["sample"], r["reply"], t) for r, t in zip(
+            [r for r in rows if "reply" in r], twin_replies, strict=False) if r["reply"] != t]
+        problems.append(f"the box's answers differ from the twin's ({len(replies)} answers, "
+                        f"{len(twin_replies)} from the twin, {len(bad)} differ; first: "
+                        f"{bad[0] if bad else '-'})")
+    mism = [k for k, r in samples.items() if r["box"]["corr_nm"] != [int(v) for v in
+                                                                       upd.out_nm[k]]]
+    out["box_vs_twin"] = {"compared": len(samples), "mismatches": len(mism)}
+    if mism:
+        problems.append(f"the box's lines differ from the twin's with the readings on "
+                        f"{len(mism)} of {len(samples)} samples (first: {mism[0]})")
+    if chip is not None and chip + 1 in meas:
+        without = twin({i: v for i, v in meas.items() if i != chip + 1})
+        same = bool(np.array_equal(without.out_nm, upd.out_nm))
+        out["chip_changed_nothing"] = same
+        if not same:
+            problems.append("the chip's reading changed the box's output (twin with and "
+                            "without it differ)")
+    # the tool's remaining error, static against updated, from the first probe on
+    first = probes[0]["sample"]
+    ks = [k for k in sorted(samples) if k >= first]
+    upd_err = [drift[k] - SIGN * samples[k]["eoffset_mm"][letter] * 1e6 for k in ks]
+    st_err = [drift[k] - SIGN * static["offset_nm"][letter][k] for k in ks]
+
+    def rms(v: list[float]) -> float:
+        return math.sqrt(sum(x * x for x in v) / len(v)) / 1000.0 if v else float("nan")
+
+    out.update({"static_rms_um": rms(st_err), "updated_rms_um": rms(upd_err),
+                "static_max_um": max(map(abs, st_err), default=0.0) / 1000.0,
+                "updated_max_um": max(map(abs, upd_err), default=0.0) / 1000.0,
+                "samples": len(ks), "probes": len(probes),
+                "applied": sum(1 for r in rows if r.get("applied")),
+                "refused": sum(1 for r in rows if r.get("applied") is False)})
+    if not out["updated_rms_um"] < out["static_rms_um"]:
+        problems.append(f"updated ({out['updated_rms_um']:.3f} um RMS) is not better than "
+                        f"static ({out['static_rms_um']:.3f} um RMS)")
+    for r in rows:
+        r.pop("reply", None)
+    return out
+
+
+def probe_table(pr: dict) -> list[str]:
+    """The residual at each probe, static against updated (um, the box's sign)."""
+    lines = ["", f"probing in service: Z, the reference touched right after ZERO, a probe every "
+             f"{pr.get('every', '?')} samples (um; residual = drift since the reference - "
+             "correction applied)",
+             f"{'probe':>5s} {'time h':>7s} {'static':>8s} {'updated':>8s} {'true':>8s}"
+             f"{'reading':>9s} {'innov.':>8s} {'bias':>8s}  answer",
+             "-" * 78]
+    for i, r in enumerate(pr.get("rows", [])):
+        ans = ("applied" if r.get("applied") else f"refused {r.get('reason')}"
+               if "applied" in r else "-") + ("  (chip +50 um)" if r.get("chip") else "")
+
+        def f(v: float | None) -> str:
+            return f"{v:8.3f}" if v is not None else f"{'-':>8s}"
+        lines.append(f"{i:5d} {r['time_h']:7.2f} {f(r['static_um'])} {f(r['measured_um'])} "
+                     f"{f(r['true_um'])} {f(r.get('reading_um'))} {f(r.get('innovation_um'))} "
+                     f"{f(r.get('bias_um'))}  {ans}")
+    if "static_rms_um" in pr:
+        lines += [f"tool error from the first probe on ({pr['samples']} samples): static "
+                  f"{pr['static_rms_um']:.3f} um RMS (max {pr['static_max_um']:.3f}), updated "
+                  f"{pr['updated_rms_um']:.3f} um RMS (max {pr['updated_max_um']:.3f}); "
+                  f"{pr['applied']} applied, {pr['refused']} refused",
+                  f"each reading = the true remaining error within "
+                  f"{pr['resolution_nm']:g} nm: "
+                  f"{'yes' if all(r.get('measure_ok') for r in pr['rows']) else 'NO'}; "
+                  f"box = twin (answers {'yes' if pr.get('twin_replies_equal') else 'NO'}, "
+                  f"lines {pr['box_vs_twin']['compared'] - pr['box_vs_twin']['mismatches']}/"
+                  f"{pr['box_vs_twin']['compared']})"
+                  + ("" if "chip_changed_nothing" not in pr else
+                     f"; the chip changed nothing: "
+                     f"{'yes' if pr['chip_changed_nothing'] else 'NO'}")]
+    return lines
+
+
 def short_testplan() -> ThermalTestPlan:
     """A time-compressed thermal test for LinuxCNC: the step protocol in 2 s steps (2000 to
     8000 rpm), 8 s running and 4 s cooling, a measurement every 2 s with a 0.5 s stop, the
@@ -853,6 +1131,8 @@ def table(summary: dict, elapsed_s: float) -> str:
         same = t.get("compared", 0) - t.get("mismatches", 0)
         lines.append(f"clean run: the twin's lines (box = twin on {same}/{t.get('compared', 0)} "
                      "samples before the first power cut) through the component's rules")
+    if s.get("probe"):
+        lines += probe_table(s["probe"])
     z = s["zero"]
     lines.append("")
     if z.get("done"):
@@ -879,7 +1159,8 @@ def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float 
     scenario = scenario or Scenario()
     check_linuxcnc()
     build.mkdir(parents=True, exist_ok=True)
-    setup = prepare_box(build, scenario.n_samples)
+    setup = prepare_box(build, scenario.n_samples,
+                        SESSION_SERVICE if scenario.probe_every else None)
     scenario.n_samples = setup.feed.n_samples
     user = run_as()
     stage_dir = Path(tempfile.mkdtemp(prefix="thermal-cnc-"))
@@ -900,8 +1181,18 @@ def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float 
         if not keep:
             shutil.rmtree(stage_dir, ignore_errors=True)
     clean = clean_reference(setup, scenario)
-    result = judge(raw, step_nm=1000.0 * setup.model["sample_period_s"], clean=clean,
-                   events=scenario.controller_events())
+    probing = bool(scenario.probe_every)
+    # with readings the box's lines carry the estimate: judge_probes compares them with the
+    # twin given the same readings instead of the clean run
+    result = judge(raw, step_nm=1000.0 * setup.model["sample_period_s"],
+                   clean=None if probing else clean, events=scenario.controller_events())
+    if probing:
+        pr = judge_probes(raw, setup, scenario, clean)
+        pr["every"] = scenario.probe_every
+        result.summary["probe"] = pr
+        result.problems += pr["problems"]
+        result.summary["problems"] = result.problems
+        result.summary["ok"] = not result.problems
     if scenario.testplans:
         recorded = raw.get("programs", [])
         progs = [judge_program(tp, recorded[i] if i < len(recorded) else None)
@@ -929,10 +1220,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep", action="store_true", help="keep the staged LinuxCNC directory")
     ap.add_argument("--no-program", action="store_true",
                     help="skip the test programs (host testplan --dialect linuxcnc)")
+    ap.add_argument("--probe", action="store_true",
+                    help="the in-service probing session instead (make probe): a probe every "
+                         "--probe-every samples, the residual at each, static against updated")
+    ap.add_argument("--probe-every", type=int, default=60, help="samples between probes")
     args = ap.parse_args(argv)
     try:
-        scenario = Scenario(n_samples=args.samples,
-                            testplans=() if args.no_program else default_testplans())
+        if args.probe:
+            scenario = probe_scenario(args.samples, args.probe_every)
+            if args.build_dir == str(ROOT / "build" / "cnc"):
+                args.build_dir = str(ROOT / "build" / "cnc-probe")
+        else:
+            scenario = Scenario(n_samples=args.samples,
+                                testplans=() if args.no_program else default_testplans())
         result = run_session(Path(args.build_dir), scenario, keep=args.keep)
     except CncError as exc:
         print(f"cnc: {exc}")

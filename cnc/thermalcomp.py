@@ -41,6 +41,14 @@ more than one step limit of an axis; where the component cannot know, it holds a
   sample the box outputs the change since then; that first value is a new datum and
   is applied without the step limit (LinuxCNC still ramps it at OFFSET_AV_RATIO). An
   ``$OK,ZERO`` the component did not ask for changes nothing.
+- **probing in service** (issue 42, ``[probe]``): ``meas-request`` (rising edge, from the
+  probing subroutine's ``M64``) turns ``meas-mm`` (the probed position's change since the
+  reference touch, machine units) and the external offset LinuxCNC applies into the axis's
+  displacement since the reference as the probe saw it, and sends ``MEAS <axis> <nm> <seq>``
+  with the seq of the latest sample line; the box's ``$M`` answer (applied, or refused with a
+  reason) goes to ``meas-done``/``meas-applied``/``meas-refused``/``meas-reason`` and the
+  axis's ``L.bias-nm``/``L.innovation-nm``. The reading never moves an offset itself: the
+  box adds its estimate to its output, which reaches LinuxCNC through the step limits above.
 
 Runs under Debian's /usr/bin/python3 (where LinuxCNC's ``hal`` module lives); needs only the
 standard library and the project's stdlib-only wire-protocol decoder, found next to this file
@@ -83,6 +91,11 @@ DEFAULT_MAX_ABS_UM = 200.0
 # is at most a few hundred bytes): a stream without newlines must not grow memory or read time.
 MAX_LINE_BYTES = 4096
 OVERLONG = b"<over-long line>"  # what Port.read_lines returns for a discarded over-long line
+# meas-reason: 0 applied (or nothing yet); 1.. the box's refusals (contract.protocol.MEAS_REASONS,
+# in that order); then the component's own: the request never reached the box, or no answer.
+MEAS_LOCAL_REASONS = ("NO_PROBE", "LINK", "RANGE", "TIMEOUT", "BAD_ARG")
+MEAS_REASON_CODES = {r: i + 1 for i, r in enumerate(protocol.MEAS_REASONS
+                                                   + MEAS_LOCAL_REASONS)}
 
 
 class ConfigError(ValueError):
@@ -104,6 +117,9 @@ class AxisMap:
     sent: int = 0  # the offset LinuxCNC has been told (counts) since the last resync
     seen: bool = False  # a value from the box has been applied since start
     box_nm: int = 0  # the box's last correction for this axis
+    bias_nm: int = 0  # the box's in-service estimate for this axis (its last $M answer)
+    innovation_nm: int = 0  # the last reading's innovation (reading - (model + bias))
+    p_nm2: int = 0  # the estimate's variance after the last answer
 
 
 @dataclass
@@ -120,6 +136,9 @@ class Config:
     model_hash: str | None = None  # the hash the box's INFO must report (None: refuse to drive)
     model_path: Path | None = None  # where model_hash and the step limits came from
     max_abs_um: float = DEFAULT_MAX_ABS_UM  # no offset ever beyond this (the box's clamp)
+    probe_axis: str | None = None  # [probe] axis: the LinuxCNC axis the probe measures
+    probe_timeout_s: float = 2.0  # no $M answer within this: TIMEOUT
+    probed_includes_offset: bool = True  # LinuxCNC 2.9: #5063 contains the external offset
 
 
 def load_config(path: str | Path) -> Config:
@@ -214,6 +233,23 @@ def load_config(path: str | Path) -> Config:
     letters = [a.letter for a in cfg.axes]
     if len(set(letters)) != len(letters):
         raise ConfigError(f"{path}: an axis letter appears twice ({', '.join(letters)})")
+    if parser.has_section("probe"):
+        axis = str(get("probe", "axis", str)).strip().lower()
+        if axis not in letters:
+            raise ConfigError(f"{path}: [probe] axis = {axis!r}: not one of the driven axes "
+                              f"({', '.join(letters)})")
+        cfg.probe_axis = axis
+        cfg.probe_timeout_s = float(get("probe", "timeout_s", float, 2.0))
+        try:
+            cfg.probed_includes_offset = parser.getboolean("probe", "probed_includes_offset",
+                                                           fallback=True)
+        except ValueError:
+            raise ConfigError(f"{path}: [probe] probed_includes_offset = "
+                              f"{parser.get('probe', 'probed_includes_offset')!r}: yes or "
+                              "no") from None
+        if not (math.isfinite(cfg.probe_timeout_s) and cfg.probe_timeout_s > 0):
+            raise ConfigError(f"{path}: [probe] timeout_s = {cfg.probe_timeout_s:g} must be "
+                              "positive")
     return cfg
 
 
@@ -369,6 +405,16 @@ class Compensator:
         self.walking = False
         self.hold_reason = ""  # why the last sample line was held ("" when it was applied)
         self._warned_hash: str | None = None
+        # probing in service (MEAS): the request in flight and the last answer
+        self.meas_pending: dict | None = None  # {"axis", "letter", "nm", "seq", "t"}
+        self.meas_done = False  # the last request has its answer (applied, or refused)
+        self.meas_applied = False
+        self.meas_reason = ""  # "" applied; a MEAS_REASONS or MEAS_LOCAL_REASONS name
+        self.meas_nm: int | None = None  # the last reading sent (nm)
+        self.meas_seq: int | None = None  # ... and the sample it referred to
+        self.meas_count = 0  # answers (applied or refused, local refusals included)
+        self.meas_refusals = 0  # refused, in total
+        self.meas_refused_in_row = 0  # refused since the last applied reading
         if cfg.model_hash is None:
             self.log("no expected model hash in the config ([box] model = <model.json> or "
                      "model_hash): every axis holds; docs/linuxcnc.md")
@@ -584,6 +630,102 @@ class Compensator:
         else:
             self.log(f"box refused a command: {reason}")
 
+    # ---- probing in service (MEAS, issue 42) ---------------------------------------------
+    def probe_axis(self) -> AxisMap | None:
+        return next((a for a in self.cfg.axes if a.letter == self.cfg.probe_axis), None)
+
+    def reading_nm(self, a: AxisMap, delta_mm: float, applied_counts: int) -> float:
+        """The axis's displacement since the reference as the probe saw it (nm, the box's
+        sign): ``delta_mm`` is the probed position's change since the reference touch
+        (machine units), ``applied_counts`` the external offset LinuxCNC applied at the touch.
+
+        The tool tip is at joint + d (d: the thermal displacement along the machine axis) and
+        touches the artifact when that reaches the surface. LinuxCNC 2.9's probed position
+        (#5061-#5063) is where the joint was, external offset included (measured:
+        docs/linuxcnc.md, "Probing in service"), so its change is -(change of d) whatever
+        offset is applied, and the box's displacement (offset = sign x correction cancels d,
+        so correction = -sign x d) is sign x delta. A control whose probed position leaves
+        the offset out (``[probe] probed_includes_offset = no``) measured delta - e: the
+        offset is added back."""
+        delta_nm = delta_mm * self.cfg.units_mm * 1e6
+        if not self.cfg.probed_includes_offset:
+            delta_nm += applied_counts * a.nm_per_count
+        return a.sign * delta_nm
+
+    def meas_request(self, delta_mm: float, applied_counts: int, now: float) -> bytes | None:
+        """A probe reading to send: the MEAS line, or None when the component refuses it
+        itself (then ``meas_done`` with the reason: NO_PROBE, LINK, RANGE)."""
+        self.meas_done, self.meas_applied, self.meas_reason = False, False, ""
+        a = self.probe_axis()
+        if a is None:
+            return self._meas_local("NO_PROBE", "no [probe] axis in the config")
+        if self.meas_pending is not None:
+            self.log(f"MEAS: a new request while seq {self.meas_pending['seq']}'s is "
+                     "unanswered: the old one is dropped")
+            self.meas_pending = None
+        if self.info is None or not self.info_fresh or self.model_mismatch or a.index is None \
+                or self.last_seq is None:
+            return self._meas_local("LINK", "the box's INFO and a sample line are needed first")
+        nm = self.reading_nm(a, delta_mm, applied_counts)
+        if not (math.isfinite(nm) and protocol.MEAS_NM_MIN <= round(nm) <= protocol.MEAS_NM_MAX):
+            return self._meas_local("RANGE", f"reading {nm:g} nm does not fit the protocol")
+        nm = round(nm)
+        self.meas_pending = {"axis": a.index, "letter": a.letter, "nm": nm,
+                             "seq": self.last_seq, "t": now}
+        self.meas_nm, self.meas_seq = nm, self.last_seq
+        self.log(f"MEAS {a.letter.upper()}: probed {delta_mm:+.6f} mm since the reference "
+                 f"(offset applied: {applied_counts} counts) -> {nm} nm at seq {self.last_seq}")
+        return protocol.encode_meas(a.index, nm, self.last_seq)
+
+    def _meas_local(self, reason: str, why: str) -> None:
+        self.log(f"MEAS refused by the component: {reason} ({why})")
+        self._meas_answer(False, reason)
+        return None
+
+    def _meas_answer(self, applied: bool, reason: str) -> None:
+        self.meas_pending = None
+        self.meas_done, self.meas_applied, self.meas_reason = True, applied, reason
+        self.meas_count += 1
+        if applied:
+            self.meas_refused_in_row = 0
+        else:
+            self.meas_refusals += 1
+            self.meas_refused_in_row += 1
+
+    def take_meas_reply(self, m: protocol.MeasReply) -> None:
+        """``$M``: the box's answer to the reading in flight."""
+        p = self.meas_pending
+        if p is None or m.axis != p["axis"] or m.seq != p["seq"]:
+            self.log(f"$M for axis {m.axis} seq {m.seq} without that MEAS in flight: ignored")
+            return
+        a = next(x for x in self.cfg.axes if x.letter == p["letter"])
+        if m.innovation_nm is not None:
+            a.innovation_nm = m.innovation_nm
+        if m.bias_nm is not None:
+            a.bias_nm = m.bias_nm
+        if m.p_nm2 is not None:
+            a.p_nm2 = m.p_nm2
+        self._meas_answer(m.applied, m.reason or "")
+        self.log(f"MEAS {a.letter.upper()} seq {m.seq}: "
+                 + ("applied" if m.applied else f"refused ({m.reason})")
+                 + f", innovation {_show_nm(m.innovation_nm)}, bias {_show_nm(m.bias_nm)}"
+                 + (f", {self.meas_refused_in_row} refused in a row"
+                    if self.meas_refused_in_row > 1 else ""))
+
+    def meas_error(self, reason: str) -> bool:
+        """``$E`` while a MEAS is in flight and no ZERO: the box's parser refused it."""
+        if self.meas_pending is None or self.zero_pending:
+            return False
+        self._meas_answer(False, "BAD_ARG" if reason == "BAD_ARG" else reason)
+        self.log(f"MEAS refused by the box's parser: $E,{reason}")
+        return True
+
+    def check_meas_timeout(self, now: float) -> None:
+        p = self.meas_pending
+        if p is not None and now - p["t"] > self.cfg.probe_timeout_s:
+            self.log(f"MEAS seq {p['seq']}: no answer within {self.cfg.probe_timeout_s:g} s")
+            self._meas_answer(False, "TIMEOUT")
+
     def zero_wait_reason(self) -> str:
         """Why a ZERO now would take a datum that is not a healthy box's ("" : none): the
         box holds or walks an axis (it refuses then), the stream is stale, or the offsets
@@ -646,7 +788,16 @@ class HalDriver:
                 ("zero-acks", hal.HAL_S32, hal.HAL_OUT), ("zero-seq", hal.HAL_S32, hal.HAL_OUT),
                 ("model-mismatch", hal.HAL_BIT, hal.HAL_OUT),
                 ("awaiting-zero", hal.HAL_BIT, hal.HAL_OUT),
-                ("zero-deferred", hal.HAL_BIT, hal.HAL_OUT)):
+                ("zero-deferred", hal.HAL_BIT, hal.HAL_OUT),
+                # probing in service (MEAS): docs/linuxcnc.md "Probing in service"
+                ("meas-mm", hal.HAL_FLOAT, hal.HAL_IN), ("meas-request", hal.HAL_BIT, hal.HAL_IN),
+                ("meas-done", hal.HAL_BIT, hal.HAL_OUT), ("meas-applied", hal.HAL_BIT, hal.HAL_OUT),
+                ("meas-refused", hal.HAL_BIT, hal.HAL_OUT),
+                ("meas-reason", hal.HAL_S32, hal.HAL_OUT),
+                ("meas-nm", hal.HAL_S32, hal.HAL_OUT), ("meas-seq", hal.HAL_S32, hal.HAL_OUT),
+                ("meas-count", hal.HAL_S32, hal.HAL_OUT),
+                ("meas-refusals", hal.HAL_S32, hal.HAL_OUT),
+                ("meas-refused-in-row", hal.HAL_S32, hal.HAL_OUT)):
             h.newpin(pin, kind, direction)
         for a in cfg.axes:
             p = a.letter
@@ -657,9 +808,13 @@ class HalDriver:
             h.newpin(f"{p}.request", hal.HAL_FLOAT, hal.HAL_IN)
             h.newpin(f"{p}.offset", hal.HAL_FLOAT, hal.HAL_OUT)
             h.newpin(f"{p}.correction-nm", hal.HAL_S32, hal.HAL_OUT)
+            h.newpin(f"{p}.bias-nm", hal.HAL_S32, hal.HAL_OUT)
+            h.newpin(f"{p}.innovation-nm", hal.HAL_S32, hal.HAL_OUT)
+            h.newpin(f"{p}.p-nm2", hal.HAL_S32, hal.HAL_OUT)
             h[f"{p}.scale"] = self.scale(a)
             h[f"{p}.eoffset-enable"] = True
-        h["seq"], h["zero-seq"], h["age-s"] = -1, -1, -1.0
+        h["seq"], h["zero-seq"], h["age-s"], h["meas-seq"] = -1, -1, -1.0, -1
+        self.meas_was = False
         self.live_since: float | None = None
         self.last_write = 0.0
         self.need_sync = True
@@ -713,6 +868,7 @@ class HalDriver:
             else:
                 comp.log("zero: box not connected, ZERO not sent")
         self.zero_was = zero
+        self.probe(now, port)
         comp.check_stale(now)
         status = comp.status
         h["connected"] = port.fd is not None and comp.info is not None and comp.info_fresh
@@ -735,6 +891,37 @@ class HalDriver:
         for a in self.cfg.axes:
             h[f"{a.letter}.offset"] = a.want * self.scale(a)
             h[f"{a.letter}.correction-nm"] = a.box_nm
+            h[f"{a.letter}.bias-nm"] = _s32(a.bias_nm)
+            h[f"{a.letter}.innovation-nm"] = _s32(a.innovation_nm)
+            h[f"{a.letter}.p-nm2"] = _s32(min(a.p_nm2, (1 << 31) - 1))
+
+    def probe(self, now: float, port: Port) -> None:
+        """``meas-request`` rising: send the reading; ``meas-done`` while the request is up
+        and answered (the subroutine waits on it with M66, then drops the request)."""
+        h, comp = self.h, self.comp
+        request = bool(h["meas-request"])
+        if request and not self.meas_was:
+            a = comp.probe_axis()
+            # the offset LinuxCNC applies: its eoffset-request, in counts
+            applied = round(h[f"{a.letter}.request"] / self.scale(a)) if a else 0
+            line = comp.meas_request(float(h["meas-mm"]), applied, now)
+            if line is not None and not port.write(line):
+                comp.meas_pending = None
+                comp._meas_local("LINK", "the port is closed")
+        self.meas_was = request
+        comp.check_meas_timeout(now)
+        h["meas-done"] = request and comp.meas_done
+        h["meas-applied"] = comp.meas_done and comp.meas_applied
+        h["meas-refused"] = comp.meas_done and not comp.meas_applied
+        h["meas-reason"] = MEAS_REASON_CODES.get(comp.meas_reason, 0)
+        h["meas-nm"] = _s32(comp.meas_nm if comp.meas_nm is not None else 0)
+        h["meas-seq"] = _s32(comp.meas_seq if comp.meas_seq is not None else -1)
+        h["meas-count"], h["meas-refusals"] = comp.meas_count, comp.meas_refusals
+        h["meas-refused-in-row"] = comp.meas_refused_in_row
+
+
+def _show_nm(value: int | None) -> str:
+    return "-" if value is None else f"{value} nm"
 
 
 def _s32(value: int) -> int:
@@ -765,8 +952,11 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
         comp.take_info(msg)
     elif isinstance(msg, protocol.Ack) and msg.command == "ZERO":
         comp.zeroed(msg.value)
+    elif isinstance(msg, protocol.MeasReply):
+        comp.take_meas_reply(msg)
     elif isinstance(msg, protocol.ErrorReply):
-        comp.refused(msg.reason)
+        if not comp.meas_error(msg.reason):
+            comp.refused(msg.reason)
 
 
 def main(argv: list[str] | None = None) -> int:

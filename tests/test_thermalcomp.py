@@ -546,3 +546,143 @@ def test_a_box_without_its_datum_is_never_made_to_wait_for_zero(tmp_path):
     assert comp.zero_wait_reason() == ""
     _line(comp, seq + 1, 0, 0, status=tc.HOLD)
     assert comp.zero_wait_reason().startswith("box status HOLD")
+
+
+# ---- probing in service: MEAS (issue 42, docs/linuxcnc.md "Probing in service") -----------
+PROBE = CONF + "\n[probe]\naxis = z\ntimeout_s = 2\n"
+
+
+def _reply(axis: int, seq: int, applied: bool, reason: str | None = None,
+           innovation: int | None = 0, bias: int | None = 0, p: int | None = 0) -> bytes:
+    return protocol.encode_meas_reply(protocol.MeasReply(
+        axis, seq, applied, reason, innovation, bias, p)).rstrip(b"\r\n")
+
+
+def _take(comp, raw: bytes, now: float = 0.0) -> None:
+    tc.handle_line(comp, tc.Port("/dev/null", 115200), raw, now)
+
+
+def test_a_probe_reading_becomes_meas_with_the_box_axis_and_the_latest_seq(tmp_path):
+    comp = _comp(tmp_path, PROBE)
+    _track(comp, [0, 10, 20], first_seq=40)  # seq 40..42
+    # LinuxCNC 2.9's probed position contains the external offset: its change since the
+    # reference touch is minus the drift's. Z sign -1: the box's displacement is -delta.
+    line = comp.meas_request(-0.0345, applied_counts=-20, now=1.0)
+    assert line == b"MEAS 1 34500 42\r\n"  # dz_um is the box's axis 1 (INFO order)
+    assert comp.meas_pending["seq"] == 42 and not comp.meas_done
+    # the same touch on a control whose probed position leaves the offset out
+    comp2 = _comp(tmp_path, PROBE.replace("timeout_s = 2", "probed_includes_offset = no"))
+    _track(comp2, [0], first_seq=7)
+    assert comp2.meas_request(-0.0345, applied_counts=-20, now=1.0) == b"MEAS 1 34520 7\r\n"
+
+
+def test_the_boxs_answer_goes_to_the_pins_and_never_moves_an_offset(tmp_path):
+    comp = _comp(tmp_path, PROBE)
+    seq = _track(comp, [0, 10, 20])
+    before = _want(comp)
+    comp.meas_request(-0.021, 0, 1.0)
+    _take(comp, _reply(1, seq - 1, True, None, 1500, 1412, 235291))
+    assert (comp.meas_done, comp.meas_applied, comp.meas_reason) == (True, True, "")
+    z = comp.probe_axis()
+    assert (z.innovation_nm, z.bias_nm, z.p_nm2) == (1500, 1412, 235291)
+    assert _want(comp) == before  # the box adds the estimate to its output: nothing here
+    assert comp.meas_count == 1 and comp.meas_refusals == 0
+    # a chip: refused by the gate, shown, counted; the offsets stay
+    comp.meas_request(0.029, 0, 2.0)
+    _take(comp, _reply(1, seq - 1, False, "GATE", -49500, 1412, 235291))
+    assert (comp.meas_done, comp.meas_applied, comp.meas_reason) == (True, False, "GATE")
+    assert tc.MEAS_REASON_CODES["GATE"] == 1 + protocol.MEAS_REASONS.index("GATE")
+    assert z.bias_nm == 1412 and z.innovation_nm == -49500 and _want(comp) == before
+    comp.meas_request(0.029, 0, 3.0)
+    _take(comp, _reply(1, seq - 1, False, "GATE", -49000, 1412, 235291))
+    assert comp.meas_refused_in_row == 2 and comp.meas_refusals == 2
+    comp.meas_request(-0.021, 0, 4.0)
+    _take(comp, _reply(1, seq - 1, True, None, 100, 1500, 200000))
+    assert comp.meas_refused_in_row == 0 and comp.meas_refusals == 2 and comp.meas_count == 4
+    # the next sample line moves the offsets as any line does (the step limits apply)
+    _line(comp, seq, 0, 30)
+    assert _want(comp)["z"] == -30
+
+
+@pytest.mark.parametrize("reason", protocol.MEAS_REASONS)
+def test_every_refusal_of_the_box_is_shown_with_its_reason(tmp_path, reason):
+    comp = _comp(tmp_path, PROBE)
+    seq = _track(comp, [0])
+    comp.meas_request(0.001, 0, 1.0)
+    _take(comp, _reply(1, seq - 1, False, reason, None, None if reason == "AXIS" else 0,
+                       None if reason == "AXIS" else 0))
+    assert comp.meas_done and not comp.meas_applied and comp.meas_reason == reason
+    assert tc.MEAS_REASON_CODES[reason] == 1 + protocol.MEAS_REASONS.index(reason)
+
+
+def test_an_answer_to_another_reading_or_none_in_flight_is_ignored(tmp_path):
+    logs: list[str] = []
+    comp = _comp(tmp_path, PROBE, logs)
+    seq = _track(comp, [0, 5])
+    _take(comp, _reply(1, seq - 1, True, None, 7, 7, 7))  # nothing in flight (forged, late)
+    assert not comp.meas_done and comp.probe_axis().bias_nm == 0
+    comp.meas_request(0.001, 0, 1.0)
+    _take(comp, _reply(1, seq - 2, True, None, 7, 7, 7))  # another sample
+    _take(comp, _reply(0, seq - 1, True, None, 7, 7, 7))  # another axis
+    assert not comp.meas_done and comp.probe_axis().bias_nm == 0
+    assert sum("without that MEAS in flight" in m for m in logs) == 3
+
+
+def test_no_answer_in_time_is_a_timeout_and_the_late_answer_changes_nothing(tmp_path):
+    comp = _comp(tmp_path, PROBE)
+    seq = _track(comp, [0])
+    comp.meas_request(0.001, 0, 10.0)
+    comp.check_meas_timeout(11.9)
+    assert not comp.meas_done
+    comp.check_meas_timeout(12.1)
+    assert (comp.meas_done, comp.meas_applied, comp.meas_reason) == (True, False, "TIMEOUT")
+    _take(comp, _reply(1, seq - 1, True, None, 7, 7, 7))
+    assert comp.meas_reason == "TIMEOUT" and comp.probe_axis().bias_nm == 0
+
+
+def test_the_component_refuses_what_it_cannot_send(tmp_path):
+    comp = _comp(tmp_path, CONF)  # no [probe]
+    _track(comp, [0])
+    assert comp.meas_request(0.001, 0, 1.0) is None and comp.meas_reason == "NO_PROBE"
+    comp = _comp(tmp_path, PROBE)  # INFO, but no sample line yet: no seq to name
+    assert comp.meas_request(0.001, 0, 1.0) is None and comp.meas_reason == "LINK"
+    comp = _comp(tmp_path, PROBE)
+    _track(comp, [0])
+    comp.take_info(_info("fedcba9876543210"))  # another model: its axis order is unknown
+    assert comp.meas_request(0.001, 0, 1.0) is None and comp.meas_reason == "LINK"
+    comp = _comp(tmp_path, PROBE)
+    _track(comp, [0])
+    assert comp.meas_request(3000.0, 0, 1.0) is None and comp.meas_reason == "RANGE"  # 3e12 nm
+    assert comp.meas_done and comp.meas_refusals == 1
+
+
+def test_a_parser_error_answers_the_reading_not_a_zero(tmp_path):
+    comp = _comp(tmp_path, PROBE)
+    _track(comp, [0])
+    comp.meas_request(0.001, 0, 1.0)
+    _take(comp, protocol.encode_line("E", ["BAD_ARG"]).rstrip(b"\r\n"))
+    assert (comp.meas_done, comp.meas_reason) == (True, "BAD_ARG")
+    comp.zero_sent()  # $E,HOLDING while a ZERO is in flight is the ZERO's
+    comp.meas_request(0.001, 0, 2.0)
+    _take(comp, protocol.encode_line("E", ["HOLDING"]).rstrip(b"\r\n"))
+    assert comp.zero_deferred and not comp.meas_done
+
+
+@pytest.mark.parametrize(("change", "needle"), [
+    ("axis = z", "axis = y"),
+    ("timeout_s = 2", "timeout_s = 0"),
+    ("timeout_s = 2", "probed_includes_offset = maybe"),
+])
+def test_probe_config_errors(tmp_path, change, needle):
+    path = tmp_path / "thermalcomp.conf"
+    path.write_text(PROBE.replace(change, needle))
+    with pytest.raises(tc.ConfigError, match=r"\[probe\]"):
+        tc.load_config(path)
+
+
+def test_the_shipped_config_probes_z_and_the_reason_codes_are_distinct():
+    cfg = tc.load_config(ROOT / "cnc" / "config" / "thermalcomp.conf")
+    assert cfg.probe_axis == "z" and cfg.probed_includes_offset
+    codes = tc.MEAS_REASON_CODES
+    assert len(set(codes.values())) == len(codes) and 0 not in codes.values()
+    assert set(protocol.MEAS_REASONS) <= set(codes)
