@@ -270,3 +270,71 @@ def test_the_rule_fails_an_event_that_moves_an_axis_beyond_its_step_limit():
     assert not bad["ok"]
     good = _judged([0.0, 0.0, 1000.0, 0.0], events=(("stale stream", 1),))
     assert good["events"][0]["ok"] and good["events"][0]["increase_um"]["z"] == 1.0
+
+
+# ---- probing in service (issue 42): make probe --------------------------------------------
+@pytest.fixture(scope="module")
+def probe_run(tmp_path_factory):
+    build = tmp_path_factory.mktemp("cnc-probe")
+    scenario = session.probe_scenario()
+    return session.run_session(build, scenario), scenario
+
+
+@pytest.mark.slow
+def test_probing_session_completes_within_its_ci_budget(probe_run):
+    result, scenario = probe_run
+    assert result.raw["ok"], result.raw.get("error")
+    assert result.summary["ok"], result.summary["problems"]
+    s = result.summary
+    assert s["elapsed_s"] - s["lock_wait_s"] < 60
+    assert s["tracked_samples"] > 900 and s["max_abs_diff_nm"] <= 1.0  # offsets follow the box
+    assert [r["sample"] for r in s["probe"]["rows"]] == scenario.probe_samples()
+
+
+@pytest.mark.slow
+def test_each_probe_measures_the_true_remaining_error(probe_run):
+    result, scenario = probe_run
+    rows = result.summary["probe"]["rows"]
+    assert len(rows) == 15
+    for r in rows:
+        assert r["measure_ok"], r
+        truth = r["true_um"] - (scenario.chip_um if r["chip"] else 0.0)
+        assert abs(r["measured_um"] - truth) * 1000 <= session.PROBE_RESOLUTION_NM
+        # what the box got: the probed displacement since the reference, in its sign
+        assert r["reading_um"] is not None
+
+
+@pytest.mark.slow
+def test_the_boxs_answers_and_lines_equal_the_twin_with_the_same_readings(probe_run):
+    result, _ = probe_run
+    pr = result.summary["probe"]
+    assert pr["twin_replies_equal"]
+    assert pr["box_vs_twin"]["mismatches"] == 0 and pr["box_vs_twin"]["compared"] == 961
+    applied = [r for r in pr["rows"] if r["applied"]]
+    # the innovation is the residual the probe saw (reading - the box's output at that seq)
+    for r in applied:
+        assert abs(r["innovation_um"] - r["measured_um"]) < 0.06, r
+
+
+@pytest.mark.slow
+def test_the_chip_is_refused_by_the_gate_and_never_moves_the_tool(probe_run):
+    result, scenario = probe_run
+    pr = result.summary["probe"]
+    chip = [r for r in pr["rows"] if r["chip"]]
+    assert len(chip) == 1 and chip[0]["sample"] == scenario.chip_sample()
+    assert chip[0]["applied"] is False and chip[0]["reason"] == "GATE"
+    assert chip[0]["chip_moved_nm"] <= session.MOVED_NM
+    assert pr["chip_changed_nothing"]
+    before = [r for r in pr["rows"] if r["sample"] < chip[0]["sample"]][-1]
+    assert chip[0]["bias_um"] == before["bias_um"]  # the estimate stayed
+    assert sum(1 for r in pr["rows"] if r["applied"] is False) == 1
+
+
+@pytest.mark.slow
+def test_updated_beats_static_on_the_tool(probe_run):
+    result, _ = probe_run
+    pr = result.summary["probe"]
+    assert pr["updated_rms_um"] < 0.5 * pr["static_rms_um"]
+    assert pr["updated_max_um"] < pr["static_max_um"]
+    text = session.table(result.summary, result.summary["elapsed_s"])
+    assert "probing in service" in text and "refused GATE" in text and "RESULT: PASS" in text
