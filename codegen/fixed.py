@@ -167,7 +167,7 @@ class FixedModel:
                     self.s[i] = _filter_update(self.s[i], code * _STATE_ONE, t.param)
                 self.last[i], self.gap[i] = code, 0
             elif self.started[i]:
-                self.gap[i] = min(self.gap[i] + 1, 0xFFFFFFFF)
+                self.gap[i] = min(self.gap[i] + 1, 0xFFFF)  # uint16 on the box
         mask = 0
         for ax in self.model.axes:
             if all(ch_ok[t.input] for t in ax.terms if t.kind in TEMPERATURE_KINDS) and \

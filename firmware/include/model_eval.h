@@ -174,7 +174,7 @@ typedef struct {
 typedef struct {
     int64_t s[TCM_MAX_STATES];    /* filter state, code * 2^16 units */
     int32_t last[TCM_MAX_STATES]; /* the last valid reading of the state's channel */
-    uint32_t gap[TCM_MAX_STATES]; /* samples missed since then (saturating) */
+    uint16_t gap[TCM_MAX_STATES]; /* samples missed since then (saturating at 65535) */
     uint32_t started;             /* bit i: state i had its cold start (first valid sample) */
     uint32_t k;                /* samples since power-up, saturating at UINT32_MAX */
 } tcm_state_t;

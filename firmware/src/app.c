@@ -89,7 +89,6 @@ typedef struct {
                         * its output is not the model's, so a datum taken now is not the
                         * healthy box's: ZERO is refused */
 
-    tcm_state_t tcm;
     int32_t codes[BOX_MAX_CHANNELS];       /* as read (sent on the line) */
     int32_t model_codes[BOX_MAX_CHANNELS]; /* what the model gets (guarded) */
     uint16_t ch_fault[BOX_MAX_CHANNELS];
@@ -142,6 +141,8 @@ typedef struct {
 
 static retained_t snap;
 static est_state_t *const est = snap.est;
+/* The filters live in the retained block too (one copy in RAM: 520 B for 8 channels). */
+static tcm_state_t *const tcm = &snap.tcm;
 
 static uint32_t crc32_bytes(const uint8_t *p, size_t n)
 {
@@ -175,7 +176,6 @@ static void retain_save(void)
     snap.referenced = app.referenced;
     snap.zero_pending = app.zero_pending;
     snap.sampled = app.sampled;
-    snap.tcm = app.tcm;
     snap.ref_set = app.ref_set;
     for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
         snap.ref_code[ch] = app.ref_code[ch];
@@ -209,7 +209,6 @@ static bool retain_restore(void)
     app.referenced = snap.referenced != 0u;
     app.zero_pending = snap.zero_pending != 0u;
     app.sampled = snap.sampled != 0u;
-    app.tcm = snap.tcm;
     app.ref_set = snap.ref_set;
     for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
         app.ref_code[ch] = snap.ref_code[ch];
@@ -342,7 +341,6 @@ void app_init(void)
     for (uint32_t ch = 0; ch < app.n_channels; ch++) {
         (void)max31856_configure((uint8_t)ch, app.model->channels[ch].tc_type);
     }
-    tcm_state_init(&app.tcm);
     for (uint32_t ch = 0; ch < BOX_MAX_CHANNELS; ch++) {
         channel_guard_init(&app.guards[ch]);
     }
@@ -367,6 +365,7 @@ void app_init(void)
     app.rate_left = 1u;
     bool resumed = retain_restore();
     if (!resumed) {
+        tcm_state_init(tcm); /* a failed restore may have left anything in the block */
         est_reset_all();
     }
     app.status = app.sticky | (app.n_axes > 0u && !resumed ? STATUS_NO_DATA : 0u) |
@@ -526,7 +525,7 @@ static void take_sample(void)
     app.zero_blocked = false;
     if (app.model_ok) {
         /* Called every period, also with every channel faulted, so the time term counts. */
-        uint32_t ok = tcm_step(app.model, &app.tcm, app.model_codes, valid_mask,
+        uint32_t ok = tcm_step(app.model, tcm, app.model_codes, valid_mask,
                                app.n_aux > 0u ? app.aux : NULL, app.computed_nm);
         bool no_ref = app.needs_ref && !app.referenced;
         if (no_ref) {

@@ -72,9 +72,9 @@ static int64_t tcm_filter(int64_t s, int32_t code, uint32_t a)
 /* Catch-up: the channel was missing for gap samples; run the filter over them with inputs
  * interpolated between the last valid reading and the new one (at most TCM_CATCHUP_MAX).
  * Every input lies between two valid codes, so the state bounds of the header still hold. */
-static int64_t tcm_catch_up(int64_t s, int32_t last, int32_t code, uint32_t gap, uint32_t a)
+static int64_t tcm_catch_up(int64_t s, int32_t last, int32_t code, uint16_t gap, uint32_t a)
 {
-    const uint32_t g = gap < TCM_CATCHUP_MAX ? gap : TCM_CATCHUP_MAX;
+    const uint32_t g = gap < TCM_CATCHUP_MAX ? gap : TCM_CATCHUP_MAX; /* gap <= 65535 */
     const int64_t diff = (int64_t)code - last;
     for (uint32_t k = 1u; k <= g; ++k) {
         const int64_t x = (int64_t)last + tcm_div_round(diff * (int64_t)k, (int64_t)g + 1);
@@ -255,7 +255,7 @@ uint32_t tcm_step(const tcm_model_t *m, tcm_state_t *st, const int32_t *temp_cod
             }
             st->last[i] = code;
             st->gap[i] = 0u;
-        } else if ((st->started & bit) != 0u && st->gap[i] != UINT32_MAX) {
+        } else if ((st->started & bit) != 0u && st->gap[i] != UINT16_MAX) {
             st->gap[i]++; /* frozen while missing; caught up when the channel is back */
         }
     }

@@ -20,9 +20,27 @@ static void enable(void)
     }
 }
 
+/* Whether the backup SRAM answers: its first word must read back what was written (the old
+ * value is put back). A machine without it (QEMU's netduinoplus2 maps an empty 1 KiB stub
+ * there and faults beyond) reports size 0: every reset is then a cold one. */
+static size_t probe(void)
+{
+    enable();
+    volatile uint32_t *w = (volatile uint32_t *)BKPSRAM_BASE;
+    const uint32_t old = *w;
+    *w = 0xA5C3965Au;
+    const int ok = *w == 0xA5C3965Au;
+    *w = old;
+    return ok ? BKPSRAM_SIZE : 0u;
+}
+
 size_t hal_retain_size(void)
 {
-    return BKPSRAM_SIZE;
+    static size_t size = 1u; /* not probed yet */
+    if (size == 1u) {
+        size = probe();
+    }
+    return size;
 }
 
 void hal_retain_read(void *dst, size_t n)
