@@ -1135,7 +1135,9 @@ def table(summary: dict, elapsed_s: float) -> str:
         lines += probe_table(s["probe"])
     z = s["zero"]
     lines.append("")
-    if z.get("done"):
+    if s.get("probe"):
+        pass  # the probing session's only ZERO is the job's, before the reference touch
+    elif z.get("done"):
         lines.append(f"ZERO at sample {z['sample']}: box replied {z['reply']!r}, box output "
                      f"{'0' if z['box_zero'] else 'not 0'}, LinuxCNC offset "
                      f"{z['offset_nm']:.3f} nm -> {'PASS' if z['ok'] else 'FAIL'}")
