@@ -35,7 +35,8 @@ BELOW = {
     "host.box": {"contract", "codegen"},
     # the fleet over MQTT (issue 45): the protocol decoder, and the run writer for export
     "host.fleet": {"contract", "host.io"},
-    "hil": {"contract", "codegen", "host.io", "host.fitting", "host.progress"},
+    "hil": {"contract", "codegen", "host.io", "host.fitting", "host.progress",
+            "host.service"},  # hil replay --probe-*: the probe readings as host evaluate makes them
     # the LinuxCNC side: the HAL component and the headless driver run under Debian's
     # /usr/bin/python3 with the contract only; the session (make cnc) builds with the rest
     "cnc.thermalcomp": {"contract"},
