@@ -24,11 +24,12 @@ import os
 import shlex
 import subprocess
 import sys
+import textwrap
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from host.train import dropped_reason, ridge_lags_note
+from host.train import DEFAULT_FIT, dropped_reason, ridge_lags_note
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = Path("examples")
@@ -339,13 +340,133 @@ def effects_on_box(row: dict) -> str:
     return f"{sum(not s.get('dropped') for s in found)} of {len(found)}"
 
 
-def print_error_table(demo: Demo, reports: list[tuple[str, dict]]) -> None:
+FAMILY_WORDS = {  # host.train.next_day.FAMILIES, in words
+    "ols": "least squares on the selected terms with the effects",
+    "baseline": "least squares on the selected sensors' temperatures (the table's baseline)",
+    "ridge": "a ridge over the selected terms, their lags, speed and the free channels, with "
+             "the effects",
+    "ridge-baseline": "a ridge over the selected sensors, their lags, speed and the free "
+                      "channels, without the effects",
+}
+
+
+def _um_list(values: Sequence[float]) -> str:
+    return ", ".join(f"{v:.2f}" for v in values)
+
+
+def worse_than_baseline(row: Mapping) -> bool:
+    """An unseen run on which the box's model leaves more error than the baseline it started
+    from (least squares on the selected sensors' temperatures)."""
+    base = row.get("baseline_rms_um")
+    return (not row.get("in_training", True) and base is not None
+            and row["residual_rms_um"]["our model"] > base)
+
+
+def why_worse_than_baseline(axis: str, row: Mapping, model: Mapping | None,
+                            summary: Mapping, run_name: str) -> list[str]:
+    """The facts model.json and the report hold about why the box's model can lose to its
+    baseline on an unseen run: the family it runs and what chose it, what nested validation
+    said of that family against the baseline before the run was seen, the effects it does not
+    run, the sensors only it reads and which of them this run took beyond their training
+    range, the report's warnings on the fit, and where the figure stands against the promise.
+    Facts, not a verdict: which of them caused the loss is not measured here."""
+    ours = row["residual_rms_um"]["our model"]
+    facts: list[str] = []
+    spec = (model or {}).get("axes", {}).get(axis)
+    if spec is None:
+        return ["model.json for this axis was not at hand: no reason can be given"]
+    fit = spec.get("fit") or {}
+    family, requested = str(fit.get("family") or "ols"), fit.get("requested")
+    what = FAMILY_WORDS.get(family, family)
+    n_terms = len(spec.get("terms", []))
+    if requested == "auto":
+        chosen = "chosen by nested validation (--fit auto: the family with the lowest error)"
+    elif requested is not None:
+        chosen = (f"chosen by --fit {requested}"
+                  + (" (host train's default)" if requested == DEFAULT_FIT else "")
+                  + ", not by nested validation on this axis")
+        if requested == "ridge" and not family.startswith("ridge"):
+            chosen += "; no ridge kept the box's fixed-point bound, so least squares"
+    else:
+        chosen = "a model.json without a fit record (least squares)"
+    facts.append(f"it runs {family}: {what} ({n_terms} terms), {chosen}")
+    nested = fit.get("nested") or {}
+    rms, folds = nested.get("rmse_um") or {}, nested.get("fold_rmse_um") or {}
+    if family in rms and "baseline" in rms and family != "baseline":
+        a, b = rms[family], rms["baseline"]
+        fa, fb = folds.get(family) or [], folds.get("baseline") or []
+        better = sum(x < y for x, y in zip(fb, fa, strict=False))
+        detail = (f"{family} {a:.2f} µm RMS (folds {_um_list(fa)}), the baseline {b:.2f} µm "
+                  f"(folds {_um_list(fb)}), the baseline better in {better} of {len(fa)} "
+                  "folds")
+        best = min(rms, key=lambda f: rms[f])
+        if a > b:
+            facts.append("nested validation (the pipeline refitted without each training "
+                         "fold) had already ranked it behind the baseline: " + detail
+                         + (f"; lowest: {best}, {FAMILY_WORDS.get(best, best)}, "
+                            f"{rms[best]:.2f} µm" if best not in (family, "baseline")
+                            else ""))
+        else:
+            facts.append("nested validation (the pipeline refitted without each training "
+                         "fold) had ranked it ahead of the baseline, so the training folds "
+                         "did not foresee this: " + detail)
+    elif not rms:
+        facts.append("trained without nested validation: model.json holds no out-of-fold "
+                     "comparison with the baseline")
+    dropped: dict[str, list[str]] = {}
+    kept = []
+    for e in spec.get("effects", []):
+        why = dropped_reason(e)
+        if why:
+            dropped.setdefault(why, []).append(e.get("name", "?"))
+        else:
+            kept.append(e.get("name", "?"))
+    for why, names in dropped.items():
+        facts.append(f"the effects the loop found, {', '.join(names)}, are not run: {why}"
+                     + (f" ({spec['effects_rejected']})" if spec.get("effects_rejected")
+                        else ""))
+    if kept:
+        facts.append(f"it runs effects the baseline has not: {', '.join(kept)}")
+    base_sensors = {t["source"] for t in (spec.get("baseline") or {}).get("terms", [])
+                    if "source" in t}
+    free = [s for s in fit.get("free_channels_read") or [] if s not in base_sensors]
+    if free:
+        facts.append(f"it also reads {', '.join(free)} on free channels, which the baseline "
+                     "does not")
+    beyond = [r["input"] for r in (summary.get("outside_training") or {}).get(run_name) or []]
+    if beyond:
+        only_box = [b for b in beyond if b in free]
+        facts.append(f"this run takes {', '.join(beyond)} beyond their training range"
+                     + (f" ({', '.join(only_box)} read by the box's model only)" if only_box
+                        else ""))
+    if fit.get("refilled_without_dropped_effects"):
+        facts.append("its free channels were filled again after its effects were dropped")
+    if fit.get("baseline_not_candidate"):
+        facts.append(f"the baseline was no candidate: {fit['baseline_not_candidate']}")
+    table = next((c for c in summary.get("coefficients") or []
+                  if isinstance(c, Mapping) and c.get("axis") == axis), None)
+    for w in (table or {}).get("warnings") or []:
+        facts.append(f"the report warns '{w.get('name')}': {w.get('text')}")
+    metrics = spec.get("metrics") or {}
+    promised = metrics.get("promised_rmse_um")
+    if promised is not None:
+        facts.append(("still within" if ours <= promised else "ABOVE")
+                     + f" its promise ({metrics.get('promise') or fmt_um(promised)})")
+    return facts
+
+
+def print_error_table(demo: Demo, reports: list[tuple[str, dict]],
+                      models: Mapping[str, dict] | None = None) -> None:
+    """The closing table; every unseen row where the box's model is worse than its baseline
+    is marked and explained below the table from ``models`` (label -> model.json, else the
+    model.json the report names)."""
     demo.say("\nError before and after compensation (RMS over each run; 'seen' = a training run;"
              "\n'baseline' = least squares on the selected sensors' temperatures, where the loop"
              " starts;\n'box' = the model the box runs: a ridge over those sensors, their lags"
              " and the free\nchannels, with the effects it kept ('effects': kept of found)):")
     demo.say(f"    {'data':<10} {'run':<26} {'axis':<7} {'seen':<4} {'raw':>9} "
              f"{'baseline':>11} {'box':>12} {'reduction':>9} {'effects':>8}")
+    worse: list[tuple[str, str, str, dict, dict]] = []
     for label, summary in reports:
         for run_name, per_axis in summary["runs"].items():
             for axis, row in per_axis.items():
@@ -354,9 +475,32 @@ def print_error_table(demo: Demo, reports: list[tuple[str, dict]]) -> None:
                 before = row.get("baseline_rms_um")
                 base = f"{before:>8.2f} µm" if before is not None else f"{'—':>11}"
                 red = 100.0 * (1.0 - ours / raw) if raw else float("nan")
-                demo.say(f"    {label:<10} {run_name[:26]:<26} {axis:<7} "
-                         f"{'yes' if row['in_training'] else 'no':<4} {raw:>6.2f} µm {base} "
-                         f"{ours:>9.2f} µm {red:>7.0f} % {effects_on_box(row):>8}")
+                line = (f"    {label:<10} {run_name[:26]:<26} {axis:<7} "
+                        f"{'yes' if row['in_training'] else 'no':<4} {raw:>6.2f} µm {base} "
+                        f"{ours:>9.2f} µm {red:>7.0f} % {effects_on_box(row):>8}")
+                if worse_than_baseline(row):
+                    worse.append((label, run_name, axis, row, summary))
+                    line += f"  <- WORSE than baseline ({len(worse)})"
+                demo.say(line)
+    for i, (label, run_name, axis, row, summary) in enumerate(worse, 1):
+        model = (models or {}).get(label)
+        if model is None and summary.get("model"):
+            try:
+                model = json.loads(Path(summary["model"]).read_text())
+            except (OSError, ValueError):
+                model = None
+        facts = why_worse_than_baseline(axis, row, model, summary, run_name)
+        ours, base = row["residual_rms_um"]["our model"], row["baseline_rms_um"]
+        head = (f"({i}) {label} {run_name}, {axis}: on this unseen run the box's model is "
+                f"WORSE than its baseline ({ours:.2f} vs {base:.2f} µm RMS, "
+                f"{100.0 * (ours / base - 1.0):+.0f} %). What model.json and the report say "
+                "(facts; which of them caused it is not measured here):")
+        demo.say("")
+        for ln in textwrap.wrap(head, width=96, break_on_hyphens=False):
+            demo.say(f"    {ln}")
+        for fact in facts:
+            for j, ln in enumerate(textwrap.wrap(fact, width=92, break_on_hyphens=False)):
+                demo.say(f"      {'- ' if j == 0 else '  '}{ln}")
 
 
 def missing_checkout_parts() -> list[str]:
@@ -378,13 +522,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     demo.say("Thermal-error compensation retrofit: the whole story, every step through the CLI")
     try:
         step_examples(demo)
-        step_train_sim(demo)
+        sim_model = step_train_sim(demo)
         step_header(demo, BUILD)
         step_firmware(demo, BUILD / "model.h")
         step_hil(demo)
         protocols = step_protocols(demo)
         sim = step_report(demo, BUILD, [*SIM_TRAIN, SIM_TEST], REPORT, protocols, HIL_RESULT)
-        fl_parts, _ = step_fl(demo)
+        fl_parts, fl_model = step_fl(demo)
         step_hil(demo, FL_BUILD / "model.json", fl_parts[1], FL_HIL_RESULT,
                  "HIL: the box replays the hotter unseen cycle (does it know it extrapolates?)")
         fl = step_report(demo, FL_BUILD, fl_parts, FL_REPORT, hil=FL_HIL_RESULT)
@@ -393,7 +537,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     demo.say(f"\nReports: {ROOT / REPORT / 'index.html'} (simulated protocols)")
     demo.say(f"         {ROOT / FL_REPORT / 'index.html'} (real FL_THERMAL data)")
-    print_error_table(demo, [("simulated", sim), ("FL_THERMAL", fl)])
+    print_error_table(demo, [("simulated", sim), ("FL_THERMAL", fl)],
+                      {"simulated": sim_model, "FL_THERMAL": fl_model})
     demo.say(f"\ndemo finished in {time.monotonic() - demo.started:.0f} s")
     return 0
 

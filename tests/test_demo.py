@@ -88,3 +88,76 @@ def test_training_line_says_each_reason_once_for_the_effects_the_box_does_not_ru
     assert ("not in the box's model: lag(T1, tau=600s), rate(T2, tau=1200s) (the box's ridge"
             in line)
     assert "; speed(spindle_rpm) (no box channel left for its sensor)" in line
+
+
+def _fl_ch5(ridge_nested: float = 10.41) -> tuple[dict, dict]:
+    """The demo's FL ch5 on the unseen 5000 rpm cycle, cut down to what the table reads: the
+    box's ridge 5.04 µm against its baseline's 4.10 µm."""
+    summary = {"model": "/nonexistent/model.json",
+               "runs": {"fl_24-32h": {"ch5_um": {
+                   "raw_rms_um": 27.78, "in_training": False, "baseline_rms_um": 4.10,
+                   "residual_rms_um": {"our model": 5.04}}}},
+               "outside_training": {"fl_24-32h": [{"input": "T09"}, {"input": "T01"}]},
+               "coefficients": [{"axis": "ch5_um", "warnings": [
+                   {"name": "gain sign undetermined", "text": "T01 flips"}]}]}
+    model = {"axes": {"ch5_um": {
+        "terms": [{"kind": "temp", "source": s, "coef": 1.0} for s in ("T01", "T09")],
+        "baseline": {"terms": [{"kind": "temp", "source": "T01", "coef": 1.0}]},
+        "effects": [{"name": "rate(T09, tau=1200s)", "dropped_by_box_ridge": True}],
+        "effects_rejected": "its ridge is 7.95 um out of fold with them and 7.95 um without",
+        "metrics": {"promised_rmse_um": 26.16, "promise": "RMS on an unseen day ≤ 26.16 µm"},
+        "fit": {"family": "ridge-baseline", "requested": "ridge", "free_channels_read": ["T09"],
+                "nested": {"rmse_um": {"ols": 8.70, "baseline": 9.80, "ridge": 10.26,
+                                       "ridge-baseline": ridge_nested},
+                           "fold_rmse_um": {"baseline": [6.37, 8.64, 13.15],
+                                            "ridge-baseline": [11.95, 11.13, 7.65]}}}}}}
+    return summary, model
+
+
+def test_an_unseen_row_where_the_box_loses_to_its_baseline_is_said_and_explained():
+    summary, model = _fl_ch5()
+    out = io.StringIO()
+    print_error_table(Demo(out=out), [("FL_THERMAL", summary)], {"FL_THERMAL": model})
+    text = out.getvalue()
+    row = next(ln for ln in text.splitlines() if "fl_24-32h" in ln and "ch5_um" in ln)
+    assert "WORSE than baseline (1)" in row
+    words = " ".join(text.split())  # the explanation is wrapped
+    assert "(1) FL_THERMAL fl_24-32h, ch5_um: on this unseen run the box's model is WORSE" in words
+    assert "5.04 vs 4.10 µm RMS, +23 %" in words
+    # the reason from model.json: the family, what chose it, what nested validation said
+    assert "it runs ridge-baseline" in words and "chosen by --fit ridge (host train's default)" \
+        in words
+    assert ("had already ranked it behind the baseline: ridge-baseline 10.41 µm RMS (folds "
+            "11.95, 11.13, 7.65), the baseline 9.80 µm (folds 6.37, 8.64, 13.15), the baseline "
+            "better in 2 of 3 folds; lowest: ols") in words
+    assert "rate(T09, tau=1200s), are not run" in words and "7.95 um without" in words
+    assert "reads T09 on free channels" in words
+    assert "beyond their training range (T09 read by the box's model only)" in words
+    assert "'gain sign undetermined': T01 flips" in words
+    assert "still within its promise (RMS on an unseen day ≤ 26.16 µm)" in words
+
+    # nested validation had the box's family ahead: then the folds did not foresee it
+    summary, model = _fl_ch5(ridge_nested=7.0)
+    out = io.StringIO()
+    print_error_table(Demo(out=out), [("FL_THERMAL", summary)], {"FL_THERMAL": model})
+    words = " ".join(out.getvalue().split())
+    assert "ranked it ahead of the baseline, so the training folds did not foresee this" in words
+
+    # without model.json it still says so, and that it cannot say why
+    out = io.StringIO()
+    print_error_table(Demo(out=out), [("FL_THERMAL", summary)])
+    words = " ".join(out.getvalue().split())
+    assert "WORSE than its baseline (5.04 vs 4.10" in words and "no reason can be given" in words
+
+
+def test_no_row_where_the_box_loses_to_its_baseline_on_an_unseen_run_passes_silently():
+    summary, model = _fl_ch5()
+    row = summary["runs"]["fl_24-32h"]["ch5_um"]
+    cases = [(False, 5.04, 4.10, True), (False, 4.0, 4.10, False), (True, 5.04, 4.10, False),
+             (False, 5.04, None, False)]
+    for in_training, ours, base, said in cases:
+        row.update(in_training=in_training, baseline_rms_um=base,
+                   residual_rms_um={"our model": ours})
+        out = io.StringIO()
+        print_error_table(Demo(out=out), [("FL_THERMAL", summary)], {"FL_THERMAL": model})
+        assert ("WORSE" in out.getvalue()) is said, (in_training, ours, base)
