@@ -2,6 +2,9 @@
 
 - flash / RAM of the STM32F405 image (arm-none-eabi-size; RAM includes the 1 KiB stack),
   against the issue's budget of 16 KiB flash and 4 KiB RAM;
+- what MEAS (issue 42, the in-service estimator) added: the same flash / RAM minus those of
+  the box before it (commit firmware_support.MEAS_BASELINE, built from git with its own codegen
+  for the same test model), against that issue's 1 KiB / 256 B;
 - the native board fed 86,400 samples (24 h at 1 s) on stdin with every line read back from
   its pty (the firmware alone; bench_hil measures the full HIL with its checks).
 """
@@ -21,15 +24,22 @@ import serial
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from firmware_support import build, load_generator, private_pty  # noqa: E402
+from firmware_support import (  # noqa: E402
+    MEAS_BASELINE,
+    MEAS_FLASH_BUDGET,
+    MEAS_RAM_BUDGET,
+    baseline_stm32_sizes,
+    build,
+    load_generator,
+    private_pty,
+    stm32_sizes,
+)
 
 N_SAMPLES = 86_400
 
 
 def _sizes(tmp: Path, header: Path) -> tuple[int, int]:
-    proc = build(header, tmp / "stm32", board="stm32f405")
-    text, data, bss = (int(v) for v in proc.stdout.splitlines()[-1].split()[:3])
-    return text + data, data + bss
+    return stm32_sizes(build(header, tmp / "stm32", board="stm32f405").stdout)
 
 
 def _replay_seconds(binary: Path) -> float:
@@ -81,14 +91,24 @@ def run() -> list[dict]:
         header = tmp / "model.h"
         header.write_text(codegen.generate(gen.test_model()).text)
         flash, ram = _sizes(tmp, header)
+        before = baseline_stm32_sizes(tmp)
         build(header, tmp / "native", sanitize=False)
         seconds = _replay_seconds(tmp / "native" / "thermal_box")
     detail = "8 channels, 1 aux, 3 axes, 12 terms (firmware/test/gen_test_model.py)"
+    growth = []
+    if before is not None:
+        since = f"{detail}; {MEAS_BASELINE}: flash {before[0]} B, RAM {before[1]} B"
+        growth = [
+            {"name": f"MEAS: flash growth since {MEAS_BASELINE}", "value": flash - before[0],
+             "unit": "bytes", "target": f"<= {MEAS_FLASH_BUDGET}", "detail": since},
+            {"name": f"MEAS: RAM growth since {MEAS_BASELINE}", "value": ram - before[1],
+             "unit": "bytes", "target": f"<= {MEAS_RAM_BUDGET}", "detail": since}]
     return [
         {"name": "stm32f405 flash (text+data)", "value": flash, "unit": "bytes",
          "target": "< 16384", "detail": detail},
         {"name": "stm32f405 RAM (data+bss+1 KiB stack)", "value": ram, "unit": "bytes",
          "target": "< 4096", "detail": detail},
+        *growth,
         {"name": "native board: 86,400 samples fed and read back", "value": seconds,
          "unit": "s", "target": "< 30 s", "detail": f"{N_SAMPLES / seconds:.0f} lines/s"},
     ]

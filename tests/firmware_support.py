@@ -12,6 +12,7 @@ import os
 import re
 import select
 import subprocess
+import sys
 import termios
 import tty
 from pathlib import Path
@@ -41,6 +42,50 @@ def build(header: Path, out_dir: Path, board: str = "native", sanitize: bool = T
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stdout}{proc.stderr}")
     return proc
+
+
+# The box before issue 42's MEAS (the in-service estimator): its flash and RAM growth since
+# then is held to the issue's 1 KiB / 256 B (docs/service.md, "Cost").
+MEAS_BASELINE = "091baec"
+MEAS_FLASH_BUDGET = 1024
+MEAS_RAM_BUDGET = 256
+
+
+def stm32_sizes(stdout: str) -> tuple[int, int]:
+    """(flash = text + data, RAM = data + bss) from arm-none-eabi-size's last line."""
+    text, data, bss = (int(v) for v in stdout.splitlines()[-1].split()[:3])
+    return text + data, data + bss
+
+
+def baseline_stm32_sizes(tmp: Path, period: float | None = None,
+                         commit: str = MEAS_BASELINE) -> tuple[int, int] | None:
+    """(flash, RAM) of the STM32F405 image at ``commit`` for the same test model, written by
+    that commit's own generator and codegen (its runtime format); None without the commit
+    (no git, a shallow clone or an exported tree)."""
+    src = tmp / f"baseline-{commit}"
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", commit, "firmware", "codegen",
+                              "contract"], capture_output=True)
+    if archive.returncode != 0:
+        return None
+    src.mkdir(parents=True)
+    subprocess.run(["tar", "-x", "-C", str(src)], input=archive.stdout, check=True)
+    kwargs = "" if period is None else f"period={period!r}"
+    script = ("import importlib.util, sys\n"
+              f"sys.path[:0] = [{str(src)!r}]\n"
+              "spec = importlib.util.spec_from_file_location('g', sys.argv[1])\n"
+              "g = importlib.util.module_from_spec(spec); spec.loader.exec_module(g)\n"
+              "import codegen\n"
+              f"open(sys.argv[2], 'w').write(codegen.generate(g.test_model({kwargs})).text)\n")
+    header = src / "model.h"
+    subprocess.run([sys.executable, "-I", "-c", script,
+                    str(src / "firmware" / "test" / "gen_test_model.py"), str(header)],
+                   check=True, capture_output=True)
+    cmd = ["make", "-s", "-C", str(src / "firmware"), "BOARD=stm32f405", f"MODEL={header}",
+           f"BUILD={src / 'stm32'}"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stdout}{proc.stderr}")
+    return stm32_sizes(proc.stdout)
 
 
 def private_pty() -> tuple[int, int]:

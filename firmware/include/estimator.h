@@ -24,8 +24,9 @@ typedef struct {
     int32_t last_innovation_nm; /* the last reading's innovation, saturated to int32 */
 } est_state_t;
 
-/* Power-up and ZERO: bias 0, P = p0 (0 for a start model: both are 0 at the reference). */
-void est_reset(est_state_t *s, const tcm_service_t *p);
+/* Power-up and ZERO (no function: the application clears every axis's state in one run of its
+ * retained block, est_reset_all in app.c): bias 0, innovation 0, P = pmax_q8 when p0_pmax (no
+ * start reference), else 0 (a start model: its output and the probe are both 0 there). */
 
 /* Every sample after the reference sample, before its output: P = min(P + q, pmax). */
 void est_tick(est_state_t *s, const tcm_service_t *p);

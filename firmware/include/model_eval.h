@@ -149,8 +149,8 @@ typedef struct {
     uint8_t n_terms;
     int64_t intercept_q; /* nanometres times 2^shift */
     int32_t max_step_nm; /* the output never steps more than this per sample period, >= 1 */
-    tcm_service_t service; /* the in-service estimator (MEAS) */
     const char *name;    /* e.g. "dz_um" (not part of the CRC) */
+    tcm_service_t service; /* the in-service estimator (MEAS); after name: no padding */
 } tcm_axis_t;
 
 typedef struct {

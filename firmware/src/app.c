@@ -3,6 +3,7 @@
 
 #include <stdbool.h>
 #include <stddef.h>
+#include <string.h>
 
 #include "axis_output.h"
 #include "box_config.h"
@@ -260,15 +261,14 @@ static const tcm_service_t *service_of(uint32_t a)
 
 static void est_reset_all(void)
 {
-    for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
-        const tcm_service_t *svc = service_of(a);
-        est[a] = (est_state_t){0};
-        if (svc) {
-            est_reset(&est[a], svc);
+    /* bias 0, P 0, no innovation, no refusals: est, est_refusals and est_seen in one run */
+    memset(snap.est, 0, offsetof(retained_t, crc) - offsetof(retained_t, est));
+    for (uint32_t a = 0; a < app.n_axes; a++) {
+        const tcm_service_t *sv = &app.model->axes[a].service;
+        if (sv->p0_pmax) {
+            est[a].p_q8 = sv->pmax_q8; /* no start reference: P starts at pmax */
         }
-        snap.est_refusals[a] = 0u;
     }
-    snap.est_seen = 0u;
 }
 
 static int32_t sat_i32(int64_t v)
@@ -605,6 +605,17 @@ static void send_info(void)
     send_line();
 }
 
+/* sep, then v or '-' when it is not shown (the STATUS service field, the $M reply) */
+static void put_opt_i32(char sep, bool shown, int32_t v)
+{
+    line_put_char(&app.line, sep);
+    if (shown) {
+        line_put_i32(&app.line, v);
+    } else {
+        line_put_char(&app.line, '-');
+    }
+}
+
 static void send_status(void)
 {
     line_t *l = &app.line;
@@ -638,14 +649,8 @@ static void send_status(void)
             continue;
         }
         line_put_i32(l, est[a].bias_nm);
-        line_put_char(l, ':');
-        if ((snap.est_seen >> a) & 1u) {
-            line_put_i32(l, est[a].last_innovation_nm);
-        } else {
-            line_put_char(l, '-');
-        }
-        line_put_char(l, ':');
-        line_put_u32(l, snap.est_refusals[a]);
+        put_opt_i32(':', ((snap.est_seen >> a) & 1u) != 0u, est[a].last_innovation_nm);
+        put_opt_i32(':', true, snap.est_refusals[a]);
     }
     send_line();
 }
@@ -658,13 +663,12 @@ static void handle_meas(const cmd_t *c)
     const uint32_t a = c->arg;
     const tcm_service_t *svc = service_of(a);
     const meas_ring_t *ring = &app.ring;
-    const char *reason = NULL;
-    int shown = 2; /* 0: no estimator, 1: its state, 2: the innovation too */
+    const char *reason;
+    bool measured = false; /* the reading reached the estimator: its innovation is shown */
     uint32_t back = ring->newest_seq - c->seq; /* samples before the newest (wraps) */
     uint32_t at = (ring->head + BOX_MEAS_SAMPLES - back % BOX_MEAS_SAMPLES) % BOX_MEAS_SAMPLES;
     if (!svc) {
         reason = app.model_ok && a >= app.n_axes ? "AXIS" : "OFF";
-        shown = 0;
     } else if ((app.needs_ref && !app.referenced) || app.zero_pending ||
                (back < ring->count && ring->flag[at][a] == MEAS_NO_REF)) {
         reason = "NO_REF";
@@ -673,16 +677,13 @@ static void handle_meas(const cmd_t *c)
     } else if (ring->flag[at][a] != MEAS_OK || ring->flag[ring->head][a] != MEAS_OK) {
         reason = "HOLDING";
     } else {
-        shown = 3;
-    }
-    if (shown == 3) {
+        measured = true;
         bool accepted = est_measure(&est[a], svc, c->nm, ring->model_nm[at][a]);
         snap.est_seen |= (uint32_t)1u << a;
-        snap.est_refusals[a] = accepted ? 0u : (uint16_t)(snap.est_refusals[a] + (snap.est_refusals[a] < UINT16_MAX));
+        uint16_t *n = &snap.est_refusals[a];
+        *n = accepted ? 0u : (uint16_t)(*n + (*n < UINT16_MAX));
         reason = accepted ? NULL : "GATE";
         retain_save(); /* the estimate survives a warm reset before the next sample */
-    } else if (shown == 2) {
-        shown = 1;
     }
     line_t *l = &app.line;
     line_begin(l, "M");
@@ -690,20 +691,13 @@ static void handle_meas(const cmd_t *c)
     line_put_u32(l, a);
     line_sep(l);
     line_put_u32(l, c->seq);
-    line_sep(l);
-    line_put_str(l, reason ? "R" : "A");
-    line_sep(l);
-    line_put_str(l, reason ? reason : "-");
-    for (int k = 0; k < 3; k++) {
-        line_sep(l);
-        if (shown < (k == 0 ? 3 : 1)) {
-            line_put_char(l, '-');
-        } else if (k == 2) {
-            line_put_u32(l, EST_P_NM2(&est[a]));
-        } else {
-            line_put_i32(l, k == 0 ? est[a].last_innovation_nm : est[a].bias_nm);
-        }
-    }
+    line_put_str(l, reason ? ",R," : ",A,-");
+    line_put_str(l, reason ? reason : "");
+    /* without an estimator nothing is shown (est[0] is read, not sent); P < 2^30 nm^2 */
+    const est_state_t *e = &est[svc ? a : 0u];
+    put_opt_i32(',', measured, e->last_innovation_nm);
+    put_opt_i32(',', svc != NULL, e->bias_nm);
+    put_opt_i32(',', svc != NULL, (int32_t)EST_P_NM2(e));
     send_line();
 }
 

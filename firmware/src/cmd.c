@@ -55,29 +55,31 @@ static bool equals(const char *line, uint8_t len, const char *word)
  * false for any other text. */
 static bool parse_fields(const char *s, uint8_t len, uint32_t *out, uint8_t n, int neg_field)
 {
-    uint8_t f = 0, digits = 0;
-    bool neg = false;
-    uint64_t v = 0;
-    for (uint16_t i = 0; i <= len; i++) {
-        char ch = i < len ? s[i] : ' ';
-        if (ch == ' ') {
-            if (digits == 0u || f >= n || v > (uint64_t)INT32_MAX + (neg ? 1u : 0u) +
-                                                   (f == neg_field ? 0u : UINT32_C(0x80000000))) {
-                return false;
-            }
-            out[f++] = neg ? (uint32_t)0u - (uint32_t)v : (uint32_t)v;
-            v = 0u;
-            digits = 0u;
-            neg = false;
-        } else if (ch == '-' && f == neg_field && digits == 0u && !neg) {
-            neg = true;
-        } else if (ch < '0' || ch > '9' || ++digits > 10u) {
+    const char *end = s + len;
+    for (int f = 0; f < n; f++) {
+        const bool neg = f == neg_field && s < end && *s == '-';
+        s += neg;
+        const char *start = s;
+        uint32_t v = 0u;
+        bool over = false; /* v * 10 + d beyond 2^32 - 1: 32-bit arithmetic only */
+        while (s < end && *s >= '0' && *s <= '9') {
+            const uint32_t d = (uint32_t)(*s++ - '0');
+            over |= v > (UINT32_MAX - d) / 10u;
+            v = v * 10u + d;
+        }
+        if (s == start || s - start > 10 || over ||
+            v > (f == neg_field ? (uint32_t)INT32_MAX + neg : UINT32_MAX)) {
             return false;
-        } else {
-            v = v * 10u + (uint64_t)(ch - '0');
+        }
+        out[f] = neg ? 0u - v : v;
+        if (s == end) {
+            return f + 1 == n;
+        }
+        if (*s++ != ' ') {
+            return false;
         }
     }
-    return f == n;
+    return false; /* text after the n-th field */
 }
 
 static cmd_t parse_rate(const char *arg, uint8_t len)

@@ -1,26 +1,7 @@
 /* docs/service.md, "Fixed point": the ranges quoted in the comments are proven there, from the
- * header's asserted parameter ranges (TCM_SVC_PARAMS_OK in model_eval.h). */
+ * header's asserted parameter ranges (TCM_SVC_PARAMS_OK in model_eval.h). Where a range
+ * allows, a value is held in 32 bits, so a product is one 32x32->64 multiply (flash). */
 #include "estimator.h"
-
-/* v / 2^f rounded half away from zero, never shifting a negative value (contract.fixed_point
- * .rdiv); |v| < 2^62. */
-static int64_t est_rdiv(int64_t v, unsigned f)
-{
-    const int64_t half = (INT64_C(1) << f) >> 1;
-    return v >= 0 ? (v + half) >> f : -((-v + half) >> f);
-}
-
-static int32_t sat32(int64_t v)
-{
-    return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : (int32_t)v);
-}
-
-void est_reset(est_state_t *s, const tcm_service_t *p)
-{
-    s->bias_nm = 0;
-    s->p_q8 = p->p0_pmax ? p->pmax_q8 : 0;
-    s->last_innovation_nm = 0;
-}
 
 void est_tick(est_state_t *s, const tcm_service_t *p)
 {
@@ -30,25 +11,40 @@ void est_tick(est_state_t *s, const tcm_service_t *p)
 
 bool est_measure(est_state_t *s, const tcm_service_t *p, int32_t z_nm, int32_t model_nm)
 {
-    const int64_t nu = (int64_t)z_nm - ((int64_t)model_nm + s->bias_nm); /* |nu| < 2^33 */
-    s->last_innovation_nm = sat32(nu);
-    if (nu > EST_INNOVATION_MAX_NM || nu < -EST_INNOVATION_MAX_NM) {
+    const int64_t nu64 = (int64_t)z_nm - model_nm - s->bias_nm; /* |nu| < 2^33 */
+    s->last_innovation_nm = nu64 > INT32_MAX   ? INT32_MAX
+                            : nu64 < INT32_MIN ? INT32_MIN
+                                               : (int32_t)nu64;
+    if (nu64 > EST_INNOVATION_MAX_NM || nu64 < -EST_INNOVATION_MAX_NM) {
         return false;
     }
-    const int64_t sum = s->p_q8 + p->r_q8;  /* S = P + R: 1 .. 2^39 */
-    const uint64_t nu2 = (uint64_t)(nu * nu); /* <= 2^44 */
-    if ((nu2 << EST_GAIN_FRAC_BITS) > (uint64_t)p->g2_q8 * (uint64_t)sum && /* 2^60, < 2^55 */
+    const int32_t nu = (int32_t)nu64;             /* |nu| <= 2^22 */
+    const uint64_t sum = (uint64_t)(s->p_q8 + p->r_q8); /* S = P + R: 1 .. 2^39 */
+    const uint64_t nu2 = (uint64_t)((int64_t)nu * nu);  /* <= 2^44 */
+    if ((nu2 << EST_GAIN_FRAC_BITS) > p->g2_q8 * sum && /* 2^60, < 2^55 */
         nu2 > (uint64_t)p->floor2_nm2) {
         return false;
     }
-    /* K = P / S in Q16, rounded: 0 .. 2^16 (P * 2^16 < 2^54) */
-    const int64_t k = (int64_t)((((uint64_t)s->p_q8 << EST_GAIN_FRAC_BITS) +
-                                 (uint64_t)sum / 2u) / (uint64_t)sum);
-    int64_t bias = s->bias_nm + est_rdiv(k * nu, EST_GAIN_FRAC_BITS); /* |k nu| <= 2^38 */
-    bias = bias > EST_BIAS_MAX_NM ? EST_BIAS_MAX_NM
-                                  : (bias < -EST_BIAS_MAX_NM ? -EST_BIAS_MAX_NM : bias);
-    s->bias_nm = (int32_t)bias;
+    /* K = P / S in Q16, rounded: (P * 2^16 + S/2) / S, 0 .. 2^16 since P < S. A restoring
+     * division of its 17 quotient bits (S * 2^16 < 2^55, num < 2^55 + 2^38: no overflow), so
+     * no 64-bit division helper of libgcc is linked. */
+    uint64_t num = ((uint64_t)s->p_q8 << EST_GAIN_FRAC_BITS) + sum / 2u;
+    uint64_t d = sum << EST_GAIN_FRAC_BITS;
+    uint32_t k = 0u;
+    for (uint32_t bit = UINT32_C(1) << EST_GAIN_FRAC_BITS; bit != 0u; bit >>= 1, d >>= 1) {
+        if (d <= num) {
+            num -= d;
+            k |= bit;
+        }
+    }
+    /* rdiv(K nu, 16): |K nu| <= 2^38, the result <= 2^22 in magnitude, |bias| + 2^22 fits */
+    const int64_t kn = (int64_t)k * nu;
+    const int64_t half = INT64_C(1) << (EST_GAIN_FRAC_BITS - 1);
+    int32_t bias = s->bias_nm + (int32_t)(kn >= 0 ? (kn + half) >> EST_GAIN_FRAC_BITS
+                                                  : -((-kn + half) >> EST_GAIN_FRAC_BITS));
+    s->bias_nm = bias > EST_BIAS_MAX_NM ? EST_BIAS_MAX_NM
+                                        : (bias < -EST_BIAS_MAX_NM ? -EST_BIAS_MAX_NM : bias);
     /* k P < 2^54 and >= 0: rdiv of a non-negative value; the result stays >= 0 (k <= 2^16) */
-    s->p_q8 -= (k * s->p_q8 + (INT64_C(1) << (EST_GAIN_FRAC_BITS - 1))) >> EST_GAIN_FRAC_BITS;
+    s->p_q8 -= (int64_t)(((uint64_t)s->p_q8 * k + (uint64_t)half) >> EST_GAIN_FRAC_BITS);
     return true;
 }

@@ -52,14 +52,19 @@ static int64_t tcm_rdiv(int64_t v, uint8_t f)
     return -((-v + half) >> f);
 }
 
-/* v / d (d > 0) rounded half away from zero; |v| <= 2^35 here (a code difference of at
- * most 2^19 times k <= 2^16), so 2|v| + d fits int64. */
-static int64_t tcm_div_round(int64_t v, int64_t d)
+/* v / d (0 < d <= 2^16) rounded half away from zero; |v| < 2^35 here (a code difference of
+ * less than 2^19 times k < 2^16). In 32-bit divisions, so no 64-bit division helper of libgcc
+ * is linked (0.9 KiB of flash): u = 2|v| + d < 2^37 is divided by D = 2d <= 2^17 in two
+ * base-2^15 digits. hi = u >> 15 < 2^22; the remainder hi % D < 2^17, shifted by 15 and with
+ * the low 15 bits added, stays below 2^32. The quotient is below 2^19 (|v| / d < 2^19). */
+static int64_t tcm_div_round(int64_t v, uint32_t d)
 {
-    if (v >= 0) {
-        return (2 * v + d) / (2 * d);
-    }
-    return -((-2 * v + d) / (2 * d));
+    const uint64_t u = 2u * (uint64_t)(v >= 0 ? v : -v) + d;
+    const uint32_t dd = 2u * d;
+    const uint32_t hi = (uint32_t)(u >> 15);
+    const uint32_t lo = ((hi % dd) << 15) | (uint32_t)(u & 0x7FFFu);
+    const int64_t q = (int64_t)(((hi / dd) << 15) + lo / dd);
+    return v >= 0 ? q : -q;
 }
 
 /* One filter update towards code (Q16), as in tcm_step. */
@@ -77,7 +82,7 @@ static int64_t tcm_catch_up(int64_t s, int32_t last, int32_t code, uint16_t gap,
     const uint32_t g = gap < TCM_CATCHUP_MAX ? gap : TCM_CATCHUP_MAX; /* gap <= 65535 */
     const int64_t diff = (int64_t)code - last;
     for (uint32_t k = 1u; k <= g; ++k) {
-        const int64_t x = (int64_t)last + tcm_div_round(diff * (int64_t)k, (int64_t)g + 1);
+        const int64_t x = (int64_t)last + tcm_div_round(diff * (int64_t)k, g + 1u);
         s = tcm_filter(s, (int32_t)x, a);
     }
     return s;
@@ -145,13 +150,12 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
         crc = crc_i64(crc, ax->intercept_q);
         crc = crc_i32(crc, ax->max_step_nm);
         const tcm_service_t *sv = &ax->service;
-        crc = crc_u8(crc, sv->on);
-        crc = crc_u8(crc, sv->p0_pmax);
-        crc = crc_le(crc, sv->g2_q8, 4);
-        const int64_t wide[4] = {sv->q_q8, sv->r_q8, sv->floor2_nm2, sv->pmax_q8};
-        for (int i = 0; i < 4; ++i) {
-            crc = crc_i64(crc, wide[i]);
-        }
+        /* on, p0_pmax, g2_q8 (1 + 1 + 4 bytes), then the four int64 */
+        crc = crc_le(crc, sv->on | (uint32_t)sv->p0_pmax << 8 | (uint64_t)sv->g2_q8 << 16, 6);
+        crc = crc_i64(crc, sv->q_q8);
+        crc = crc_i64(crc, sv->r_q8);
+        crc = crc_i64(crc, sv->floor2_nm2);
+        crc = crc_i64(crc, sv->pmax_q8);
         for (uint32_t j = 0; j < ax->n_terms; ++j, ++t) {
             const tcm_term_t *term = &m->terms[t];
             crc = crc_u8(crc, term->kind);
