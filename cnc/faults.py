@@ -53,6 +53,7 @@ from hil.runner import (
     CodeOverride,
     Event,
     Restart,
+    Resume,
     Zero,
 )
 
@@ -68,9 +69,9 @@ LETTERS = {"dx_um": "x", "dy_um": "y", "dz_um": "z"}  # LinuxCNC's axes (cnc/con
 # GAP (not PASS) and fails when one of them passes (then this entry must go) or another fails.
 KNOWN_GAPS = {
     "power cut, then ZERO": (
-        "a cold box's lag filters start at the current readings: mid warm-up the datum "
-        "after the ZERO misses what the lags had still to catch up (needs the lag state kept "
-        "over a power cut: battery-backed SRAM, or the controller handing it back)"),
+        "without a battery on VBAT nothing is kept: a cold box's lag filters start at the "
+        "current readings, and mid warm-up the datum after the ZERO misses what the lags had "
+        "still to catch up (with the battery, RESUME continues: 'power cut on a battery')"),
 }
 
 
@@ -129,6 +130,9 @@ def scenarios(n: int) -> list[Scenario]:
                       "battery); nobody touches off: the controller holds to the end"),
         Scenario("power cut, then ZERO", (Restart(500), Zero(501)),
                  what="as above; the operator touches off (ZERO) one sample later"),
+        Scenario("power cut on a battery", (Restart(500, battery=True, off=5), Resume(505, 5)),
+                 what="off for 5 samples from 500, the backup SRAM kept on VBAT: the "
+                      "controller sends RESUME 5 and the box goes on from its kept state"),
         Scenario("loose connector", (ChipFault(400, ch, 1), ChipFault(401, ch, 0),
                                      CodeOffset(401, 402, ch, 12800)),
                  what="one OPEN sample on T05, then one reading +100 degC"),
@@ -208,6 +212,10 @@ def follow(model: dict, capture: Capture, axes: Sequence[str],
 
     k = 0
     for s in capture.sessions:
+        while k < s.first_sample:  # the box was off (Restart.off): no line, the offsets hold
+            comp.check_stale(k * period)
+            _record(out, comp, k, -1)
+            k += 1
         zero_replies = list(s.zero_acks)
         for raw in s.lines:
             if raw.startswith(b"$I,"):

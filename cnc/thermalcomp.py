@@ -136,6 +136,7 @@ class Config:
     model_hash: str | None = None  # the hash the box's INFO must report (None: refuse to drive)
     model_path: Path | None = None  # where model_hash and the step limits came from
     max_abs_um: float = DEFAULT_MAX_ABS_UM  # no offset ever beyond this (the box's clamp)
+    resume: bool = True  # after a power cut ask the box to RESUME its kept state (no: ZERO)
     probe_axis: str | None = None  # [probe] axis: the LinuxCNC axis the probe measures
     probe_timeout_s: float = 2.0  # no $M answer within this: TIMEOUT
     probed_includes_offset: bool = True  # LinuxCNC 2.9: #5063 contains the external offset
@@ -181,6 +182,10 @@ def load_config(path: str | Path) -> Config:
     if cfg.period_s is not None and not cfg.period_s > 0:
         raise ConfigError(f"{path}: [box] period_s = {cfg.period_s:g} must be positive")
     cfg.max_abs_um = float(get("box", "max_abs_um", float, DEFAULT_MAX_ABS_UM))
+    resume = str(get("box", "resume", str, "yes")).strip().lower()
+    if resume not in ("yes", "no"):
+        raise ConfigError(f"{path}: [box] resume = {resume!r}: yes or no")
+    cfg.resume = resume == "yes"
     if not (math.isfinite(cfg.max_abs_um) and cfg.max_abs_um > 0):
         raise ConfigError(f"{path}: [box] max_abs_um = {cfg.max_abs_um:g} must be positive")
     model: dict | None = None
@@ -390,6 +395,10 @@ class Compensator:
         self.rebooted = False  # the box restarted and is still walking from 0 (SLEW)
         self.await_zero = False  # the box came back without its datum: hold until ZERO
         self.zero_pending = False  # ZERO sent, not acknowledged yet
+        # after a power cut: RESUME <n> to send (n periods off), and sent but not answered
+        self.resume_wanted: int | None = None
+        self.resume_pending = False
+        self.cut_t: tuple[float | None, float] = (None, 0.0)
         # ZERO refused while an axis held ($E,HOLDING): sent again on the first line without a
         # hold bit, so the touch-off waiting for zero-acks happens on a datum the box can keep
         self.zero_deferred = False
@@ -503,8 +512,11 @@ class Compensator:
 
     def take_sample(self, s: protocol.Sample, now: float) -> bool:
         """Apply one sample line; True when it confirmed a box restart (ask INFO again)."""
-        self.last_line_t, self.status, self.stale = now, s.status, False
+        before_t, self.last_line_t, self.status, self.stale = (self.last_line_t, now,
+                                                               s.status, False)
         verdict = self._sequence(s.seq)
+        if verdict == "suspect":  # when the old stream's last line and the new first came
+            self.cut_t = (before_t, now)
         if verdict == "restart":
             self.restarts += 1
             self.rebooted, self.info_fresh, self.rezero = True, False, False
@@ -519,6 +531,8 @@ class Compensator:
                 self.await_zero = True
                 self.log(f"the box restarted (seq {s.seq}) without the reference the offsets "
                          "were taken in: holding the last offsets until ZERO")
+                if s.status & NO_REF and self.cfg.resume:
+                    self.resume_wanted = self._periods_off()
             else:
                 self.log(f"the box restarted (seq {s.seq}): holding until it has walked back "
                          "from 0 and INFO confirms its model")
@@ -620,9 +634,38 @@ class Compensator:
             self.rezero = True
             self.log(f"box zeroed at seq {seq}: the next value is the new datum")
 
+    def _periods_off(self) -> int:
+        """Sample periods the box was off: between the old stream's last line and the new
+        power-up's first, less the one period between two lines (the box adds the samples it
+        has taken since its power-up itself)."""
+        period = self.period_s()
+        before, first = self.cut_t
+        if period is None or period <= 0 or before is None:
+            return 0
+        return max(0, min(protocol.RESUME_MAX, round((first - before) / period) - 1))
+
+    def resumed(self, seq: int) -> None:
+        """``$OK,RESUME,<seq>``: the box continues the state it had before the power cut
+        (its retained memory on a battery): its reference, so the offsets held are the ones
+        it goes on from; the next lines continue its old sequence."""
+        if not self.resume_pending:
+            self.log(f"$OK,RESUME,{seq} without a RESUME sent: ignored")
+            return
+        self.resume_pending = False
+        self.await_zero, self.rebooted = False, False
+        # the next line continues the old sequence after this one (the samples the box was
+        # off for are behind this seq: they are not lines lost on the wire)
+        self.last_seq, self.prev_seq, self.suspect_seq, self.last_lost = seq, None, None, 0
+        self.log(f"box resumed at seq {seq}: it continues its reference; the offsets follow it "
+                 "again, within the step limits")
+
     def refused(self, reason: str) -> None:
         """``$E,<reason>`` from the box."""
-        if reason == "HOLDING" and self.zero_pending:
+        if reason == "NO_STATE" and self.resume_pending:
+            self.resume_pending = False
+            self.log("the box kept no state through the power cut (NO_STATE): holding the "
+                     "last offsets until ZERO")
+        elif reason == "HOLDING" and self.zero_pending:
             self.zero_pending, self.zero_deferred = False, True
             self.log("the box refused ZERO while an axis holds (HOLDING): deferred, sent again "
                      "on the first line without a hold bit (zero-deferred; touch off only "
@@ -944,6 +987,11 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
     if isinstance(msg, protocol.Sample):
         if comp.take_sample(msg, now):
             port.write(b"INFO\r\n")  # a restarted box may carry another model
+        if comp.resume_wanted is not None:
+            n, comp.resume_wanted = comp.resume_wanted, None
+            if port.write(protocol.encode_command("RESUME", n)):
+                comp.resume_pending = True
+                comp.log(f"asked the box to RESUME after {n} sample periods off")
         if comp.deferred_zero_due() and port.write(b"ZERO\r\n"):
             comp.zero_deferred = False
             comp.zero_sent()
@@ -952,6 +1000,8 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
         comp.take_info(msg)
     elif isinstance(msg, protocol.Ack) and msg.command == "ZERO":
         comp.zeroed(msg.value)
+    elif isinstance(msg, protocol.Ack) and msg.command == "RESUME":
+        comp.resumed(msg.value)
     elif isinstance(msg, protocol.MeasReply):
         comp.take_meas_reply(msg)
     elif isinstance(msg, protocol.ErrorReply):

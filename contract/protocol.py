@@ -20,7 +20,10 @@ from contract.errors import InputError
 
 CMD_MAX_LEN = 64
 RATE_MIN, RATE_MAX = 1, 3600
-ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG", "HOLDING")  # HOLDING: ZERO refused
+# HOLDING: ZERO refused (an axis holds or walks); NO_STATE: RESUME refused (no retained state
+# of this model kept through the power cut)
+ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG", "HOLDING", "NO_STATE")
+RESUME_MAX = 65535  # RESUME <n>: sample periods the box was off (CMD_RESUME_MAX in cmd.h)
 TC_TYPES = ("K", "J")
 # MEAS <axis> <nm> <seq> (issue 42, docs/service.md): a probe reading. The box answers $M,
 # applied (A) or refused (R) with one of these reasons, in the order the box checks them:
@@ -369,11 +372,11 @@ def _decode_ok(f: _Fields) -> Ack:
     command = f.take("command")
     if command == "RATE":
         value = f.udec("n", RATE_MAX, RATE_MIN)
-    elif command == "ZERO":
+    elif command in ("ZERO", "RESUME"):
         value = f.udec("seq", 2**32 - 1)
     else:
         f.pos -= 1
-        raise f.fail(f"acknowledged command {command!r} is neither RATE nor ZERO")
+        raise f.fail(f"acknowledged command {command!r} is none of RATE, ZERO, RESUME")
     f.end()
     return Ack(command, value)
 
@@ -486,16 +489,20 @@ def encode(message: Message) -> bytes:
 
 
 def encode_command(command: str, arg: int | None = None) -> bytes:
-    """A command line for the box: ``INFO``, ``STATUS``, ``ZERO`` or ``RATE <n>``, CR LF
-    terminated."""
+    """A command line for the box: ``INFO``, ``STATUS``, ``ZERO``, ``RATE <n>`` or
+    ``RESUME <n>``, CR LF terminated."""
     if command in ("INFO", "STATUS", "ZERO") and arg is None:
         return command.encode() + b"\r\n"
     if command == "RATE" and arg is not None:
         if not RATE_MIN <= arg <= RATE_MAX:
             raise InputError(f"RATE {arg} outside {RATE_MIN}..{RATE_MAX}")
         return f"RATE {arg}\r\n".encode()
-    raise InputError(f"unknown command {command!r} (INFO, STATUS, ZERO, RATE <n> or MEAS: "
-                     "encode_meas)")
+    if command == "RESUME" and arg is not None:
+        if not 0 <= arg <= RESUME_MAX:
+            raise InputError(f"RESUME {arg} outside 0..{RESUME_MAX}")
+        return f"RESUME {arg}\r\n".encode()
+    raise InputError(f"unknown command {command!r} (INFO, STATUS, ZERO, RATE <n>, RESUME <n> "
+                     "or MEAS: encode_meas)")
 
 
 def encode_meas(axis: int, nm: int, seq: int) -> bytes:

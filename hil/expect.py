@@ -168,6 +168,13 @@ def _meas_reply(axis: int, seq: int, nm: int, latest: int, ring_start: int, ring
                      st.last_innovation_nm, st.bias_nm, (st.p_q8 + 128) >> 8)
 
 
+def aux_fault_value(aux) -> int:
+    """What the box hands the model for an aux input it could not read (app.c sample_aux):
+    a value just outside the declared range, so the runtime judges it invalid."""
+    lo, hi = int(aux.min), int(aux.max)
+    return lo - 1 if lo > -2**31 else (hi + 1 if hi < 2**31 - 1 else 0)
+
+
 def channel_faults(codes: np.ndarray, sr: np.ndarray, min_code: np.ndarray,
                    max_code: np.ndarray, window_lo: np.ndarray | None = None,
                    window_hi: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

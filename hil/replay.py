@@ -20,7 +20,14 @@ from contract.fixed_point import CODE_MAX, CODE_MIN
 from contract.protocol import MeasReply, ProtocolError, decode
 from hil.build import ModelBuild, build_firmware, prepare_header
 from hil.checks import Judging, ReplayReport, judge
-from hil.expect import Expected, OutputConfig, expect_session, sr_timeline
+from hil.expect import (
+    SR_OPEN,
+    Expected,
+    OutputConfig,
+    aux_fault_value,
+    expect_session,
+    sr_timeline,
+)
 from hil.feed import Feed, build_feed
 from hil.native import NativeBox
 from hil.runner import Box, Capture, ChipFault, Event, Meas, Zero, replay
@@ -98,10 +105,21 @@ def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],
     # before it, so the expectation runs over every session since the last cold boot.
     spans: list[list[int]] = []
     for k, s in enumerate(capture.sessions):
-        if k > 0 and s.wdt_reset and not model_bad:
+        if k > 0 and (s.wdt_reset or s.resumed) and not model_bad:
             spans[-1].append(k)
         else:
             spans.append([k])
+    # A resumed session (RESUME after a power cut with the backup SRAM kept) continues the
+    # one before it as if every channel had read open, and no aux, for the samples the box
+    # was off (its RESUME runs them so: docs/firmware.md, "Restart"); they send no line.
+    aux_all = setup.feed.aux.copy()
+    for k, s in enumerate(capture.sessions):
+        if k > 0 and s.resumed:
+            prev = capture.sessions[k - 1]
+            gap = slice(prev.first_sample + prev.n_fed, s.first_sample)
+            codes[gap], sr[gap] = 0, SR_OPEN
+            for i, a in enumerate(setup.twin.model.aux):
+                aux_all[gap, i] = aux_fault_value(a)
     out: list[Expected] = []
     for span in spans:
         first = capture.sessions[span[0]]
@@ -109,11 +127,13 @@ def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],
         start, stop = first.first_sample, last.first_sample + last.n_fed
         rows = slice(start, stop)
         local = [z - start for z in zeros if start <= z < stop]
-        warm = [capture.sessions[k].first_sample - start for k in span[1:]]
+        warm = [(capture.sessions[k - 1].first_sample + capture.sessions[k - 1].n_fed
+                 if capture.sessions[k].resumed else capture.sessions[k].first_sample) - start
+                for k in span[1:]]
         meas = {at - start: [(a, nm, seq - start, z) for a, nm, seq, z in ms]
                 for at, ms in meas_at.items() if start <= at < stop
                 or (at == stop and last is capture.sessions[-1])}
-        exp = expect_session(setup.twin, codes[rows], setup.feed.aux[rows], sr[rows],
+        exp = expect_session(setup.twin, codes[rows], aux_all[rows], sr[rows],
                              setup.output, wdt_reset=first.wdt_reset, model_bad=model_bad,
                              zero_before=local, zero_at_powerup=setup.build.zero_at_powerup,
                              warm_resets=warm, meas=meas,
@@ -143,8 +163,8 @@ def run(setup: ReplaySetup, events: Sequence[Event] = (), model_bad: bool = Fals
     """Replay the setup's run through the firmware and judge it."""
     retain = Path(tempfile.mkdtemp(prefix="hil-retain-")) / "bkpsram"
 
-    def native(wdt: bool) -> Box:
-        if not wdt:  # a cold boot: a power cut took the backup SRAM with it
+    def native(wdt: bool, battery: bool = False) -> Box:
+        if not wdt and not battery:  # a cold boot: a power cut took the backup SRAM with it
             retain.unlink(missing_ok=True)
         return NativeBox(setup.binary, wdt_reset=wdt, retain=retain)
 

@@ -104,11 +104,23 @@ class Zero:
 class Restart:
     """Before sample ``at``: the box resets and boots again (the process is killed and
     started). ``wdt_reset``: a warm reset (watchdog, brown-out): the retained memory survives
-    and the box resumes where it was; otherwise a power cut without a backup battery: it
-    boots cold."""
+    and the box resumes where it was; otherwise a power cut: it boots cold. ``battery``: a
+    cell on VBAT kept the retained memory through the cut (the box may be resumed, Resume);
+    ``off``: the samples [at, at + off) pass while it is off (nothing is fed, no line)."""
 
     at: int
     wdt_reset: bool = False
+    battery: bool = False
+    off: int = 0
+
+
+@dataclass(frozen=True)
+class Resume:
+    """Right after a ``Restart`` (at its ``at + off``): the CNC side sends ``RESUME <off>``
+    and waits for ``$OK,RESUME`` (or ``$E,NO_STATE``: no battery kept the state)."""
+
+    at: int
+    off: int
 
 
 @dataclass(frozen=True)
@@ -123,7 +135,8 @@ class Meas:
     seq: int
 
 
-Event = ChipFault | CodeOverride | CodeOffset | ChannelSwap | SerialNoise | Zero | Restart | Meas
+Event = (ChipFault | CodeOverride | CodeOffset | ChannelSwap | SerialNoise | Zero | Restart | Meas
+         | Resume)
 INPUT_EVENTS = (CodeOverride, CodeOffset, ChannelSwap)  # change what the chips read
 
 
@@ -142,6 +155,9 @@ class Session:
     zero_acks: list[bytes] = field(default_factory=list)  # replies to ZERO ($OK or $E), in order
     seq0: int = 0  # seq of its first sample line: 0 after a cold boot, kept after a warm one
     meas_replies: list[bytes] = field(default_factory=list)  # replies to MEAS ($M), in order
+    battery: bool = False  # booted after a power cut with the retained memory kept
+    resumed: bool = False  # RESUME accepted: it continues the session before the cut
+    resume_acks: list[bytes] = field(default_factory=list)  # replies to RESUME, in order
 
 
 @dataclass
@@ -153,7 +169,9 @@ class Capture:
     n_samples: int
 
 
-BoxFactory = Callable[[bool], Box]  # wdt_reset -> a started box
+# wdt_reset -> a started box; called with battery=True (keep the retained memory over a cold
+# boot) only for a Restart(battery=True)
+BoxFactory = Callable[..., Box]
 
 
 def input_codes(codes: np.ndarray, events: Sequence[Event]) -> np.ndarray:
@@ -180,6 +198,12 @@ def replay(feed: Feed, start_box: BoxFactory, events: Sequence[Event] = (), wind
     for e in events:
         if not isinstance(e, INPUT_EVENTS):
             before.setdefault(e.at, []).append(e)
+    for e in events:
+        if isinstance(e, Restart) and e.off:
+            inside = [x for x in events if not isinstance(x, INPUT_EVENTS)
+                      and e.at < x.at < e.at + e.off]
+            if inside:
+                raise ValueError(f"{inside[0]} falls while the box is off ({e})")
     run = _Replay(feed.feed_lines(codes), start_box, window, chunk, timeout)
     try:
         run.session.info = run.box.link.command("INFO", b"$I,", timeout)
@@ -220,6 +244,7 @@ class _Replay:
         self.sessions = [self.session]
         self.pos = 0  # the next sample to feed
         self.cold_start = 0  # the run sample of the latest cold boot (the box's seq 0)
+        self.before_cut = 0  # cold_start before the latest restart (a RESUME goes back to it)
 
     def sync(self) -> None:
         """Wait until every sample fed to this session has been answered."""
@@ -283,15 +308,39 @@ class _Replay:
                 ln for ln in box.link.lines[start:] if ln.startswith((b"$M,", b"$E,"))))
         elif isinstance(e, Restart):
             self.sync()  # the power cut falls between two samples, not inside one
-            self.restart(point, e.wdt_reset)
+            self.restart(point, e.wdt_reset, e.battery, e.off)
+        elif isinstance(e, Resume):
+            s = self.session
+            if len(self.sessions) < 2 or s.n_fed or s.first_sample != point:
+                raise ValueError(f"{e}: RESUME goes right after a Restart")
+            start = box.link.count()
+            box.link.write(f"RESUME {e.off}\r\n".encode("ascii"))
 
-    def restart(self, point: int, wdt_reset: bool) -> None:
-        """Power cut and boot: a new session; the chips' faults are still there."""
+            def resumed(lines: list[bytes]) -> bool:
+                return any(ln.startswith((b"$OK,RESUME,", b"$E,")) for ln in lines[start:])
+
+            box.link.wait_for(resumed, timeout, f"reply to RESUME before sample {point}")
+            reply = next(ln for ln in box.link.lines[start:]
+                         if ln.startswith((b"$OK,RESUME,", b"$E,")))
+            s.resume_acks.append(reply)
+            if reply.startswith(b"$OK,"):
+                s.resumed = True
+                self.cold_start = self.before_cut  # the old power-up's sequence goes on
+                s.seq0 = point - self.cold_start
+
+    def restart(self, point: int, wdt_reset: bool, battery: bool = False, off: int = 0) -> None:
+        """Power cut and boot: a new session; the chips' faults are still there. ``off``
+        samples pass unfed while the box is off."""
         self.finish(kill=True)
+        self.before_cut = self.cold_start
         if not wdt_reset:
-            self.cold_start = point
-        self.box = self.start_box(wdt_reset)
-        self.session = Session(point, wdt_reset, seq0=point if wdt_reset else 0)
+            self.cold_start = point + off
+        self.box = (self.start_box(wdt_reset, battery=True) if battery
+                    else self.start_box(wdt_reset))
+        self.pos += off
+        point += off
+        self.session = Session(point, wdt_reset, seq0=point - self.cold_start if wdt_reset
+                               else 0, battery=battery)
         self.sessions.append(self.session)
         self.session.info = self.box.link.command("INFO", b"$I,", self.timeout)
         for ch, value in sorted(self.sr_now.items()):

@@ -11,6 +11,7 @@
 #define CMD_MAX_LEN 64u
 #define CMD_RATE_MIN 1u
 #define CMD_RATE_MAX 3600u
+#define CMD_RESUME_MAX 65535u /* RESUME <n>: sample periods the box was off (0..65535) */
 /* MEAS <axis> <nm> <seq>: three decimal fields separated by one space each (at most 10
  * digits each), axis and seq unsigned 32-bit, nm signed 32-bit ('-' for negative, no '+');
  * anything else is BAD_ARG. */
@@ -21,12 +22,14 @@ typedef enum {
     CMD_RATE,
     CMD_ZERO,
     CMD_MEAS,
+    CMD_RESUME,
     CMD_ERROR,
 } cmd_kind_t;
 
 typedef struct {
     cmd_kind_t kind;
-    uint32_t arg;       /* RATE: n; MEAS: the axis (any uint32: the application judges it) */
+    uint32_t arg;       /* RATE: n; MEAS: the axis (any uint32: the application judges it);
+                         * RESUME: the sample periods the box was off */
     const char *reason; /* ERROR: "UNKNOWN", "TOO_LONG", "BINARY" or "BAD_ARG" */
     int32_t nm;         /* MEAS: the reading, nm (int32) */
     uint32_t seq;       /* MEAS: the sample it refers to (uint32) */

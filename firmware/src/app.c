@@ -74,6 +74,11 @@ typedef struct {
     uint16_t status;  /* status word of the latest sample */
     uint32_t seq;     /* seq of the next sample */
     bool sampled;     /* a sample has been taken since power-up */
+    /* A cold power-up found this model's retained block intact (a battery on VBAT kept it
+     * through the power cut): it is left untouched until RESUME <n> continues it or a ZERO
+     * starts afresh (docs/firmware.md, "Restart"). */
+    bool resumable;
+    bool skipping; /* RESUME: running the samples the box was off for (no chip, no line) */
     uint32_t next_sample_ms;
     uint32_t rate;
     uint32_t rate_left; /* samples until the next emitted line */
@@ -164,7 +169,7 @@ static uint32_t snap_crc(void)
 
 static void retain_save(void)
 {
-    if (!app.model_ok || hal_retain_size() < sizeof snap) {
+    if (!app.model_ok || app.resumable || app.skipping || hal_retain_size() < sizeof snap) {
         return;
     }
     snap.magic = RETAIN_MAGIC;
@@ -191,18 +196,9 @@ static void retain_save(void)
     hal_retain_write(&snap, sizeof snap);
 }
 
-/* After a warm reset: resume from the retained state if it is this model's and intact. */
-static bool retain_restore(void)
+/* Continue from the block in snap (its filters and estimates are used in place). */
+static void retain_apply(void)
 {
-    if (!app.model_ok || !hal_reset_was_warm() || hal_retain_size() < sizeof snap) {
-        return false;
-    }
-    hal_retain_read(&snap, sizeof snap);
-    if (snap.magic != RETAIN_MAGIC || snap.size != (uint32_t)sizeof snap ||
-        snap.model_crc != model_binding_expected_crc() || snap.crc != snap_crc() ||
-        snap.rate < 1u || snap.rate > 3600u || snap.rate_left < 1u || snap.rate_left > snap.rate) {
-        return false;
-    }
     app.seq = snap.seq;
     app.rate = snap.rate;
     app.rate_left = snap.rate_left;
@@ -220,9 +216,35 @@ static bool retain_restore(void)
     for (uint32_t a = 0; a < BOX_MAX_AXES; a++) {
         app.axes[a] = snap.axes[a];
     }
-    return true;
 }
 
+/* The retained block read into snap: this model's and intact. */
+static bool retained_valid(void)
+{
+    if (!app.model_ok || hal_retain_size() < sizeof snap) {
+        return false;
+    }
+    hal_retain_read(&snap, sizeof snap);
+    return snap.magic == RETAIN_MAGIC && snap.size == (uint32_t)sizeof snap &&
+           snap.model_crc == model_binding_expected_crc() && snap.crc == snap_crc() &&
+           snap.rate >= 1u && snap.rate <= 3600u && snap.rate_left >= 1u &&
+           snap.rate_left <= snap.rate;
+}
+
+/* After a warm reset: resume from the retained state if it is this model's and intact. After
+ * a cold power-up an intact block is kept for RESUME (resumable) and the box starts cold. */
+static bool retain_restore(void)
+{
+    if (!retained_valid()) {
+        return false;
+    }
+    if (!hal_reset_was_warm()) {
+        app.resumable = app.needs_ref; /* only a referenced state is worth continuing */
+        return false;
+    }
+    retain_apply();
+    return true;
+}
 /* Beyond what training supports (docs/firmware.md, "Extrapolation"): the training window
  * widened by BOX_BEYOND_SPAN_PERCENT of its span, at least BOX_BEYOND_MIN_CODES. A
  * start-referenced model judges the change since its reference instead: a warmer day shifts
@@ -388,9 +410,9 @@ static uint16_t sample_channels(uint32_t *valid_mask)
     *valid_mask = 0;
     for (uint32_t ch = 0; ch < app.n_channels; ch++) {
         const tcm_channel_t *c = &app.model->channels[ch];
-        max31856_reading_t r;
+        max31856_reading_t r = {0, MAX31856_SR_OPEN, true}; /* RESUME: the box was off */
         uint16_t fault = 0;
-        if (!max31856_read((uint8_t)ch, c->tc_type, &r)) {
+        if (!app.skipping && !max31856_read((uint8_t)ch, c->tc_type, &r)) {
             fault |= CHFAULT_NO_RESPONSE;
             st |= STATUS_TC_FAULT;
         } else if (r.sr != 0u) {
@@ -445,7 +467,7 @@ static uint16_t sample_aux(void)
     for (uint32_t k = 0; k < app.n_aux; k++) {
         const tcm_aux_t *x = &app.model->aux[k];
         int32_t v;
-        if (!hal_aux_read((uint8_t)k, &v)) {
+        if (app.skipping || !hal_aux_read((uint8_t)k, &v)) {
             /* The runtime judges aux validity by range: hand it a value outside the range. */
             v = x->min > INT32_MIN ? x->min - 1 : (x->max < INT32_MAX ? x->max + 1 : 0);
             st |= STATUS_AUX_FAULT;
@@ -559,7 +581,9 @@ static void take_sample(void)
     app.sampled = true;
     if (--app.rate_left == 0u) {
         app.rate_left = app.rate;
-        send_sample_line(seq);
+        if (!app.skipping) {
+            send_sample_line(seq);
+        }
     }
     retain_save();
 }
@@ -711,6 +735,35 @@ static void send_ok(const char *what, uint32_t value)
     send_line();
 }
 
+/* RESUME <n>: continue the retained state of the last power-up, as if the box had sampled
+ * every channel as open for the n periods it was off and the ones since this power-up (the
+ * filters catch up over the gap, the guards judge the next reading, the output holds and
+ * walks back); its reference and sequence go on (docs/firmware.md, "Restart"). */
+static void handle_resume(uint32_t off)
+{
+    if (!app.resumable || !retained_valid()) {
+        if (app.resumable) { /* the block changed since power-up: start afresh */
+            app.resumable = false;
+            tcm_state_init(tcm);
+            est_reset_all();
+        }
+        send_error("NO_STATE");
+        return;
+    }
+    const uint32_t since_boot = app.seq; /* samples this power-up has taken */
+    retain_apply();
+    app.resumable = false;
+    app.sticky |= STATUS_WDT_RESET; /* reset, resumed from the retained state */
+    app.skipping = true;
+    for (uint32_t i = 0; i < off + since_boot; i++) {
+        hal_watchdog_kick();
+        take_sample();
+    }
+    app.skipping = false;
+    send_ok("RESUME", app.sampled ? app.seq - 1u : 0u);
+    retain_save();
+}
+
 static void handle_command(const cmd_t *c)
 {
     switch (c->kind) {
@@ -733,11 +786,15 @@ static void handle_command(const cmd_t *c)
             break;
         }
         app.zero_pending = true; /* the reference starts with the next sample */
+        app.resumable = false;   /* a new datum: the retained one is not continued */
         send_ok("ZERO", app.sampled ? app.seq - 1u : 0u);
         retain_save();
         break;
     case CMD_MEAS:
         handle_meas(c);
+        break;
+    case CMD_RESUME:
+        handle_resume(c->arg);
         break;
     case CMD_ERROR:
     default:

@@ -93,6 +93,16 @@ static cmd_t parse_rate(const char *arg, uint8_t len)
     return c;
 }
 
+static cmd_t parse_resume(const char *arg, uint8_t len)
+{
+    uint32_t n;
+    if (len > 5u || !parse_fields(arg, len, &n, 1u, -1) || n > CMD_RESUME_MAX) {
+        return error("BAD_ARG");
+    }
+    cmd_t c = {CMD_RESUME, n, 0, 0, 0};
+    return c;
+}
+
 static cmd_t parse_meas(const char *arg, uint8_t len)
 {
     uint32_t v[3];
@@ -122,6 +132,12 @@ cmd_t cmd_parse(const char *line, uint8_t len)
     }
     if (len >= 5u && memcmp(line, "RATE ", 5) == 0) {
         return parse_rate(line + 5, (uint8_t)(len - 5u));
+    }
+    if (len >= 7u && memcmp(line, "RESUME ", 7) == 0) {
+        return parse_resume(line + 7, (uint8_t)(len - 7u));
+    }
+    if (equals(line, len, "RESUME")) {
+        return error("BAD_ARG");
     }
     if (equals(line, len, "MEAS")) {
         return error("BAD_ARG");

@@ -189,6 +189,24 @@ static void test_App_ShouldBootColdWhenTheRetainedMemoryIsLost(void **state)
     assert_true(s.status & 0x0004u); /* SLEW: walking from 0 again, as after any power-up */
 }
 
+static void test_App_ShouldRefuseResumeWhenThereIsNothingToContinue(void **state)
+{
+    (void)state;
+    /* the vectors' model has no start reference: a cold power-up keeps nothing to continue
+     * (the retained block is intact: a battery kept it) */
+    for (int i = 0; i < 20; i++) {
+        load_vector(i);
+        advance_and_poll(VEC_PERIOD_MS);
+        (void)fake_uart_take();
+    }
+    fake_reset_by_watchdog = false;
+    app_init();
+    (void)fake_uart_take();
+    fake_uart_send("RESUME 3\r\n");
+    advance_and_poll(1);
+    assert_memory_equal(fake_uart_take(), "$E,NO_STATE*", 12);
+}
+
 static void test_App_ShouldConfigureEveryChipForItsThermocoupleType(void **state)
 {
     (void)state;
@@ -661,6 +679,7 @@ int main(void)
         cmocka_unit_test_setup(test_App_ShouldMatchHostVectorsBitForBit, boot),
         cmocka_unit_test_setup(test_App_ShouldResumeBitForBitAfterAWatchdogReset, boot),
         cmocka_unit_test_setup(test_App_ShouldBootColdWhenTheRetainedMemoryIsLost, boot),
+        cmocka_unit_test_setup(test_App_ShouldRefuseResumeWhenThereIsNothingToContinue, boot),
         cmocka_unit_test_setup(test_App_ShouldConfigureEveryChipForItsThermocoupleType, boot),
         cmocka_unit_test_setup(test_App_ShouldNotSampleBeforeThePeriodHasPassed, boot),
         cmocka_unit_test_setup(test_App_ShouldShowMissedPeriodsAsAGapInSeq, boot),

@@ -85,6 +85,22 @@ static void test_Cmd_ShouldRejectBadRateArguments(void **state)
     }
 }
 
+static void test_Cmd_ShouldParseResumeWithinZeroTo65535(void **state)
+{
+    (void)state;
+    FEED("RESUME 0\nRESUME 65535\nRESUME 7\n");
+    assert_int_equal(n_results, 3);
+    assert_int_equal(results[0].kind, CMD_RESUME);
+    assert_int_equal(results[0].arg, 0);
+    assert_int_equal(results[1].arg, 65535);
+    assert_int_equal(results[2].arg, 7);
+    FEED("RESUME\nRESUME 65536\nRESUME -1\nRESUME x\nRESUME 5 \n");
+    assert_int_equal(n_results, 5); /* each feed starts a new list */
+    for (int i = 0; i < 5; i++) {
+        assert_error(i, "BAD_ARG");
+    }
+}
+
 static void test_Cmd_ShouldAnswerUnknownToOtherCommandsAndWrongCase(void **state)
 {
     (void)state;
@@ -169,6 +185,7 @@ int main(void)
         cmocka_unit_test(test_Cmd_ShouldAcceptCrLfAndBareCrAsLineEnds),
         cmocka_unit_test(test_Cmd_ShouldParseRateWithinOneTo3600),
         cmocka_unit_test(test_Cmd_ShouldRejectBadRateArguments),
+        cmocka_unit_test(test_Cmd_ShouldParseResumeWithinZeroTo65535),
         cmocka_unit_test(test_Cmd_ShouldAnswerUnknownToOtherCommandsAndWrongCase),
         cmocka_unit_test(test_Cmd_ShouldAcceptALineOfExactly64Characters),
         cmocka_unit_test(test_Cmd_ShouldDiscardAnOverLongLineAndAnswerOnce),

@@ -1,0 +1,61 @@
+"""A power cut with the backup SRAM kept on a battery (VBAT): RESUME <periods off> continues the
+box's state (docs/firmware.md, "Restart"; issue 41's "power cut" event). Native firmware
+against the host's twin, which runs the periods off as samples with every channel open."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hil import replay as hil_replay
+from hil.checks import Judging, step_limits_nm
+from hil.example_model import default_terms, fit_example_model, write_model
+from hil.expect import NO_REF, REFERENCED, WDT_RESET
+from hil.runner import Restart, Resume
+
+REPO = Path(__file__).resolve().parents[1]
+CUT, OFF = 500, 5
+
+pytestmark = pytest.mark.skipif(
+    shutil.which("gcc") is None or shutil.which("make") is None,
+    reason="gcc/make not installed: the native firmware cannot be built")
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    d = tmp_path_factory.mktemp("hil_resume")
+    terms = {"dx_um": default_terms(["T03", "T04", "T01"], 60.0, "spindle_rpm"),
+             "dz_um": default_terms(["T05", "T01", "T02"], 60.0, "spindle_rpm")}
+    model = fit_example_model(REPO / "examples" / "sim_step.csv", terms,
+                              aux_names=["spindle_rpm"])
+    model["reference"] = {"kind": "start", "samples": 1}  # what host train gives by default
+    s = hil_replay.prepare(write_model(model, d / "model.json"),
+                           REPO / "examples" / "sim_random.csv", d / "hil")
+    return hil_replay.ReplaySetup(s.build, s.feed, s.twin, s.binary, s.output,
+                                  Judging(require_no_worse=False))
+
+
+def test_a_resumed_box_goes_on_from_its_kept_state_bit_exact(setup):
+    report, capture = hil_replay.run(setup, [Restart(CUT, battery=True, off=OFF),
+                                             Resume(CUT + OFF, OFF)])
+    assert report.ok, report.problems  # every line = the twin's, the periods off included
+    after = capture.sessions[1]
+    assert after.resumed and after.resume_acks[0].startswith(b"$OK,RESUME,")
+    st = report.fw_status
+    assert np.all(st[CUT + OFF:] & WDT_RESET) and np.all(st[CUT + OFF:] & REFERENCED)
+    assert not np.any(st[CUT + OFF:] & NO_REF)  # its reference goes on: no ZERO needed
+    # the rule of issue 41: no output beyond one step limit of the uninterrupted box's
+    clean, _ = hil_replay.run(setup)
+    limits = np.array([step_limits_nm(setup.model)[a] for a in setup.feed.axes])
+    worst = np.abs(report.fw_out_nm[CUT + OFF:] - clean.fw_out_nm[CUT + OFF:]).max(axis=0)
+    assert np.all(worst <= limits), (worst, limits)
+
+
+def test_without_a_battery_there_is_nothing_to_resume(setup):
+    report, capture = hil_replay.run(setup, [Restart(CUT, off=OFF), Resume(CUT + OFF, OFF)])
+    after = capture.sessions[1]
+    assert not after.resumed and after.resume_acks[0].startswith(b"$E,NO_STATE")
+    assert np.all(report.fw_status[CUT + OFF:] & NO_REF)  # holds until a ZERO
