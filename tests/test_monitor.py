@@ -182,7 +182,7 @@ def test_lost_port_is_retried_and_the_box_asked_again(tmp_path):
     second = WirePty()
     link.unlink()
     link.symlink_to(second.path)
-    second.wait_for(b"INFO\r\n")  # asked again after reconnecting
+    second.wait_for(b"INFO\r\n", timeout=20.0)  # asked again after reconnecting
     second.send(INFO + sample(0, 0x0100, [5, 6], [7, 8]) + sample(1, 0, [5, 6], [7, 8]))
     thread.join(10)
     assert not thread.is_alive() and result["code"] == 0
