@@ -25,8 +25,16 @@ from host.fleet.collector import Collector  # noqa: E402
 from host.fleet.export import export_run, parse_since  # noqa: E402
 from host.fleet.gateway import Publisher, Translator, parse_command  # noqa: E402
 from host.fleet.localrun import Mosquitto, have_mosquitto  # noqa: E402
+from host.fleet.spool import Spool  # noqa: E402
 from host.fleet.store import Store  # noqa: E402
-from host.fleet.topics import MAX_PAYLOAD, Refused, encode, parse, topic  # noqa: E402
+from host.fleet.topics import (  # noqa: E402
+    MAX_PAYLOAD,
+    FleetError,
+    Refused,
+    encode,
+    parse,
+    topic,
+)
 from host.fleet.web import make_server, render_fleet  # noqa: E402
 from host.io import load_run  # noqa: E402
 from tests.fleet_support import INFO, PtyBox, wait_for  # noqa: E402
@@ -130,6 +138,38 @@ def test_commands_must_be_fresh_and_known():
             parse_command(payload, now)
 
 
+def test_the_spool_keeps_what_is_not_acknowledged_and_recovers_it_in_order(tmp_path,
+                                                                           monkeypatch):
+    import host.fleet.spool as spool_mod
+
+    path = tmp_path / "state" / "spool-m1.jsonl"
+    sp = Spool(path, fsync=False)
+    assert sp.recovered == []
+    msgs = [{"gateway": "g1", "n": i, "seq": i} for i in range(1, 6)]
+    for m in msgs:
+        sp.add(spool_mod.message_key(m), "state", m)
+    sp.ack("g1:1")
+    sp.ack("g1:3")
+    sp.close()  # the gateway killed: 2, 4 and 5 never acknowledged
+    with path.open("a") as fh:
+        fh.write('{"key": "g1:6", "kind": "sta')  # a line the kill cut short
+    sp = Spool(path, fsync=False)
+    assert [d["n"] for _, d in sp.recovered] == [2, 4, 5]
+    for n in (2, 4, 5):
+        sp.ack(f"g1:{n}")
+    assert path.stat().st_size == 0 and sp.pending() == 0  # nothing open: truncated
+    # a long outage's ack lines are compacted away once they outnumber the open messages
+    monkeypatch.setattr(spool_mod, "COMPACT_ACKS", 3)
+    for n in range(10, 16):
+        sp.add(f"g2:{n}", "event", {"gateway": "g2", "n": n})
+    for n in range(10, 15):
+        sp.ack(f"g2:{n}")
+    sp.close()
+    assert len(path.read_text().splitlines()) == 1  # 6 messages and 5 acks compacted to 1
+    assert [d["n"] for _, d in Spool(path).recovered] == [15]
+    assert spool_mod.default_spool_path("m1").name == "spool-m1.jsonl"
+
+
 # ---- through the broker ------------------------------------------------------------------
 @needs_broker
 def test_nothing_is_lost_across_a_broker_restart(broker, tmp_path):
@@ -177,7 +217,8 @@ def test_host_gateway_on_a_pty_its_last_will_and_fleet_status(broker, tmp_path):
     collector.start()
     box = PtyBox()
     gw = subprocess.Popen([sys.executable, "-m", "host", "gateway", box.path, "--mqtt",
-                           broker.url, "--machine", "lathe-2"], cwd=ROOT,
+                           broker.url, "--machine", "lathe-2", "--spool",
+                           str(tmp_path / "spool.jsonl")], cwd=ROOT,
                           stderr=subprocess.PIPE, text=True)
     try:
         wait_for(lambda: "INFO" in box.commands, 10, "the gateway asks INFO")
@@ -248,6 +289,125 @@ def test_bad_input_is_refused_flagged_and_never_stops_the_service(broker, tmp_pa
     for text in ("malformed JSON", "oversized", "unknown machine", "model hash changed"):
         assert text in html
     assert collector.client.is_connected()
+    collector.stop()
+
+
+def _gateway(box: PtyBox, url: str, machine: str, spool: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "host", "gateway", box.path, "--mqtt", url,
+                             "--machine", machine, "--spool", str(spool)], cwd=ROOT,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _spooled(path: Path) -> dict[str, dict]:
+    """The spool's open messages (key -> data), read as the next gateway will."""
+    out: dict[str, dict] = {}
+    for line in path.read_text().splitlines() if path.exists() else []:
+        rec = json.loads(line)
+        if "ack" in rec:
+            out.pop(rec["ack"], None)
+        else:
+            out[rec["key"]] = rec["data"]
+    return out
+
+
+@needs_broker
+def test_a_gateway_killed_during_an_outage_loses_nothing_with_its_spool(broker, tmp_path):
+    """Broker down, samples published, the gateway killed (SIGKILL: no goodbye), broker and
+    gateway started again: every sample is in the store exactly once."""
+    store = Store(f"sqlite:///{tmp_path / 'fleet.sqlite'}")
+    collector = Collector(broker.url, store, client_id="tc-fleet-spool")
+    collector.start()
+    wait_for(collector.connected.is_set, what="collector connected")
+    box, spool = PtyBox(), tmp_path / "spool-drill-3.jsonl"
+    gw = _gateway(box, broker.url, "drill-3", spool)
+    try:
+        wait_for(lambda: "INFO" in box.commands, 10, "the gateway asks INFO")
+        time.sleep(0.3)
+        for _ in range(5):
+            box.sample()
+        wait_for(lambda: store.counts().get("drill-3") == 5, 10, "5 samples stored")
+        wait_for(lambda: spool.exists() and spool.stat().st_size == 0, 5,
+                 "the spool emptied once all was acknowledged")
+        broker.stop()
+        for _ in range(10):  # seq 5..14: queued, and on disk
+            box.sample()
+        wait_for(lambda: sorted(d["seq"] for d in _spooled(spool).values() if "seq" in d)
+                 == list(range(5, 15)), 10, "the outage's 10 samples in the spool")
+        gw.send_signal(signal.SIGKILL)
+        gw.wait(5)
+        # a second gateway on the same spool while one runs would be refused
+        held = Spool(spool)
+        with pytest.raises(FleetError, match="in use"):
+            Spool(spool)
+        held.close()
+        broker.start()
+        gw = _gateway(box, broker.url, "drill-3", spool)
+        wait_for(lambda: box.commands.count("INFO") >= 2, 10, "the new gateway asks INFO")
+        time.sleep(0.3)
+        for _ in range(3):  # seq 15..17, from the new gateway
+            box.sample()
+        wait_for(lambda: store.counts().get("drill-3") == 18, 15, "all 18 samples stored")
+        time.sleep(0.5)  # anything sent twice would have arrived by now
+        rows = store.samples("drill-3")
+        assert sorted(r["seq"] for r in rows) == list(range(18))  # each once
+        assert len({r["gateway"] for r in rows}) == 2  # the outage's under the first run's id
+        wait_for(lambda: spool.stat().st_size == 0, 5, "the spool empty again")
+    finally:
+        if gw.poll() is None:
+            gw.terminate()
+            gw.wait(15)
+        box.close()
+        collector.stop()
+        if broker.proc is None:
+            broker.start()
+
+
+@needs_broker
+def test_host_monitor_mqtt_publishes_what_the_gateway_would(broker, tmp_path):
+    store = Store(f"sqlite:///{tmp_path / 'fleet.sqlite'}")
+    collector = Collector(broker.url, store, client_id="tc-fleet-monitor")
+    collector.start()
+    wait_for(collector.connected.is_set, what="collector connected")
+    box = PtyBox()
+    mon = subprocess.Popen([sys.executable, "-m", "host", "monitor", box.path, "--plain",
+                            "--count", "4", "--duration", "20", "--mqtt", broker.url,
+                            "--machine", "mill-9", "--spool", str(tmp_path / "spool.jsonl")],
+                           cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    sent: list[bytes] = []
+    try:
+        wait_for(lambda: "INFO" in box.commands, 10, "the monitor asks INFO")
+        time.sleep(0.3)
+        for status in (0, 0, 0x0022, 0x0022):  # HOLD + OPEN: STATUS names T01
+            line = protocol.encode_sample(box.seq, status, (1500, -2500), (2600, 2700))
+            sent.append(line)
+            box.sample(status=status)
+            if status:
+                wait_for(lambda: "STATUS" in box.commands, 5, "STATUS asked")
+                time.sleep(0.3)
+        out, err = mon.communicate(timeout=30)
+    finally:
+        if mon.poll() is None:
+            mon.kill()
+        box.close()
+    assert mon.returncode == 0, err
+    assert "seq=3" in out and "T01=FAULT(OPEN)" in out  # the screen's (plain) view
+    wait_for(lambda: store.counts().get("mill-9") == 4, 10, "4 samples stored")
+    # the same lines through the gateway's translator: the same states
+    tr = Translator("mill-9", "g")
+    tr.line(protocol.encode_info(INFO), 0.0)
+    status = protocol.encode_status(protocol.StatusReport(0x22, 3, 10, (0x0001, 0), None))
+    expect = [tr.line(sent[0], 0.0), tr.line(sent[1], 0.0), tr.line(sent[2], 0.0),
+              tr.line(status, 0.0), tr.line(sent[3], 0.0)]
+    states = [m for batch in expect for kind, m in batch if kind == "state"]
+    rows = store.samples("mill-9")
+    keys = ("seq", "status", "flags", "model_hash", "period_ms", "corrections_um",
+            "temperatures_c")
+    assert [{k: r[k] for k in keys} for r in rows] == [{k: s[k] for k in keys} for s in states]
+    def mill9():  # (the other tests' machines come as retained states)
+        return next(m for m in store.machines() if m.name == "mill-9")
+
+    assert mill9().state["faults"] == {"T01": ["OPEN"]}
+    wait_for(lambda: mill9().online is False, 10, "offline when it stops")
     collector.stop()
 
 

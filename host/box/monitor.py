@@ -16,7 +16,9 @@ port is gone.
 Layout: ``MonitorState`` is what is known, ``Monitor`` reads the port and keeps it current,
 and the views only read it: ``render`` (the live lines) in the curses screen
 (host.box.screen), ``plain_sample_line`` for a pipe, ``json_sample`` for --json, ``CsvLog``
-for --log.
+for --log. A ``LineView`` sees the box's lines themselves, as received, and the serial link
+come and go: ``host monitor --mqtt`` passes the fleet gateway's relay (host.fleet.gateway
+.BoxRelay), so the broker gets exactly what ``host gateway`` would publish from those lines.
 
 The sign (docs/protocol.md): the box's correction is its prediction of the thermal
 displacement, in the sign of the displacement measured in the thermal test (compensated =
@@ -29,11 +31,12 @@ import csv
 import json
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
+from typing import Protocol, TextIO
 
 import serial
 
@@ -466,6 +469,22 @@ def device_identity(port: str) -> str | None:
     return None
 
 
+class LineView(Protocol):
+    """A view fed the box's lines as received (every one, good or bad) and the serial link's
+    coming and going, with wall-clock times; ``start`` before the first, ``stop`` at the end.
+    host.fleet.gateway.BoxRelay is one (the MQTT publisher of ``host monitor --mqtt``)."""
+
+    def start(self) -> None: ...
+
+    def line(self, raw: bytes, now: float) -> object: ...
+
+    def connected(self, port: str, now: float) -> None: ...
+
+    def lost(self, why: str, now: float) -> None: ...
+
+    def stop(self) -> None: ...
+
+
 class Monitor:
     """Reads lines from the box, keeps ``state`` current, shows it and logs samples.
 
@@ -485,8 +504,11 @@ class Monitor:
                  axis_inputs: Mapping[str, Sequence[str]] | None = None,
                  json_lines: bool = False,
                  identify: Callable[[str], str | None] = device_identity,
-                 promises: Mapping[str, str] | None = None) -> None:
+                 promises: Mapping[str, str] | None = None,
+                 views: Sequence[LineView] = ()) -> None:
         self.port_name = port
+        self.views = list(views)
+        self._out_lock = threading.Lock()  # note() may come from another thread
         self.baud = baud
         self.count = count
         self.duration = duration
@@ -525,6 +547,16 @@ class Monitor:
         except (OSError, serial.SerialException) as exc:
             raise MonitorError(f"{self.port_name}: cannot open serial port: {exc}") from None
         self._identity = self.identify(self.port_name)
+        started: list[LineView] = []
+        try:
+            for view in self.views:
+                view.start()
+                started.append(view)
+        except BaseException:
+            for view in started:
+                view.stop()
+            self._port.close()
+            raise
         if self.screen:
             self._screen = Screen()
             self._screen.start()
@@ -560,6 +592,8 @@ class Monitor:
                 self._port.close()
             if self.log:
                 self.log.close()
+            for view in self.views:
+                view.stop()
         st = self.state
         text = (f"monitor: {st.samples} samples, {st.bad_lines} bad lines, {st.seq_gaps} seq "
                 f"gaps, {st.reconnects} reconnects"
@@ -592,9 +626,13 @@ class Monitor:
         self._info_attempts = 0
         self._ask_info()
         self._event(f"connected to {self.port_name}", kind="connected")
+        for view in self.views:
+            view.connected(self.port_name, time.time())
 
     def _lost(self, exc: BaseException) -> None:
         self._event(f"connection lost ({exc}); retrying every {self.retry_s:g} s", kind="lost")
+        for view in self.views:
+            view.lost(str(exc), time.time())
         try:
             if self._port is not None:
                 self._port.close()
@@ -674,12 +712,16 @@ class Monitor:
             self._buf = bytearray(rest)
             self._handle(line.rstrip(b"\r"), now)
         if len(self._buf) > 1024:  # noise without newlines: drop it, count it
+            for view in self.views:
+                view.line(bytes(self._buf[:200]), time.time())
             self._bad(bytes(self._buf[:60]), "no end of line in 1024 bytes")
             self._buf.clear()
 
     def _handle(self, raw: bytes, now: float) -> None:
         if not raw.strip():
             return
+        for view in self.views:
+            view.line(raw, time.time())
         try:
             message = protocol.decode(raw)
         except protocol.ProtocolError as exc:
@@ -808,25 +850,33 @@ class Monitor:
             elif not self.screen:
                 self._emit(text)
 
+    def note(self, text: str, kind: str = "note") -> None:
+        """An event from elsewhere (a view's own news, from any thread), shown like the
+        monitor's own events."""
+        self._event(text, kind)
+
     def _event(self, text: str, kind: str = "event") -> None:
         if self.json:
             self._json({"type": "event", "event": kind, "message": text,
                         "host_unix_s": round(time.time(), 3)})
         elif self.screen:
-            self.state.messages = (self.state.messages
-                                   + [f"{clock(time.time())} {text}"])[-20:]
+            with self._out_lock:
+                self.state.messages = (self.state.messages
+                                       + [f"{clock(time.time())} {text}"])[-20:]
         else:
             self._emit(text)
 
     def _json(self, obj: dict) -> None:
-        self.out.write(json.dumps(obj, ensure_ascii=False) + "\n")
-        self.out.flush()
+        with self._out_lock:
+            self.out.write(json.dumps(obj, ensure_ascii=False) + "\n")
+            self.out.flush()
 
     def _emit(self, text: str, final: bool = False) -> None:
         if self._screen is not None or (self.screen and not final):
             return
-        self.out.write(text + "\n")
-        self.out.flush()
+        with self._out_lock:
+            self.out.write(text + "\n")
+            self.out.flush()
 
     def _draw(self, force: bool = False) -> None:
         if self._screen is None:

@@ -24,9 +24,33 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="take ZERO/STATUS/INFO/RATE from these broker users on "
                         "thermalcomp/NAME/cmd/<user> (default: no command is taken; a remote "
                         "ZERO moves a tool); needs an authenticated connection")
+    add_spool_options(parser)
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--count", type=int, metavar="N", help="stop after N samples")
     parser.add_argument("-v", "--verbose", action="store_true", help="log every connection")
+
+
+def add_spool_options(parser: argparse.ArgumentParser) -> None:
+    """--spool / --no-spool, shared with ``host monitor --mqtt``."""
+    spool = parser.add_mutually_exclusive_group()
+    spool.add_argument("--spool", metavar="PATH",
+                       help="keep every message on disk until the broker acknowledges it, and "
+                       "publish what an earlier run left there first: a gateway killed during "
+                       "a broker outage loses nothing (default: "
+                       "$XDG_STATE_HOME/thermalcomp/spool-NAME.jsonl, i.e. "
+                       "~/.local/state/thermalcomp/spool-NAME.jsonl)")
+    spool.add_argument("--no-spool", action="store_true",
+                       help="no spool: unacknowledged messages live only in memory")
+
+
+def open_spool(args: argparse.Namespace):
+    """The spool the options ask for (None with --no-spool)."""
+    from host.fleet.spool import Spool, default_spool_path
+    from host.fleet.topics import check_machine
+
+    if args.no_spool:
+        return None
+    return Spool(args.spool or default_spool_path(check_machine(args.machine)))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,5 +59,6 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     users = frozenset(u.strip() for u in args.allow_commands.split(",") if u.strip())
-    gateway = Gateway(args.port, args.mqtt, args.machine, baud=args.baud, allow_users=users)
+    gateway = Gateway(args.port, args.mqtt, args.machine, baud=args.baud, allow_users=users,
+                      spool=open_spool(args))
     return gateway.run(duration=args.duration, count=args.count)

@@ -3,11 +3,16 @@
 The reading and the state live in host.box.monitor; what is shown is chosen here: the
 full-screen terminal view (curses) on a terminal or with --screen, one line per sample with
 --plain or when stdout is not a terminal (a pipe, a file), one JSON object per line with
---json."""
+--json. With --mqtt URL --machine NAME the box's lines also go to the fleet's broker, through
+the same relay as ``host gateway`` (host.fleet.gateway.BoxRelay: the same messages, the same
+spool), while the screen shows them (docs/fleet.md)."""
 
 from __future__ import annotations
 
 import argparse
+import logging
+
+from host.commands.gateway import add_spool_options, open_spool
 
 NAME = "monitor"
 HELP = "show a box's live corrections, temperatures and status flags; check its model hash"
@@ -28,6 +33,14 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--retry", type=float, default=1.0, metavar="S",
                         help="seconds between reconnection attempts (default 1)")
+    fleet = parser.add_argument_group("fleet (docs/fleet.md)")
+    fleet.add_argument("--mqtt", metavar="URL",
+                       help="also publish the box's state to this MQTT broker, as `host "
+                       "gateway` does (mqtt://[user[:password]@]host[:port] or mqtts://...; "
+                       "needs --machine); no command is taken from the broker")
+    fleet.add_argument("--machine", metavar="NAME",
+                       help="the machine's name on the broker: thermalcomp/NAME/...")
+    add_spool_options(fleet)
     display = parser.add_mutually_exclusive_group()
     display.add_argument("--json", action="store_true",
                          help="one JSON object per line: every sample (corrections in µm, "
@@ -66,8 +79,42 @@ def run(args: argparse.Namespace) -> int:
         raise MonitorError(f"--count must be at least 1 (got {args.count})")
     if args.duration is not None and args.duration <= 0:
         raise MonitorError(f"--duration must be positive (got {args.duration})")
+    if bool(args.mqtt) != bool(args.machine):
+        raise MonitorError("--mqtt and --machine go together: the broker's URL and the name "
+                           "this box's topics are published under")
+    if (args.spool or args.no_spool) and not args.mqtt:
+        raise MonitorError("--spool/--no-spool keep what goes to the broker: give --mqtt too")
+    views = []
+    if args.mqtt:
+        from host.fleet.gateway import BoxRelay  # paho-mqtt: the [fleet] extra
+
+        views.append(BoxRelay(args.mqtt, args.machine, spool=open_spool(args)))
     screen = True if args.screen else False if args.plain else None
     monitor = Monitor(args.port, args.baud, expected_hash=expected, windows=windows, log=args.log,
                       count=args.count, duration=args.duration, screen=screen, retry_s=args.retry,
-                      axis_inputs=axis_inputs, json_lines=args.json, promises=promises)
+                      axis_inputs=axis_inputs, json_lines=args.json, promises=promises,
+                      views=views)
+    if views:  # the relay's news (broker lost, spool recovered) among the monitor's events
+        _log_to(monitor)
     return monitor.run()
+
+
+class _ToMonitor(logging.Handler):
+    def __init__(self, monitor) -> None:
+        super().__init__(logging.INFO)
+        self.monitor = monitor
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self.monitor.note(f"mqtt: {record.getMessage()}", kind="mqtt")
+        except Exception:  # noqa: BLE001 (a log line must never stop the monitor)
+            self.handleError(record)
+
+
+def _log_to(monitor) -> None:
+    """The fleet code's log (host.fleet.*) shown as monitor events, not on stderr where
+    it would tear the screen."""
+    fleet = logging.getLogger("host.fleet")
+    fleet.setLevel(logging.INFO)
+    fleet.propagate = False
+    fleet.addHandler(_ToMonitor(monitor))

@@ -4,8 +4,13 @@ Headless (a service, one per box): reads the box's lines, asks INFO (names, mode
 STATUS (which channel is faulted) as ``host monitor`` does, and publishes each sample as the
 machine's retained state, plus events (topics.py). Publishing is QoS 1 through paho-mqtt's
 own queue: while the broker is away the messages wait in memory and go out in order when it
-is back (nothing is lost unless the gateway itself stops: docs/fleet.md). The last will marks
-the machine offline.
+is back. With a spool (host.fleet.spool; ``host gateway`` has one by default) every message is
+also on disk until the broker acknowledges it, and a gateway started again re-publishes what
+an earlier one left unacknowledged: a gateway killed during an outage loses nothing
+(docs/fleet.md). The last will marks the machine offline.
+
+``BoxRelay`` (box lines -> Translator -> Publisher) is the publishing both ``host gateway``
+and ``host monitor --mqtt`` run: the same messages from the same lines.
 
 A line the decoder does not know but whose CRC is good (a newer box: a MEAS answer
 ``$OK,MEAS,...`` or a ``$M`` line) is published as an event, never an error; a MEAS answer's
@@ -34,6 +39,7 @@ from typing import Any
 
 from contract import protocol
 from host.fleet.broker import BrokerUrl, make_client, parse_url
+from host.fleet.spool import Spool, message_key
 from host.fleet.topics import (
     OFFLINE,
     ONLINE,
@@ -255,11 +261,15 @@ def parse_command(payload: bytes, now: float) -> tuple[str, bytes]:
 
 class Publisher:
     """One machine's connection to the broker: publishes messages QoS 1 (state retained),
-    marks the machine online/offline, and, when enabled, receives its commands."""
+    marks the machine online/offline, and, when enabled, receives its commands.
+
+    With a ``spool`` each message is written to it before it is published and acknowledged
+    in it on its PUBACK; ``start`` first re-publishes what the spool recovered."""
 
     def __init__(self, url: str | BrokerUrl, machine: str, gateway_id: str,
                  allow_users: frozenset[str] = frozenset(),
-                 on_command: Callable[[Command], None] | None = None) -> None:
+                 on_command: Callable[[Command], None] | None = None,
+                 spool: Spool | None = None) -> None:
         self.url = parse_url(url) if isinstance(url, str) else url
         self.machine = check_machine(machine)
         if allow_users and not self.url.user:
@@ -272,6 +282,15 @@ class Publisher:
         self.command_sink: Callable[..., None] | None = None  # publishes the command event
         self.connected = False
         self.published = 0
+        self.spool = spool
+        self.republished = 0  # messages an earlier run left in the spool, sent again
+        # PUBACKs matched to spooled messages by paho's message id (on_publish gives only the
+        # id, and may come before publish() has returned the id to us: ``_early``); ids of
+        # messages not spooled (online/offline) are ``_unspooled``
+        self._acks_lock = threading.Lock()
+        self._by_mid: dict[int, str] = {}
+        self._early: set[int] = set()
+        self._unspooled: set[int] = set()
         # clean session: commands sent while the gateway was away are not queued for it;
         # its own outgoing QoS 1 messages are kept and resent by paho all the same
         self.client = make_client(self.url, f"tc-gw-{machine}-{gateway_id}",
@@ -280,8 +299,14 @@ class Publisher:
         self.client.on_connect = self._on_connect
         self.client.on_disconnect = self._on_disconnect
         self.client.on_message = self._on_message
+        self.client.on_publish = self._on_publish
 
     def start(self) -> None:
+        if self.spool is not None:  # an earlier run's unacknowledged messages go out first
+            for kind, data in self.spool.recovered:
+                self._send(kind, data, message_key(data))
+            self.republished = len(self.spool.recovered)
+            self.spool.recovered = []
         self.client.connect_async(self.url.host, self.url.port, keepalive=10)
         self.client.loop_start()
 
@@ -292,7 +317,7 @@ class Publisher:
             return
         self.connected = True
         log.info("%s: connected to %s", self.machine, self.url)
-        client.publish(topic(self.machine, "online"), ONLINE, qos=1, retain=True)
+        self._publish_unspooled(topic(self.machine, "online"), ONLINE)
         if self.allow_users:
             client.subscribe(command_topic(self.machine, "+"), qos=1)
 
@@ -326,24 +351,67 @@ class Publisher:
                               user=user, command=text, outcome=outcome)
 
     def publish(self, kind: str, data: dict) -> None:
-        self.client.publish(topic(self.machine, kind), encode(data), qos=1,
-                            retain=kind == "state")
+        key = message_key(data)
+        if self.spool is not None:
+            self.spool.add(key, kind, data)  # on disk before paho has it
+        self._send(kind, data, key)
         self.published += 1
+
+    def _send(self, kind: str, data: dict, key: str) -> None:
+        info = self.client.publish(topic(self.machine, kind), encode(data), qos=1,
+                                   retain=kind == "state")
+        if self.spool is None:
+            return
+        with self._acks_lock:  # never held while calling paho (its lock, then ours)
+            if info.mid in self._early:
+                self._early.discard(info.mid)
+                acked = True
+            else:
+                self._by_mid[info.mid] = key
+                acked = False
+        if acked:
+            self.spool.ack(key)
+
+    def _publish_unspooled(self, topic_name: str, payload: str):
+        info = self.client.publish(topic_name, payload, qos=1, retain=True)
+        if self.spool is not None:
+            with self._acks_lock:
+                self._unspooled.add(info.mid)
+        return info
+
+    def _on_publish(self, client, userdata, mid, reason_code, properties) -> None:
+        if self.spool is None:
+            return
+        with self._acks_lock:
+            key = self._by_mid.pop(mid, None)
+            if key is None and mid in self._unspooled:
+                self._unspooled.discard(mid)
+            elif key is None:
+                self._early.add(mid)  # publish() has not told us the id yet
+        if key is not None:
+            self.spool.ack(key)
 
     def pending(self) -> int:
         """Messages not yet acknowledged by the broker (queued or in flight)."""
         return len(self.client._out_messages)  # paho keeps no public count
 
-    def stop(self, timeout_s: float = 10.0) -> None:
-        """Wait (up to timeout_s) until everything queued is acknowledged, say offline, and
-        disconnect."""
+    def stop(self, timeout_s: float | None = None) -> None:
+        """Wait (up to timeout_s: 10 s, 2 s with a spool, which keeps the rest) until
+        everything queued is acknowledged, say offline, and disconnect."""
+        if timeout_s is None:
+            timeout_s = 10.0 if self.spool is None else 2.0
         deadline = time.monotonic() + timeout_s
         while self.pending() and time.monotonic() < deadline:
             time.sleep(0.05)
         if self.pending():
-            log.warning("%s: %d message(s) not acknowledged by the broker at stop: lost",
-                        self.machine, self.pending())
-        info = self.client.publish(topic(self.machine, "online"), OFFLINE, qos=1, retain=True)
+            if self.spool is not None:
+                log.warning("%s: %d message(s) not acknowledged by the broker at stop: kept in "
+                            "%s, published again at the next start", self.machine,
+                            self.spool.pending(), self.spool.path)
+            else:
+                log.warning("%s: %d message(s) not acknowledged by the broker at stop: lost",
+                            self.machine, self.pending())
+        info = self._publish_unspooled(topic(self.machine, "online"), OFFLINE)
         if self.connected:
             try:
                 info.wait_for_publish(timeout=2)
@@ -351,31 +419,68 @@ class Publisher:
                 pass
         self.client.disconnect()
         self.client.loop_stop()
+        if self.spool is not None:
+            self.spool.close()
+
+
+class BoxRelay:
+    """One box's lines to the broker: Translator -> Publisher. What ``host gateway`` and
+    ``host monitor --mqtt`` both run, so the broker gets the same messages from either: feed
+    it every line the box sends (``line``), say when the serial link comes and goes
+    (``connected``, ``lost``), ``start`` and ``stop`` it."""
+
+    def __init__(self, mqtt_url: str | BrokerUrl, machine: str,
+                 allow_users: frozenset[str] = frozenset(),
+                 on_command: Callable[[Command], None] | None = None,
+                 spool: Spool | None = None) -> None:
+        self.translator = Translator(machine)
+        self.publisher = Publisher(mqtt_url, machine, self.translator.gateway_id, allow_users,
+                                   on_command=on_command, spool=spool)
+        self.publisher.command_sink = self.event
+
+    def start(self) -> None:
+        self.publisher.start()
+
+    def stop(self) -> None:
+        self.publisher.stop()
+
+    def emit(self, messages: list[tuple[str, dict]]) -> None:
+        for kind, data in messages:
+            self.publisher.publish(kind, data)
+
+    def line(self, raw: bytes, now: float) -> list[tuple[str, dict]]:
+        """Translate and publish one line; the messages it made."""
+        out = self.translator.line(raw, now)
+        self.emit(out)
+        return out
+
+    def event(self, event: str, message: str, now: float, **extra: Any) -> None:
+        self.emit([self.translator.event(event, message, now, **extra)])
+
+    def connected(self, port: str, now: float) -> None:
+        self.event("connected", f"serial port {port} open", now)
+
+    def lost(self, why: str, now: float) -> None:
+        self.event("lost", f"serial port lost ({why}); retrying", now)
+        self.translator.box.info = None  # another box may come back on the port: ask again
 
 
 class Gateway:
-    """Serial port -> Translator -> Publisher, with INFO/STATUS queries and commands."""
+    """Serial port -> BoxRelay, with INFO/STATUS queries and commands."""
 
     def __init__(self, port: str, mqtt_url: str, machine: str, baud: int = 115200,
-                 allow_users: frozenset[str] = frozenset(), retry_s: float = 1.0) -> None:
+                 allow_users: frozenset[str] = frozenset(), retry_s: float = 1.0,
+                 spool: Spool | None = None) -> None:
         self.port_name, self.baud, self.retry_s = port, baud, retry_s
-        self.translator = Translator(machine)
         self.commands: queue.Queue[Command] = queue.Queue()
-        self.publisher = Publisher(mqtt_url, machine, self.translator.gateway_id, allow_users,
-                                   on_command=self.commands.put)
-        self.publisher.command_sink = self._emit_event
+        self.relay = BoxRelay(mqtt_url, machine, allow_users, on_command=self.commands.put,
+                              spool=spool)
+        self.translator, self.publisher = self.relay.translator, self.relay.publisher
         self._port = None
         self._buf = bytearray()
         self._info_at: float | None = None
         self._status_at = 0.0
         self._fault_flags: frozenset[str] = frozenset()
-
-    def _emit(self, messages: list[tuple[str, dict]]) -> None:
-        for kind, data in messages:
-            self.publisher.publish(kind, data)
-
-    def _emit_event(self, event: str, message: str, now: float, **extra: Any) -> None:
-        self._emit([self.translator.event(event, message, now, **extra)])
 
     def _open(self) -> bool:
         import serial  # the [fleet] extra brings pyserial
@@ -391,7 +496,7 @@ class Gateway:
             self._port = None
             return False
         self._buf.clear()
-        self._emit_event("connected", f"serial port {self.port_name} open", time.time())
+        self.relay.connected(self.port_name, time.time())
         self._write(protocol.encode_command("INFO"))
         self._info_at = time.monotonic()
         return True
@@ -404,7 +509,7 @@ class Gateway:
     def run(self, duration: float | None = None, count: int | None = None) -> int:
         import serial
 
-        self.publisher.start()
+        self.relay.start()
         start = time.monotonic()
         next_try = 0.0
         try:
@@ -421,20 +526,19 @@ class Gateway:
                     while not self.commands.empty():
                         self._write(self.commands.get_nowait().line)
                 except (OSError, serial.SerialException) as exc:
-                    self._emit_event("lost", f"serial port lost ({exc}); retrying", time.time())
+                    self.relay.lost(str(exc), time.time())
                     try:
                         self._port.close()
                     except (OSError, serial.SerialException):
                         pass
                     self._port = None
-                    self.translator.box.info = None
                     next_try = time.monotonic() + self.retry_s
         except KeyboardInterrupt:
             pass
         finally:
             if self._port is not None:
                 self._port.close()
-            self.publisher.stop()
+            self.relay.stop()
         return 0
 
     def _poll(self) -> None:
@@ -452,13 +556,12 @@ class Gateway:
         while b"\n" in self._buf:
             line, _, rest = bytes(self._buf).partition(b"\n")
             self._buf = bytearray(rest)
-            out = self.translator.line(line, now)
-            self._emit(out)
+            out = self.relay.line(line, now)
             for kind, msg in out:
                 if kind == "state":
                     self._want_status(frozenset(msg["flags"]) & _FAULT_FLAGS, mono)
         if len(self._buf) > 1024:
-            self._emit(self.translator.line(bytes(self._buf[:200]), now))
+            self.relay.line(bytes(self._buf[:200]), now)
             self._buf.clear()
 
     def _want_status(self, flags: frozenset[str], mono: float) -> None:
