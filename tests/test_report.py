@@ -609,3 +609,56 @@ def test_the_clip_check_finds_a_legend_wider_than_the_figure(tmp_path):
                "own folds with the effects)", np.sin(t / 600 + k)) for k in range(5)]
     fig = plots.residual_steps("run", "dz_um", t, stages, [False, True, True, True, False])
     assert plots.save_png(fig, tmp_path / "effects.png") == []
+
+
+def test_a_service_day_is_drawn_with_host_evaluates_numbers(example, tmp_path, capsys):
+    # issue 42: static, updated and probe-only with the probe times marked, from synthesised
+    # readings (the options) and from a run's logged probe_<axis> column
+    from host.analysis import load_for_model
+    from host.analysis.service import readings_for, service_of
+    from host.service import ProbePlan
+
+    plan = ProbePlan(3600.0, 0.5, 3)
+    run = example["runs"][1]
+    report = build_report(example["model_path"], [run], tmp_path / "synth", peers=False,
+                          quiet=True, probes=plan)
+    figs = [f for f in report.figures if f.section == "service"]
+    assert [f.file for f in figs] == [f"service_fl_second_{a}.png" for a in AXES]
+    assert all(not f.clipped for f in figs)  # plots.save_png's check
+    for f in figs:
+        assert (tmp_path / "synth" / f.file).read_bytes().startswith(PNG_SIGNATURE)
+        assert "accepted" in f.caption and "probe-only" in f.caption and "static" in f.caption
+    loaded = load_for_model(run, example["model"])
+    readings = readings_for(example["model"], loaded, plan)
+    expected = service_of(example["model"], loaded, readings)  # host evaluate's computation
+    got = report.summary["service"]["fl_second"]
+    assert got["probes"] == readings.source
+    for axis in AXES:
+        for key in ("rmse_um", "static_rmse_um", "probe_only_rmse_um", "probes", "refused"):
+            assert got["axes"][axis][key] == pytest.approx(expected[axis][key], rel=1e-12)
+        assert f"{got['axes'][axis]['rmse_um']:.2f}" in figs[AXES.index(axis)].caption
+    page = report.index.read_text()
+    assert "A day in service" in page and "service_fl_second_ch3_um" in page
+
+    # a logged column, used as it is: only that axis gets a service day
+    logged = tmp_path / "logged.csv"
+    lines = run.read_text().splitlines()
+    head = lines[0].split(",")
+    lines[0] += ",probe_ch3_um"
+    col = head.index("ch3_um")
+    for k in range(1, len(lines)):
+        lines[k] += "," + (lines[k].split(",")[col] if k % 120 == 0 else "")
+    logged.write_text("\n".join(lines) + "\n")
+    report = build_report(example["model_path"], [logged], tmp_path / "logged", peers=False,
+                          quiet=True)
+    assert [f.file for f in report.figures if f.section == "service"] == [
+        "service_logged_ch3_um.png"]
+    assert report.summary["service"]["logged"]["axes"]["ch3_um"]["probes"] == (
+        len(lines) - 1) // 120
+
+    # the command line takes the probe options and prints the numbers
+    assert host_main(["report", str(example["model_path"]), "--runs", str(run), "-o",
+                      str(tmp_path / "cli"), "--no-peers", "--probe-every", "60min",
+                      "--probe-seed", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "in service on fl_second" in out and "probe-only" in out

@@ -337,6 +337,50 @@ def run_fit(run: str, axis: str, time_s: np.ndarray, measured: np.ndarray,
     return fig
 
 
+def service_day(run: str, axis: str, time_s: np.ndarray, measured: np.ndarray,
+                static: np.ndarray, updated: np.ndarray, probe_only: np.ndarray,
+                index: np.ndarray, value: np.ndarray, accepted: np.ndarray) -> Figure:
+    """A day in service (issue 42): the measured displacement with the model alone, the
+    model updated by the probe and the last probe reading held (top), what each leaves
+    (bottom, RMS in the legend); the readings are marked where and when they were taken,
+    filled when the gate accepted them, a cross when it refused them."""
+    unit, what = axis_unit(axis)
+    fig = Figure(figsize=(9.0, 6.5), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=[3, 2])
+    t, tlabel = time_axis(np.asarray(time_s, dtype=float))
+    lines = (("static (the model alone)", static, "tab:gray", "--"),
+             ("updated (the model + the probe's estimate)", updated, OURS_COLOUR, "-"),
+             ("probe-only (last reading held)", probe_only, "tab:orange", ":"))
+    top.plot(t, measured, color="black", lw=2.2, label="measured")
+    for label, y, colour, style in lines:
+        top.plot(t, y, style, color=colour, lw=1.5, label=label)
+        residual = measured - y
+        bottom.plot(t, residual, style, color=colour, lw=1.2,
+                    label=wrap_label(f"{label}: RMS {rms(residual):.2f} {unit}"))
+    idx = np.asarray(index, dtype=int)
+    ok = np.asarray(accepted, dtype=bool)
+    value = np.asarray(value, dtype=float)
+    if np.any(ok):
+        top.plot(t[idx[ok]], value[ok], "o", color="tab:red", ms=5,
+                 label=f"probe reading, accepted ({int(ok.sum())})")
+    if np.any(~ok):
+        top.plot(t[idx[~ok]], value[~ok], "x", color="tab:red", ms=7, mew=2,
+                 label=f"probe reading, refused by the gate ({int((~ok).sum())})")
+    for k in idx:
+        bottom.axvline(t[k], color="tab:red", lw=0.6, alpha=0.5)
+    bottom.plot([], [], color="tab:red", lw=0.6, alpha=0.5, label="probe times")
+    bottom.axhline(0.0, color="black", lw=0.8)
+    top.set_ylabel(f"{what} ({unit})")
+    top.set_title(f"{run}, {axis}: a day in service")
+    top.legend(fontsize=8, loc="best")
+    top.grid(True, alpha=0.3)
+    bottom.set_ylabel(f"measured − output ({unit})")
+    bottom.set_xlabel(tlabel)
+    bottom.legend(fontsize=8, loc="best")
+    bottom.grid(True, alpha=0.3)
+    return fig
+
+
 def residual_steps(run: str, axis: str, time_s: np.ndarray,
                    stages: Sequence[tuple[str, np.ndarray]],
                    dropped: Sequence[bool] | None = None) -> Figure:

@@ -35,11 +35,13 @@ from host.analysis.metrology import (
     iso230_drift,
     wiring_rows,
 )
+from host.analysis.service import readings_for, service_day
 from host.fitting import NO_REFERENCE, Reference, design_matrix, fit_linear
 from host.io import CsvFormat, Run, load_run, read_header
 from host.io.runs import missing_sensors
 from host.progress import progress
 from host.selection import default_max_lag
+from host.service import ProbePlan
 from host.train import (
     TOLERANCE_SHARE,
     box_effects_evidence,
@@ -296,6 +298,7 @@ SECTIONS = [
     ("hysteresis", "5. Heating and cooling paths (pseudo-hysteresis)"),
     ("protocols", "6. Which test protocol to run"),
     ("window", "7. Inside or beyond the training range"),
+    ("service", "8. A day in service: the touch probe updates the model (issue 42)"),
 ]
 
 
@@ -372,6 +375,9 @@ class _Inputs:
     ranges: dict | None
     limit: float | None
     run_table: dict[str, dict] = field(default_factory=dict)
+    # run path -> axis -> host.analysis.service.service_day (runs with probe readings)
+    service: dict[str, dict[str, dict]] = field(default_factory=dict)
+    service_source: dict[str, str] = field(default_factory=dict)  # run path -> readings
 
 
 # A figure: (matplotlib figure, title, caption HTML, file name), or None when it has nothing
@@ -400,6 +406,8 @@ def _figure_jobs(inp: _Inputs) -> list[tuple[str, str | None, Run | None]]:
         jobs.append(("protocols", None, None))
     if inp.ranges:
         jobs += [("window", None, run) for run in runs]
+    jobs += [("service", axis_name, run) for run in runs
+             for axis_name in inp.service.get(str(run.path), {})]
     return jobs
 
 
@@ -578,9 +586,32 @@ def _fig_protocols(inp: _Inputs, axis_name: str | None, axis: dict | None,
     return fig_obj, "Protocol comparison", caption, "protocols.png"
 
 
+def _fig_service(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
+    day = inp.service[str(run.path)][axis_name]
+    m = day["metrics"]
+    fig_obj = plots.service_day(run.name, axis_name, run.time_s, day["measured"], day["static"],
+                                day["updated"], day["probe_only"], day["index"], day["value"],
+                                day["accepted"])
+    u = html.escape(unit_text(axis_name))
+    caption = (
+        "What a touch probe on a reference artifact adds in service (docs/service.md). Red "
+        "marks: the readings (" + html.escape(inp.service_source[str(run.path)]) + "), "
+        "a dot where the gate accepted one, a cross where it refused one and nothing moved. "
+        "<b>Static</b> is the model alone; <b>updated</b> adds the estimator's correction "
+        "before the box's step limit, which is what the box outputs; <b>probe-only</b> is "
+        "re-touching off without a model, the last reading held. Bottom: what each leaves of "
+        f"the measured displacement; lower is better. RMS here: updated {m['rmse_um']:.2f} {u}, "
+        f"static {m['static_rmse_um']:.2f} {u}, probe-only {m['probe_only_rmse_um']:.2f} {u} "
+        f"({m['probes']} readings, {m['refused']} refused; the same numbers as "
+        "<code>host evaluate</code> with these readings).")
+    return (fig_obj, f"{run.name}, {axis_name}: a day in service", caption,
+            f"service_{_slug(run.name)}_{_slug(axis_name)}.png")
+
+
 FIGURES = {"selection": _fig_selection, "ec": _fig_ec, "runs": _fig_run,
            "window": _fig_window, "effects": _fig_effects, "folds": _fig_folds,
-           "hysteresis": _fig_hysteresis, "protocols": _fig_protocols}
+           "hysteresis": _fig_hysteresis, "protocols": _fig_protocols,
+           "service": _fig_service}
 
 
 def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: str | Path,
@@ -588,16 +619,19 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
                  fill_gaps: int = 0, quiet: bool = False,
                  hil: list[str | Path] | None = None, fmt: CsvFormat | None = None,
                  reference: str | None = None,
-                 locations: str | Path | None = None) -> Report:
+                 locations: str | Path | None = None,
+                 probes: ProbePlan | None = None) -> Report:
     """Render every figure and write ``out_dir/index.html``; inputs are all checked first.
 
     ``locations``: a CSV with columns ``sensor`` and ``location`` (where each thermocouple
-    sits on the machine) for the wiring sheet."""
+    sits on the machine) for the wiring sheet. ``probes``: synthesise probe readings on every
+    run (``--probe-every`` ...); without it a run's logged ``probe_<axis>`` columns are
+    used. Either way the report draws a day in service per run and axis with readings."""
     model = read_model(model_path)
     where = load_locations(locations) if locations else {}
     ref = model_reference(model, reference)  # measured and predicted drift judged alike
-    runs = [referenced(run, ref)
-            for run in load_report_runs(model, list(run_paths), fill_gaps, fmt)]
+    raw = load_report_runs(model, list(run_paths), fill_gaps, fmt)
+    runs = [referenced(run, ref) for run in raw]
     matrix = load_protocols(protocols) if protocols else None
     hil_results = [load_hil(p) for p in hil or []]
     out = Path(out_dir)
@@ -606,6 +640,13 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
     inp = _Inputs(model, runs, ref, float(model["sample_period_s"]),
                   peer_predictions(model, runs) if peers else {}, matrix,
                   training_ranges(model), delay_limit_s(model))
+    for run in raw:  # issue 42: host evaluate's service computation on the unreferenced run
+        readings = readings_for(model, run, probes, reference, fmt)
+        if readings is not None:
+            day = service_day(model, run, readings, reference)
+            if day:
+                inp.service[str(run.path)] = day
+                inp.service_source[str(run.path)] = readings.source
     for kind, axis_name, run in progress(_figure_jobs(inp), "report figures", quiet=quiet):
         axis = model["axes"][axis_name] if axis_name else None
         drawn = FIGURES[kind](inp, axis_name, axis, run)
@@ -640,6 +681,11 @@ def _summary(model_path: str | Path, inp: _Inputs, report: Report, hil_results: 
     }
     if hil_results:
         summary["hil"] = hil_results
+    if inp.service:  # host evaluate --json's per-axis service numbers, per run
+        summary["service"] = {
+            run.name: {"probes": inp.service_source[str(run.path)],
+                       "axes": {a: d["metrics"] for a, d in inp.service[str(run.path)].items()}}
+            for run in inp.runs if str(run.path) in inp.service}
     train_runs = training_runs(model)
     units = input_units(model)
     summary["coefficients"] = [

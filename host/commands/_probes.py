@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import argparse
 
-from host.analysis.evaluate import measured
+from host.analysis.service import readings_for
 from host.commands._arguments import seed_arg
 from host.io import CsvFormat, Run
-from host.service import PROBE_WHEN, ProbePlan, ProbeReadings, logged_probes, synthesise_probes
-from host.service.probes import ProbeError, any_logged, duration_s
+from host.service import PROBE_WHEN, ProbePlan, ProbeReadings
+from host.service.probes import ProbeError, duration_s
 
 
 def _duration(text: str) -> float:
@@ -48,15 +48,14 @@ def add_probe_arguments(parser: argparse.ArgumentParser) -> None:
                    "(spindle_rpm at or below 1), as at a tool change (default interval)")
 
 
+def probe_plan(args: argparse.Namespace) -> ProbePlan | None:
+    """The synthesised readings the options ask for (--probe-every), or None."""
+    if args.probe_every is None:
+        return None
+    return ProbePlan(args.probe_every, args.probe_noise_um, args.probe_seed, args.probe_when)
+
+
 def probe_readings(args: argparse.Namespace, model: dict, run: Run,
                    fmt: CsvFormat | None = None) -> ProbeReadings | None:
     """The readings the options ask for, or None (no --probe-every, nothing logged)."""
-    axes = list(model["axes"])
-    if args.probe_every is not None:
-        plan = ProbePlan(args.probe_every, args.probe_noise_um, args.probe_seed,
-                         args.probe_when)
-        truth = {a: measured(model, run, a, args.reference) for a in axes}
-        return synthesise_probes(run, truth, plan)
-    if any_logged(run.path, axes, fmt):
-        return logged_probes(run.path, run, axes, fmt)
-    return None
+    return readings_for(model, run, probe_plan(args), args.reference, fmt)

@@ -8,6 +8,7 @@ import json
 from contract.tilt import unit_text
 from host.commands._arguments import add_reference_argument
 from host.commands._options import add_fill_gaps, csv_format
+from host.commands._probes import add_probe_arguments, probe_plan
 
 NAME = "report"
 HELP = "write an HTML report (with PNG figures) of a model on runs, its peers and effects"
@@ -31,6 +32,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "(columns sensor, location)")
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON instead of text")
+    add_probe_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     report = build_report(args.model, args.runs, args.out, protocols=args.protocols,
                           peers=not args.no_peers, fill_gaps=args.fill_gaps, quiet=args.json,
                           hil=args.hil, fmt=csv_format(args), reference=args.reference,
-                          locations=args.locations)
+                          locations=args.locations, probes=probe_plan(args))
     if args.json:
         print(json.dumps({"index": str(report.index), **report.summary}, indent=2))
         return 0
@@ -50,4 +52,10 @@ def run(args: argparse.Namespace) -> int:
             u = unit_text(row["axis"])
             print(f"  {row['axis']}: {', '.join(row['sensors'])}; validation RMSE {val:.2f} {u} "
                   f"of {raw:.2f} {u} raw ({row['reduction_pct']:.1f} % less)")
+    for run_name, s in report.summary.get("service", {}).items():
+        print(f"  in service on {run_name} ({s['probes']}):")
+        for axis, m in s["axes"].items():
+            print(f"    {axis}: updated {m['rmse_um']:.3f}, static {m['static_rmse_um']:.3f}, "
+                  f"probe-only {m['probe_only_rmse_um']:.3f} ({m['probes']} readings, "
+                  f"{m['refused']} refused)")
     return 0
