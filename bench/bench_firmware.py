@@ -2,9 +2,11 @@
 
 - flash / RAM of the STM32F405 image (arm-none-eabi-size; RAM includes the 1 KiB stack),
   against the issue's budget of 16 KiB flash and 4 KiB RAM;
-- what MEAS (issue 42, the in-service estimator) added: the same flash / RAM minus those of
-  the box before it (commit firmware_support.MEAS_BASELINE, built from git with its own codegen
-  for the same test model), against that issue's 1 KiB / 256 B;
+- the growth since the box before MEAS (issue 42, the in-service estimator): the same flash /
+  RAM minus those of commit firmware_support.MEAS_BASELINE, built from git with its own codegen
+  for the same test model. It counts MEAS and every feature added after it (RESUME, ...):
+  issue 42's 1 KiB / 256 B hold for MEAS's share, measured at its own commit (docs/service.md,
+  "Flash and RAM"), so the target shown is a reminder, not a pass mark;
 - the native board fed 86,400 samples (24 h at 1 s) on stdin with every line read back from
   its pty (the firmware alone; bench_hil measures the full HIL with its checks).
 """
@@ -99,10 +101,12 @@ def run() -> list[dict]:
     if before is not None:
         since = f"{detail}; {MEAS_BASELINE}: flash {before[0]} B, RAM {before[1]} B"
         growth = [
-            {"name": f"MEAS: flash growth since {MEAS_BASELINE}", "value": flash - before[0],
-             "unit": "bytes", "target": f"<= {MEAS_FLASH_BUDGET}", "detail": since},
-            {"name": f"MEAS: RAM growth since {MEAS_BASELINE}", "value": ram - before[1],
-             "unit": "bytes", "target": f"<= {MEAS_RAM_BUDGET}", "detail": since}]
+            {"name": f"flash growth since {MEAS_BASELINE} (MEAS and after)",
+             "value": flash - before[0], "unit": "bytes",
+             "target": f"MEAS's share <= {MEAS_FLASH_BUDGET}", "detail": since},
+            {"name": f"RAM growth since {MEAS_BASELINE} (MEAS and after)",
+             "value": ram - before[1], "unit": "bytes",
+             "target": f"MEAS's share <= {MEAS_RAM_BUDGET}", "detail": since}]
     return [
         {"name": "stm32f405 flash (text+data)", "value": flash, "unit": "bytes",
          "target": "< 16384", "detail": detail},
