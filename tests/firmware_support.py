@@ -195,3 +195,27 @@ def prepare_fl_head(d: Path, n: int, cflags: str = ""):
     write_run(d / "fl_head.csv", run.time_s[:n], cols, precision=9)
     model = write_model(fl_thermal_model(fl), d / "model.json")
     return hil_replay.prepare(model, d / "fl_head.csv", d / "hil", cflags=cflags)
+
+
+def prepare_start_referenced(d: Path, judging=None):
+    """A start-referenced model (what ``host train`` gives by default: the box zeroes at the
+    job's ZERO, boots NO_REF after a power cut) with the trained windows host train writes,
+    fitted on examples/sim_step.csv, ready to replay sim_random (which it never saw)."""
+    from dataclasses import replace
+
+    from hil import replay as hil_replay
+    from hil.example_model import default_terms, fit_example_model, write_model
+    from host.io import load_run
+
+    step = ROOT / "examples" / "sim_step.csv"
+    terms = {"dx_um": default_terms(["T03", "T04", "T01"], 60.0, "spindle_rpm"),
+             "dz_um": default_terms(["T05", "T01", "T02"], 60.0, "spindle_rpm")}
+    model = fit_example_model(step, terms, aux_names=["spindle_rpm"])
+    model["reference"] = {"kind": "start", "samples": 1}
+    run = load_run(step, [], [c["sensor"] for c in model["channels"]], [])
+    for c, t in zip(model["channels"], run.temperatures.T, strict=True):
+        c["trained_min_c"], c["trained_max_c"] = float(t.min()), float(t.max())
+    s = hil_replay.prepare(write_model(model, d / "model.json"),
+                           ROOT / "examples" / "sim_random.csv", d / "hil")
+    assert s.build.zero_at_powerup
+    return s if judging is None else replace(s, judging=judging)

@@ -9,19 +9,16 @@ examples/sim_step.csv and replayed on sim_random (which it never saw)."""
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
+from firmware_support import prepare_start_referenced
 
 from hil import replay as hil_replay
 from hil.checks import Judging
-from hil.example_model import default_terms, fit_example_model, write_model
 from hil.expect import BEYOND, HOLD
 from hil.runner import CodeOffset
-from host.io import load_run
 
-REPO = Path(__file__).resolve().parents[1]
 WARM = 8 * 128  # +8 degC in codes
 
 pytestmark = pytest.mark.skipif(
@@ -31,22 +28,9 @@ pytestmark = pytest.mark.skipif(
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    d = tmp_path_factory.mktemp("hil_beyond")
-    terms = {"dx_um": default_terms(["T03", "T04", "T01"], 60.0, "spindle_rpm"),
-             "dz_um": default_terms(["T05", "T01", "T02"], 60.0, "spindle_rpm")}
-    model = fit_example_model(REPO / "examples" / "sim_step.csv", terms,
-                              aux_names=["spindle_rpm"])
-    model["reference"] = {"kind": "start", "samples": 1}
-    run = load_run(REPO / "examples" / "sim_step.csv", [], [c["sensor"] for c in
-                                                           model["channels"]], [])
-    for c, t in zip(model["channels"], run.temperatures.T, strict=True):
-        c["trained_min_c"], c["trained_max_c"] = float(t.min()), float(t.max())  # as host train
-    s = hil_replay.prepare(write_model(model, d / "model.json"),
-                           REPO / "examples" / "sim_random.csv", d / "hil")
-    assert s.build.zero_at_powerup
-    return hil_replay.ReplaySetup(s.build, s.feed, s.twin, s.binary, s.output,
-                                  Judging(max_held_fraction=1.0, max_limited_fraction=1.0,
-                                          require_no_worse=False))
+    return prepare_start_referenced(
+        tmp_path_factory.mktemp("hil_beyond"),
+        Judging(max_held_fraction=1.0, max_limited_fraction=1.0, require_no_worse=False))
 
 
 def _far_hi(setup) -> np.ndarray:

@@ -5,18 +5,16 @@ against the host's twin, which runs the periods off as samples with every channe
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
+from firmware_support import prepare_start_referenced
 
 from hil import replay as hil_replay
 from hil.checks import Judging, step_limits_nm
-from hil.example_model import default_terms, fit_example_model, write_model
 from hil.expect import NO_REF, REFERENCED, WDT_RESET
 from hil.runner import Restart, Resume
 
-REPO = Path(__file__).resolve().parents[1]
 CUT, OFF = 500, 5
 
 pytestmark = pytest.mark.skipif(
@@ -26,16 +24,8 @@ pytestmark = pytest.mark.skipif(
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    d = tmp_path_factory.mktemp("hil_resume")
-    terms = {"dx_um": default_terms(["T03", "T04", "T01"], 60.0, "spindle_rpm"),
-             "dz_um": default_terms(["T05", "T01", "T02"], 60.0, "spindle_rpm")}
-    model = fit_example_model(REPO / "examples" / "sim_step.csv", terms,
-                              aux_names=["spindle_rpm"])
-    model["reference"] = {"kind": "start", "samples": 1}  # what host train gives by default
-    s = hil_replay.prepare(write_model(model, d / "model.json"),
-                           REPO / "examples" / "sim_random.csv", d / "hil")
-    return hil_replay.ReplaySetup(s.build, s.feed, s.twin, s.binary, s.output,
-                                  Judging(require_no_worse=False))
+    return prepare_start_referenced(tmp_path_factory.mktemp("hil_resume"),
+                                    Judging(require_no_worse=False))
 
 
 def test_a_resumed_box_goes_on_from_its_kept_state_bit_exact(setup):

@@ -114,26 +114,14 @@ class BiasRateKalman(Estimator):
         self.P = self.P - np.outer(k, self.P[0, :])
 
 
-class DiscountedBias(Estimator):
-    """b += alpha * innovation: a fixed gain; P is kept only for the gate."""
+class DiscountedBias(BiasKalman):
+    """b += alpha * innovation: a fixed gain; P (propagated as the Kalman's) is kept only for
+    the gate."""
 
     def __init__(self, q_um2_per_h: float, p_max_um2: float, p0_um2: float | None = None,
                  alpha: float = 0.7) -> None:
-        self.q, self.p_max, self.alpha = q_um2_per_h, p_max_um2, alpha
-        self.p0 = p_max_um2 if p0_um2 is None else min(p0_um2, p_max_um2)
-        self.reset()
-
-    def reset(self) -> None:
-        self.b, self.p = 0.0, self.p0
-
-    def propagate(self, dt_h: float) -> None:
-        self.p = min(self.p + self.q * dt_h, self.p_max)
-
-    def offset(self, dt_h: np.ndarray) -> np.ndarray:
-        return np.full(np.shape(dt_h), self.b)
-
-    def variance(self) -> float:
-        return self.p
+        self.alpha = alpha
+        super().__init__(q_um2_per_h, p_max_um2, p0_um2)
 
     def update(self, innovation: float, r: float) -> None:
         self.b += self.alpha * innovation
