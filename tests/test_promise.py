@@ -11,9 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_next_day import _run  # the same two-sensor runs the nested validation tests use
 
 from bench import bench_promise as bp
-from host.io import Run, write_run
+from host.io import write_run
 from host.train import summary, train_model
 from host.train.next_day import (
     PROMISE_COVERAGE,
@@ -25,21 +26,7 @@ from host.train.next_day import (
 )
 
 DATA = Path(__file__).resolve().parent / "data"
-PERIOD = 60.0
 COVERAGE_WORDS = f"on {100 * PROMISE_COVERAGE:.0f} % of days"
-
-
-def _run(name: str, seed: int, n: int = 480) -> Run:
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * PERIOD
-    rpm = np.where((t // 7200) % 2 == 0, 6000.0, 0.0)
-    heat = np.cumsum(rpm / 6000.0 - 0.4) * 0.002
-    t1 = 20 + heat + 0.02 * rng.standard_normal(n)
-    t2 = 20 + 0.5 * np.convolve(heat, np.ones(30) / 30, "same") + 0.02 * rng.standard_normal(n)
-    t3 = 20 + 0.3 * rng.standard_normal(n).cumsum() * 0.01
-    dz = 3.0 * (t1 - t1[0]) - 1.5 * (t2 - t2[0]) + 0.1 * rng.standard_normal(n)
-    return Run(name, t, ["T1", "T2", "T3"], np.column_stack([t1, t2, t3]), ["dz_um"],
-               dz[:, None], ["spindle_rpm"], rpm[:, None])
 
 
 @pytest.fixture(scope="module")
