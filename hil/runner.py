@@ -285,27 +285,14 @@ class _Replay:
                                 f"{e.replies} replies to serial noise before sample {point}")
         elif isinstance(e, Zero):
             self.sync()
-            start = box.link.count()
-            box.link.write(b"ZERO\r\n")
-
-            def replied(lines: list[bytes]) -> bool:
-                return any(ln.startswith((b"$OK,ZERO,", b"$E,")) for ln in lines[start:])
-
-            box.link.wait_for(replied, timeout, f"reply to ZERO before sample {point}")
-            self.session.zero_acks.append(next(
-                ln for ln in box.link.lines[start:] if ln.startswith((b"$OK,ZERO,", b"$E,"))))
+            self.session.zero_acks.append(
+                self.ask(b"ZERO\r\n", (b"$OK,ZERO,", b"$E,"), f"ZERO before sample {point}"))
         elif isinstance(e, Meas):
             self.sync()
-            start = box.link.count()
             seq = (e.seq - self.cold_start) % 2**32
-            box.link.write(f"MEAS {e.axis} {e.nm} {seq}\r\n".encode("ascii"))
-
-            def answered(lines: list[bytes]) -> bool:
-                return any(ln.startswith((b"$M,", b"$E,")) for ln in lines[start:])
-
-            box.link.wait_for(answered, timeout, f"reply to MEAS before sample {point}")
-            self.session.meas_replies.append(next(
-                ln for ln in box.link.lines[start:] if ln.startswith((b"$M,", b"$E,"))))
+            self.session.meas_replies.append(
+                self.ask(f"MEAS {e.axis} {e.nm} {seq}\r\n".encode("ascii"), (b"$M,", b"$E,"),
+                         f"MEAS before sample {point}"))
         elif isinstance(e, Restart):
             self.sync()  # the power cut falls between two samples, not inside one
             self.restart(point, e.wdt_reset, e.battery, e.off)
@@ -313,20 +300,26 @@ class _Replay:
             s = self.session
             if len(self.sessions) < 2 or s.n_fed or s.first_sample != point:
                 raise ValueError(f"{e}: RESUME goes right after a Restart")
-            start = box.link.count()
-            box.link.write(f"RESUME {e.off}\r\n".encode("ascii"))
-
-            def resumed(lines: list[bytes]) -> bool:
-                return any(ln.startswith((b"$OK,RESUME,", b"$E,")) for ln in lines[start:])
-
-            box.link.wait_for(resumed, timeout, f"reply to RESUME before sample {point}")
-            reply = next(ln for ln in box.link.lines[start:]
-                         if ln.startswith((b"$OK,RESUME,", b"$E,")))
+            reply = self.ask(f"RESUME {e.off}\r\n".encode("ascii"), (b"$OK,RESUME,", b"$E,"),
+                             f"RESUME before sample {point}")
             s.resume_acks.append(reply)
             if reply.startswith(b"$OK,"):
                 s.resumed = True
                 self.cold_start = self.before_cut  # the old power-up's sequence goes on
                 s.seq0 = point - self.cold_start
+
+    def ask(self, command: bytes, replies: tuple[bytes, ...], what: str) -> bytes:
+        """Send a command and wait for the first line after it that starts with one of
+        ``replies`` (the box's answer); returns it."""
+        link = self.box.link
+        start = link.count()
+        link.write(command)
+
+        def answered(lines: list[bytes]) -> bool:
+            return any(ln.startswith(replies) for ln in lines[start:])
+
+        link.wait_for(answered, self.timeout, f"reply to {what}")
+        return next(ln for ln in link.lines[start:] if ln.startswith(replies))
 
     def restart(self, point: int, wdt_reset: bool, battery: bool = False, off: int = 0) -> None:
         """Power cut and boot: a new session; the chips' faults are still there. ``off``
