@@ -688,16 +688,23 @@ def test_the_shipped_config_probes_z_and_the_reason_codes_are_distinct():
     assert set(protocol.MEAS_REASONS) <= set(codes)
 
 
-def test_after_a_power_cut_the_box_is_asked_to_resume_and_its_datum_goes_on(tmp_path):
-    """A box whose backup SRAM kept its state through a power cut (battery on VBAT): the
-    component asks RESUME <periods off> instead of waiting for ZERO, and follows it again."""
+def _power_cut(tmp_path, back_at: float):
+    """Seq 0..4 applied one period (1 s) apart; the box's power-up's first two lines (NO_REF)
+    at ``back_at`` and one period later: the second confirms the restart."""
     comp = _comp(tmp_path, FAST)
     port = _WritePort()
     for k in range(5):
         tc.handle_line(comp, port, _raw(k, 0, 200 * k), 1.0 * k)
     cold = tc.NO_REF | tc.HOLD | tc.NO_DATA
-    tc.handle_line(comp, port, _raw(0, 0, 0, status=cold), 11.0)  # 7 periods later (1 s each)
-    tc.handle_line(comp, port, _raw(1, 0, 0, status=cold), 12.0)  # confirms the restart
+    tc.handle_line(comp, port, _raw(0, 0, 0, status=cold), back_at)
+    tc.handle_line(comp, port, _raw(1, 0, 0, status=cold), back_at + 1.0)
+    return comp, port
+
+
+def test_after_a_power_cut_the_box_is_asked_to_resume_and_its_datum_goes_on(tmp_path):
+    """A box whose backup SRAM kept its state through a power cut (battery on VBAT): the
+    component asks RESUME <periods off> instead of waiting for ZERO, and follows it again."""
+    comp, port = _power_cut(tmp_path, back_at=11.0)  # 7 periods after seq 4 (1 s each)
     assert comp.await_zero and port.written == [b"INFO\r\n", b"RESUME 6\r\n"]
     # the box's last seq: 4 before the cut, + 6 periods off + the 2 samples since power-up
     tc.handle_line(comp, port, tc.protocol.encode_line("OK", ["RESUME", 12]).rstrip(b"\r\n"),
@@ -709,13 +716,7 @@ def test_after_a_power_cut_the_box_is_asked_to_resume_and_its_datum_goes_on(tmp_
 
 
 def test_without_a_kept_state_the_box_refuses_resume_and_zero_is_awaited(tmp_path):
-    comp = _comp(tmp_path, FAST)
-    port = _WritePort()
-    for k in range(5):
-        tc.handle_line(comp, port, _raw(k, 0, 200 * k), 1.0 * k)
-    cold = tc.NO_REF | tc.HOLD | tc.NO_DATA
-    tc.handle_line(comp, port, _raw(0, 0, 0, status=cold), 5.0)
-    tc.handle_line(comp, port, _raw(1, 0, 0, status=cold), 6.0)
+    comp, port = _power_cut(tmp_path, back_at=5.0)
     assert port.written[-1] == b"RESUME 0\r\n"
     tc.handle_line(comp, port, tc.protocol.encode_line("E", ["NO_STATE"]).rstrip(b"\r\n"), 6.0)
     assert comp.await_zero and not comp.resume_pending
