@@ -264,9 +264,6 @@ def follow(model: dict, capture: Capture, axes: Sequence[str],
                     for line in port.port.feed(w.data):
                         deliver(line, t)
             k += 1
-    for name, value in (("stale", any(w for w in silent if not w.reconnect)),):
-        if value:
-            out.flags.add(name)
     if comp.bad_lines:
         out.flags.add(f"bad-lines {comp.bad_lines}")
     if comp.restarts:
@@ -285,6 +282,8 @@ def _record(out: Followed, comp: Compensator, k: int, status: int) -> None:
         out.flags.add("held: " + comp.hold_reason)
     if comp.await_zero:
         out.flags.add("awaiting-zero")
+    if comp.stale:  # what the component said, not what the scenario did
+        out.flags.add("stale")
 
 
 # --- judging --------------------------------------------------------------------------------
