@@ -52,3 +52,19 @@ def test_qemu_image_matches_native_build_and_twin(setup):
     _, native = hil_replay.run(setup, events)
     assert capture_differences(capture, native) == (0, "")
     assert len(sample_lines(capture)) == N
+
+
+def test_every_command_is_answered_while_the_box_sleeps(setup):
+    """Idle between samples, the image sleeps in WFI with no SysTick. A command whose last byte
+    lands after the main loop read USART1 but before the core masked interrupts used to leave
+    it asleep with the command queued, so the host waited for good (once in CI; within about
+    150 back-to-back INFOs before the fix). 2,000 in a row must each be answered."""
+    from hil import qemu
+
+    box = qemu.box_factory(setup)(False)
+    try:
+        for i in range(2000):
+            reply = box.link.command("INFO", b"$I,", timeout=5.0)
+            assert b",OK," in reply, (i, reply)
+    finally:
+        box.kill()

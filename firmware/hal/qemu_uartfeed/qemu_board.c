@@ -268,9 +268,12 @@ bool hal_wait_for_event(uint32_t wake_at_ms)
         int byte = feed_byte();
         if (byte < 0) {
             /* Sleep with interrupts masked so one arriving between the check and the WFI
-             * still wakes it; the handler runs once they are unmasked. */
+             * still wakes it; the handler runs once they are unmasked. USART1 is checked too:
+             * a command's last byte taken by its ISR after the main loop read USART1 and
+             * before the mask would otherwise sleep until a byte that never comes (no SysTick
+             * here), and the host waits for the reply for good. */
             __asm volatile("cpsid i" ::: "memory");
-            if (ring_tail == ring_head) {
+            if (ring_tail == ring_head && !board_uart_rx_pending()) {
                 __asm volatile("wfi" ::: "memory");
             }
             __asm volatile("cpsie i" ::: "memory");

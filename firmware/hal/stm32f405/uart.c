@@ -51,6 +51,11 @@ void hal_uart_write(const uint8_t *data, size_t len)
     }
 }
 
+bool board_uart_rx_pending(void)
+{
+    return rx_tail != rx_head;
+}
+
 size_t hal_uart_read(uint8_t *buf, size_t max)
 {
     size_t n = 0;
