@@ -7,6 +7,11 @@ usage. A file the system cannot open (``OSError``) is reported the same way; any
 bug and keeps its traceback. A command whose optional dependency is not installed (a
 training-only install: ``pip install thermal-comp``) says which extra brings it.
 
+A reader that stops early (``host simulate ... | head -1``) ends the command quietly, as it
+ends a Unix tool: exit status 141 (128 + SIGPIPE, what a shell reports for ``yes | head -1``)
+and nothing on stderr. A broken pipe that is not standard output (a socket, a serial line)
+is an error like any other ``OSError``.
+
 ``-q/--quiet`` (before or after the command) silences the progress bars on stderr; results and
 errors are still printed.
 """
@@ -15,7 +20,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
+import select
 import sys
 
 import host.commands
@@ -26,6 +33,27 @@ from host.progress import set_quiet
 # optional dependency (import name) -> the extra that installs it (pyproject.toml)
 EXTRAS = {"matplotlib": "report", "serial": "monitor", "sklearn": "sklearn", "paho": "fleet",
           "psycopg": "fleet"}
+
+EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a tool SIGPIPE ended
+
+
+def _stdout_gone() -> bool:
+    """Whether standard output is a pipe whose reader has gone (poll reports POLLERR on the
+    write end of a pipe nobody reads any more)."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(ev & select.POLLERR for _, ev in poller.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll(), no real stdout
+        return False
+
+
+def _silence_stdout() -> None:
+    """Point standard output at /dev/null, so the interpreter's flush at exit does not raise
+    again (the Python documentation's recipe for SIGPIPE, signal module notes)."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def _command_modules() -> list:
@@ -60,7 +88,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     set_quiet(getattr(args, "quiet", False))
     try:
-        return int(args._run(args) or 0)
+        code = int(args._run(args) or 0)
+        sys.stdout.flush()  # a reader gone shows here, not in the interpreter's exit
+        return code
+    except BrokenPipeError as exc:
+        if not _stdout_gone():
+            print(f"host {args.command}: error: {exc.filename or ''}: {exc.strerror or exc}",
+                  file=sys.stderr)
+            return 2
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
     except ModuleNotFoundError as exc:
         extra = EXTRAS.get((exc.name or "").split(".")[0])
         if extra is None:
