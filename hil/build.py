@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parent.parent
 FIRMWARE_DIR = REPO / "firmware"
 
 
-# What each board's build produces (firmware/Makefile, hal/qemu_uartfeed/board.mk).
+# What each board's build produces (firmware/Makefile, boards/qemu_uartfeed/board.mk).
 TARGETS = {"native": "thermal_box", "stm32f405": "thermal_box.elf",
            "qemu_uartfeed": "qemu_uartfeed.elf"}
 

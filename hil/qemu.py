@@ -1,6 +1,6 @@
 """The cross-compiled STM32F405 image under ``qemu-system-arm -M netduinoplus2`` as a box.
 
-Board variant ``qemu_uartfeed`` (firmware/hal/qemu_uartfeed/): the samples arrive on USART2
+Board variant ``qemu_uartfeed`` (firmware/boards/qemu_uartfeed/): the samples arrive on USART2
 in the native board's feed format, because QEMU's SPI1 has nothing attached; USART1 speaks
 the wire protocol as on the real box. QEMU's ``-serial`` options map in order to USART1,
 USART2, ... (PLATFORM.md), so: USART1 = a pty the runner opens with pyserial (a pty, not a TCP

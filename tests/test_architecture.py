@@ -143,3 +143,36 @@ def test_the_rule_can_fail():
     deps["contract.terms"] = deps["contract.terms"] | {("host.io.runs", None)}
     assert upward(deps) == ["contract.terms imports host.io.runs (host.io)",
                             "host.effects.search imports host.train.train_model (host.train)"]
+
+
+# ---- firmware: the boards implement the HAL and reach nothing of the application ---------------
+FIRMWARE = ROOT / "firmware"
+# what a board may include from outside its own folder: the HAL contract, the box's build
+# configuration (channel count, timeouts) and the shared MAX31856 register model
+BOARD_MAY_INCLUDE = {p.name for p in (FIRMWARE / "hal").glob("*.h")} | {"box_config.h"} | {
+    p.name for p in (FIRMWARE / "emul").glob("*.h")}
+
+
+def board_includes_outside(board: Path) -> list[str]:
+    import re
+
+    own = {p.name for p in board.glob("*.h")} | {"board_internal.h", "stm32f405_regs.h"}
+    bad = []
+    for src in sorted(board.glob("*.[ch]")):
+        for name in re.findall(r'^\s*#\s*include\s+"([^"]+)"', src.read_text(), re.M):
+            if name not in own | BOARD_MAY_INCLUDE:
+                bad.append(f"{src.name}: {name}")
+    return bad
+
+
+def test_boards_include_only_the_hal_contract():
+    boards = sorted(p for p in (FIRMWARE / "boards").iterdir() if p.is_dir())
+    assert {b.name for b in boards} >= {"native", "stm32f405", "qemu_uartfeed"}
+    assert not list((FIRMWARE / "hal").glob("*.c")), "hal/ holds the contract (headers) only"
+    for board in boards:
+        assert board_includes_outside(board) == [], board.name
+
+
+def test_the_board_rule_can_fail(tmp_path):
+    (tmp_path / "main.c").write_text('#include "hal_board.h"\n#include "app.h"\n')
+    assert board_includes_outside(tmp_path) == ["main.c: app.h"]

@@ -15,7 +15,7 @@ void app_poll(void);
 /* Tick (ms) at which the next sample is due. */
 uint32_t app_next_sample_ms(void);
 
-/* app_init, then app_poll after every hal_wait_for_event until the board says stop. */
-int app_main(void);
+/* app_main (declared in hal/hal_board.h, the entry the boards call): app_init, then app_poll
+ * after every hal_wait_for_event until the board says stop. */
 
 #endif

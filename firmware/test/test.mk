@@ -5,7 +5,7 @@ TEST_BUILD := build/test
 TEST_CC ?= gcc
 SANITIZE := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
 TEST_CFLAGS := $(WARN) -Wno-missing-prototypes -O1 -g $(SANITIZE) -D_DEFAULT_SOURCE \
-               $(INCLUDES) -Ihal/native -Iemul -Itest
+               $(INCLUDES) -Iboards/native -Iemul -Itest
 TEST_LIBS := -lcmocka
 
 # module -> its sources (the test file provides the fakes it needs)
@@ -20,7 +20,7 @@ UNIT_BINS := $(addprefix $(TEST_BUILD)/test_,$(UNIT_TESTS))
 
 .SECONDEXPANSION:
 
-$(TEST_BUILD)/test_%: test/test_%.c $$(TEST_SRC_$$*) $(wildcard include/*.h hal/*.h hal/native/*.h emul/*.h)
+$(TEST_BUILD)/test_%: test/test_%.c $$(TEST_SRC_$$*) $(wildcard include/*.h hal/*.h boards/native/*.h emul/*.h)
 	@mkdir -p $(TEST_BUILD)
 	$(TEST_CC) $(TEST_CFLAGS) $< $(TEST_SRC_$*) $(TEST_LIBS) -o $@
 

@@ -1,4 +1,4 @@
-/* MAX31856 driver against the register-level chip model (hal/native/max31856_sim.c).
+/* MAX31856 driver against the register-level chip model (emul/max31856_sim.c).
  * Expected register values and codes are worked out from the datasheet in the comments, not
  * taken from the driver's own helpers. */
 #include <setjmp.h>

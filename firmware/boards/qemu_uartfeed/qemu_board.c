@@ -9,7 +9,7 @@
  *
  * USART2 receives by interrupt into a ring buffer and the loop sleeps in WFI between bytes:
  * busy-polling the USART's status register keeps QEMU's I/O thread from delivering the next
- * byte (about 4,600 bytes/s polled). The STM32F405 vector table (hal/stm32f405/startup.c) has
+ * byte (about 4,600 bytes/s polled). The STM32F405 vector table (boards/stm32f405/startup.c) has
  * no USART2 entry, so this board copies it to RAM with one added and points VTOR there. QEMU's
  * USART holds one received byte at a time and offers the next only after DR is read, so
  * nothing is lost while the ring has room; the ring is larger than one window of feed lines
@@ -58,7 +58,7 @@ static volatile uint32_t ring_head, ring_tail; /* head: ISR, tail: main loop */
 static uint32_t feed_len;
 static bool feed_overlong;
 
-/* ---- helpers the STM32F405 board files (uart.c) call; same as hal/stm32f405/board.c ------- */
+/* ---- helpers the STM32F405 board files (uart.c) call; same as boards/stm32f405/board.c ------- */
 
 bool board_wait_set(volatile uint32_t *reg, uint32_t mask, uint32_t tries)
 {

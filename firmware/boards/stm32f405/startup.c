@@ -1,8 +1,8 @@
 /* Reset handler and vector table of the STM32F405 (82 peripheral interrupts, PM0214/RM0090). */
 #include <stdint.h>
 
-#include "app.h"
 #include "board_internal.h"
+#include "hal_board.h"
 #include "stm32f405_regs.h"
 
 extern uint32_t _sidata, _sdata, _edata, _sbss, _ebss, _estack;

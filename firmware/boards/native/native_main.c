@@ -13,7 +13,6 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "app.h"
 #include "box_config.h"
 #include "hal_aux.h"
 #include "hal_board.h"
