@@ -21,9 +21,18 @@ from contract.errors import InputError
 CMD_MAX_LEN = 64
 RATE_MIN, RATE_MAX = 1, 3600
 # HOLDING: ZERO refused (an axis holds or walks); NO_STATE: RESUME refused (no retained state
-# of this model kept through the power cut)
-ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG", "HOLDING", "NO_STATE")
+# of this model kept through the power cut), or SNAP before the box has a state to give;
+# IN_USE: LOAD refused (a datum is in force, or the model has no start reference);
+# NO_RETAIN: LOAD refused (the board has no retained memory to load into)
+ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG", "HOLDING", "NO_STATE", "IN_USE",
+                 "NO_RETAIN")
 RESUME_MAX = 65535  # RESUME <n>: sample periods the box was off (CMD_RESUME_MAX in cmd.h)
+# SNAP / LOAD (docs/protocol.md, "State kept by the controller"): the box's state block, sent
+# in $B pieces of at most BLOCK_LINE_BYTES bytes and put back in LOAD pieces of at most
+# LOAD_MAX_BYTES (CMD_LOAD_MAX_BYTES in cmd.h) at offsets up to LOAD_OFFSET_MAX
+BLOCK_LINE_BYTES = 256
+LOAD_MAX_BYTES = 24
+LOAD_OFFSET_MAX = 65535
 TC_TYPES = ("K", "J")
 # MEAS <axis> <nm> <seq> (issue 42, docs/service.md): a probe reading. The box answers $M,
 # applied (A) or refused (R) with one of these reasons, in the order the box checks them:
@@ -180,9 +189,21 @@ class MeasReply:
 
 
 @dataclass(frozen=True)
+class BlockPiece:
+    """``$B,<offset>,<size>,<hex>``: a piece of the state block the box keeps (its answer to
+    ``SNAP``, before ``$OK,SNAP,<seq>``). Opaque to the controller: it keeps the pieces and
+    gives them back with LOAD; the box checks the block (magic, model CRC, CRC-32)."""
+
+    offset: int
+    size: int
+    data: bytes
+
+
+@dataclass(frozen=True)
 class Ack:
-    """``$OK``: a command was accepted: ``$OK,RATE,<n>``, or ``$OK,ZERO,<seq>`` with the seq of
-    the latest sample (0 before the first)."""
+    """``$OK``: a command was accepted: ``$OK,RATE,<n>``; ``$OK,ZERO,<seq>``,
+    ``$OK,RESUME,<seq>`` or ``$OK,SNAP,<seq>`` with the seq of the latest sample (0 before the
+    first); ``$OK,LOAD,<end>`` with the offset just past the piece written."""
 
     command: str
     value: int
@@ -195,13 +216,14 @@ class ErrorReply:
     reason: str
 
 
-Message = Info | Sample | StatusReport | Ack | ErrorReply | MeasReply
+Message = Info | Sample | StatusReport | Ack | ErrorReply | MeasReply | BlockPiece
 
 _LINE_RE = re.compile(rb"\$([\x20-\x7e]*)\*([0-9A-F]{4})(\r?\n)?")
 _DEC_RE = re.compile(r"-?(0|[1-9][0-9]*)")
 _UDEC_RE = re.compile(r"0|[1-9][0-9]*")
 _HEX4_RE = re.compile(r"[0-9A-F]{4}")
 _NAME_RE = re.compile(r"[A-Za-z0-9_.+-]*")
+_HEX_BYTES_RE = re.compile(r"(?:[0-9A-F]{2})+")
 
 
 def crc16(payload: bytes) -> int:
@@ -372,11 +394,14 @@ def _decode_ok(f: _Fields) -> Ack:
     command = f.take("command")
     if command == "RATE":
         value = f.udec("n", RATE_MAX, RATE_MIN)
-    elif command in ("ZERO", "RESUME"):
+    elif command in ("ZERO", "RESUME", "SNAP"):
         value = f.udec("seq", 2**32 - 1)
+    elif command == "LOAD":
+        value = f.udec("end", LOAD_OFFSET_MAX + LOAD_MAX_BYTES)
     else:
         f.pos -= 1
-        raise f.fail(f"acknowledged command {command!r} is none of RATE, ZERO, RESUME")
+        raise f.fail(f"acknowledged command {command!r} is none of RATE, ZERO, RESUME, SNAP, "
+                     "LOAD")
     f.end()
     return Ack(command, value)
 
@@ -390,8 +415,20 @@ def _decode_error(f: _Fields) -> ErrorReply:
     return ErrorReply(reason)
 
 
+def _decode_block(f: _Fields) -> BlockPiece:
+    offset = f.udec("offset", LOAD_OFFSET_MAX)
+    size = f.udec("size", LOAD_OFFSET_MAX + 1, 1)
+    data = bytes.fromhex(f._match("data", _HEX_BYTES_RE, "upper-case hex bytes"))
+    f.end()
+    if len(data) > BLOCK_LINE_BYTES or offset + len(data) > size:
+        raise ProtocolError(f"$B line: {len(data)} bytes at {offset} do not fit a piece of at "
+                            f"most {BLOCK_LINE_BYTES} bytes of a {size}-byte block: "
+                            f"{_show(f.raw)}")
+    return BlockPiece(offset, size, data)
+
+
 _DECODERS = {"C": _decode_sample, "I": _decode_info, "S": _decode_status, "OK": _decode_ok,
-             "E": _decode_error, "M": _decode_meas}
+             "E": _decode_error, "M": _decode_meas, "B": _decode_block}
 
 
 def decode(raw: bytes | str) -> Message:
@@ -485,13 +522,15 @@ def encode(message: Message) -> bytes:
         return encode_line("E", [message.reason])
     if isinstance(message, MeasReply):
         return encode_meas_reply(message)
+    if isinstance(message, BlockPiece):
+        return encode_line("B", [message.offset, message.size, message.data.hex().upper()])
     raise TypeError(f"not a protocol message: {message!r}")
 
 
 def encode_command(command: str, arg: int | None = None) -> bytes:
-    """A command line for the box: ``INFO``, ``STATUS``, ``ZERO``, ``RATE <n>`` or
-    ``RESUME <n>``, CR LF terminated."""
-    if command in ("INFO", "STATUS", "ZERO") and arg is None:
+    """A command line for the box: ``INFO``, ``STATUS``, ``ZERO``, ``SNAP``, ``RATE <n>`` or
+    ``RESUME <n>``, CR LF terminated (``LOAD``: encode_load)."""
+    if command in ("INFO", "STATUS", "ZERO", "SNAP") and arg is None:
         return command.encode() + b"\r\n"
     if command == "RATE" and arg is not None:
         if not RATE_MIN <= arg <= RATE_MAX:
@@ -501,8 +540,33 @@ def encode_command(command: str, arg: int | None = None) -> bytes:
         if not 0 <= arg <= RESUME_MAX:
             raise InputError(f"RESUME {arg} outside 0..{RESUME_MAX}")
         return f"RESUME {arg}\r\n".encode()
-    raise InputError(f"unknown command {command!r} (INFO, STATUS, ZERO, RATE <n>, RESUME <n> "
-                     "or MEAS: encode_meas)")
+    raise InputError(f"unknown command {command!r} (INFO, STATUS, ZERO, SNAP, RATE <n>, "
+                     "RESUME <n>, or MEAS: encode_meas, LOAD: encode_load)")
+
+
+def encode_load(block: bytes) -> list[bytes]:
+    """The ``LOAD <offset> <hex>`` lines that give ``block`` (a state block SNAP sent, put
+    together) back to the box, in order; send each after the previous one's ``$OK,LOAD``."""
+    if not 0 < len(block) <= LOAD_OFFSET_MAX + 1:
+        raise InputError(f"a state block of {len(block)} bytes: 1..{LOAD_OFFSET_MAX + 1}")
+    return [f"LOAD {off} {block[off:off + LOAD_MAX_BYTES].hex().upper()}\r\n".encode()
+            for off in range(0, len(block), LOAD_MAX_BYTES)]
+
+
+def assemble_block(pieces: Sequence[BlockPiece]) -> bytes:
+    """The block SNAP sent, from its ``$B`` pieces in order; InputError if they do not make
+    one whole block (a piece lost, repeated or of another size)."""
+    if not pieces:
+        raise InputError("no $B piece: the box sent no state block")
+    size, out = pieces[0].size, bytearray()
+    for p in pieces:
+        if p.size != size or p.offset != len(out):
+            raise InputError(f"$B piece at {p.offset} (block of {p.size} bytes) after "
+                             f"{len(out)} bytes of a {size}-byte block: pieces lost or mixed")
+        out += p.data
+    if len(out) != size:
+        raise InputError(f"state block: {len(out)} of {size} bytes")
+    return bytes(out)
 
 
 def encode_meas(axis: int, nm: int, seq: int) -> bytes:

@@ -167,11 +167,9 @@ static uint32_t snap_crc(void)
     return crc32_bytes((const uint8_t *)&snap, offsetof(retained_t, crc));
 }
 
-static void retain_save(void)
+/* The block as of now: the application's fields copied in, the CRC over it. */
+static void snap_fill(void)
 {
-    if (!app.model_ok || app.resumable || app.skipping || hal_retain_size() < sizeof snap) {
-        return;
-    }
     snap.magic = RETAIN_MAGIC;
     snap.size = (uint32_t)sizeof snap;
     snap.model_crc = model_binding_expected_crc();
@@ -193,7 +191,15 @@ static void retain_save(void)
         snap.axes[a] = app.axes[a];
     }
     snap.crc = snap_crc();
-    hal_retain_write(&snap, sizeof snap);
+}
+
+static void retain_save(void)
+{
+    if (!app.model_ok || app.resumable || app.skipping || hal_retain_size() < sizeof snap) {
+        return;
+    }
+    snap_fill();
+    hal_retain_write(0u, &snap, sizeof snap);
 }
 
 /* Continue from the block in snap (its filters and estimates are used in place). */
@@ -764,6 +770,61 @@ static void handle_resume(uint32_t off)
     retain_save();
 }
 
+/* SNAP: the block the box keeps in its retained memory, for the controller to keep too:
+ * `$B,<offset>,<size>,<hex>` lines of SNAP_LINE_BYTES bytes, then `$OK,SNAP,<seq of the
+ * latest sample>`. After a power cut that took the retained memory with it (no battery on
+ * VBAT), LOAD puts the controller's copy back and RESUME continues it, as after a cut on a
+ * battery (docs/firmware.md, "Restart"). The block is opaque to the controller: the box
+ * checks its magic, model CRC and CRC-32 before it continues anything. */
+#define SNAP_LINE_BYTES 256u
+static void handle_snap(void)
+{
+    if (!app.model_ok || app.resumable || app.skipping || !app.sampled) {
+        send_error("NO_STATE"); /* nothing of its own worth keeping yet */
+        return;
+    }
+    snap_fill();
+    const uint8_t *bytes = (const uint8_t *)&snap;
+    for (uint32_t off = 0; off < sizeof snap; off += SNAP_LINE_BYTES) {
+        line_begin(&app.line, "B");
+        line_sep(&app.line);
+        line_put_u32(&app.line, off);
+        line_sep(&app.line);
+        line_put_u32(&app.line, (uint32_t)sizeof snap);
+        line_sep(&app.line);
+        for (uint32_t i = off; i < off + SNAP_LINE_BYTES && i < sizeof snap; i++) {
+            line_put_hex(&app.line, bytes[i], 2u);
+        }
+        send_line();
+        hal_watchdog_kick();
+    }
+    send_ok("SNAP", app.seq - 1u);
+}
+
+/* LOAD <offset> <hex>: a piece of a block SNAP gave, written into the retained memory. Only
+ * while the box waits for a datum after a cold boot (its own state is worth nothing then);
+ * from the first piece on the box stops writing its own block there, so RESUME continues the
+ * uploaded one (or refuses it, NO_STATE, if the pieces do not make this model's intact
+ * block). */
+static void handle_load(const cmd_t *c)
+{
+    if (!app.needs_ref || app.referenced || app.zero_pending) {
+        send_error("IN_USE"); /* a datum in force (or no reference at all): keep it */
+        return;
+    }
+    if (hal_retain_size() < sizeof snap) {
+        send_error("NO_RETAIN");
+        return;
+    }
+    if (c->arg > sizeof snap || c->n_bytes > sizeof snap - c->arg) {
+        send_error("BAD_ARG");
+        return;
+    }
+    hal_retain_write(c->arg, c->data, c->n_bytes);
+    app.resumable = true;
+    send_ok("LOAD", c->arg + c->n_bytes);
+}
+
 static void handle_command(const cmd_t *c)
 {
     switch (c->kind) {
@@ -795,6 +856,12 @@ static void handle_command(const cmd_t *c)
         break;
     case CMD_RESUME:
         handle_resume(c->arg);
+        break;
+    case CMD_SNAP:
+        handle_snap();
+        break;
+    case CMD_LOAD:
+        handle_load(c);
         break;
     case CMD_ERROR:
     default:

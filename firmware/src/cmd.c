@@ -11,7 +11,7 @@ void cmd_reader_init(cmd_reader_t *r)
 
 static cmd_t error(const char *reason)
 {
-    cmd_t c = {CMD_ERROR, 0, reason, 0, 0};
+    cmd_t c = {CMD_ERROR, 0, reason, 0, 0, 0, {0}};
     return c;
 }
 
@@ -89,7 +89,7 @@ static cmd_t parse_rate(const char *arg, uint8_t len)
         n > CMD_RATE_MAX) { /* "3600" is the longest valid argument */
         return error("BAD_ARG");
     }
-    cmd_t c = {CMD_RATE, n, 0, 0, 0};
+    cmd_t c = {CMD_RATE, n, 0, 0, 0, 0, {0}};
     return c;
 }
 
@@ -99,7 +99,7 @@ static cmd_t parse_resume(const char *arg, uint8_t len)
     if (len > 5u || !parse_fields(arg, len, &n, 1u, -1) || n > CMD_RESUME_MAX) {
         return error("BAD_ARG");
     }
-    cmd_t c = {CMD_RESUME, n, 0, 0, 0};
+    cmd_t c = {CMD_RESUME, n, 0, 0, 0, 0, {0}};
     return c;
 }
 
@@ -109,22 +109,60 @@ static cmd_t parse_meas(const char *arg, uint8_t len)
     if (!parse_fields(arg, len, v, 3u, 1)) {
         return error("BAD_ARG");
     }
-    cmd_t c = {CMD_MEAS, v[0], 0, (int32_t)v[1], v[2]};
+    cmd_t c = {CMD_MEAS, v[0], 0, (int32_t)v[1], v[2], 0, {0}};
+    return c;
+}
+
+static int hex_digit(char ch)
+{
+    if (ch >= '0' && ch <= '9') {
+        return ch - '0';
+    }
+    if (ch >= 'A' && ch <= 'F') {
+        return ch - 'A' + 10;
+    }
+    if (ch >= 'a' && ch <= 'f') {
+        return ch - 'a' + 10;
+    }
+    return -1;
+}
+
+static cmd_t parse_load(const char *arg, uint8_t len)
+{
+    const char *space = memchr(arg, ' ', len);
+    uint32_t off;
+    if (space == NULL || space - arg > 5 || !parse_fields(arg, (uint8_t)(space - arg), &off, 1u, -1) ||
+        off > 65535u) {
+        return error("BAD_ARG");
+    }
+    const char *hex = space + 1;
+    const uint8_t n_hex = (uint8_t)(len - (uint8_t)(hex - arg));
+    if (n_hex == 0u || n_hex % 2u != 0u || n_hex > 2u * CMD_LOAD_MAX_BYTES) {
+        return error("BAD_ARG");
+    }
+    cmd_t c = {CMD_LOAD, off, 0, 0, 0, (uint8_t)(n_hex / 2u), {0}};
+    for (uint8_t i = 0; i < c.n_bytes; i++) {
+        const int hi = hex_digit(hex[2u * i]), lo = hex_digit(hex[2u * i + 1u]);
+        if (hi < 0 || lo < 0) {
+            return error("BAD_ARG");
+        }
+        c.data[i] = (uint8_t)(hi * 16 + lo);
+    }
     return c;
 }
 
 cmd_t cmd_parse(const char *line, uint8_t len)
 {
     if (equals(line, len, "INFO")) {
-        cmd_t c = {CMD_INFO, 0, 0, 0, 0};
+        cmd_t c = {CMD_INFO, 0, 0, 0, 0, 0, {0}};
         return c;
     }
     if (equals(line, len, "STATUS")) {
-        cmd_t c = {CMD_STATUS, 0, 0, 0, 0};
+        cmd_t c = {CMD_STATUS, 0, 0, 0, 0, 0, {0}};
         return c;
     }
     if (equals(line, len, "ZERO")) {
-        cmd_t c = {CMD_ZERO, 0, 0, 0, 0};
+        cmd_t c = {CMD_ZERO, 0, 0, 0, 0, 0, {0}};
         return c;
     }
     if (equals(line, len, "RATE")) {
@@ -141,6 +179,16 @@ cmd_t cmd_parse(const char *line, uint8_t len)
     }
     if (equals(line, len, "MEAS")) {
         return error("BAD_ARG");
+    }
+    if (equals(line, len, "SNAP")) {
+        cmd_t c = {CMD_SNAP, 0, 0, 0, 0, 0, {0}};
+        return c;
+    }
+    if (equals(line, len, "LOAD")) {
+        return error("BAD_ARG");
+    }
+    if (len >= 5u && memcmp(line, "LOAD ", 5) == 0) {
+        return parse_load(line + 5, (uint8_t)(len - 5u));
     }
     if (len >= 5u && memcmp(line, "MEAS ", 5) == 0) {
         return parse_meas(line + 5, (uint8_t)(len - 5u));

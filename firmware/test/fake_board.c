@@ -153,7 +153,7 @@ void hal_retain_read(void *dst, size_t n)
     memcpy(dst, fake_retained, n);
 }
 
-void hal_retain_write(const void *src, size_t n)
+void hal_retain_write(size_t offset, const void *src, size_t n)
 {
-    memcpy(fake_retained, src, n);
+    memcpy(fake_retained + offset, src, n);
 }

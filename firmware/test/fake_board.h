@@ -30,5 +30,6 @@ const char *fake_uart_take(void);
 
 /* Retained memory: a power cut without backup battery (garbage, boots cold). */
 void fake_retain_clear(void);
+extern uint8_t fake_retained[4096];
 
 #endif

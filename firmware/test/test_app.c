@@ -207,6 +207,59 @@ static void test_App_ShouldRefuseResumeWhenThereIsNothingToContinue(void **state
     assert_memory_equal(fake_uart_take(), "$E,NO_STATE*", 12);
 }
 
+static int hex_nibble(char c)
+{
+    return c <= '9' ? c - '0' : c - 'A' + 10;
+}
+
+static void test_App_ShouldSendTheBlockItKeepsOnSnap(void **state)
+{
+    (void)state;
+    char payload[700];
+    fake_uart_send("SNAP\r\n");
+    advance_and_poll(1);
+    assert_memory_equal(fake_uart_take(), "$E,NO_STATE*", 12); /* nothing sampled yet */
+    for (int i = 0; i < 30; i++) {
+        load_vector(i);
+        advance_and_poll(VEC_PERIOD_MS);
+        (void)fake_uart_take();
+    }
+    fake_uart_send("SNAP\r\n");
+    advance_and_poll(1);
+    /* The pieces, put together, are the block the box wrote to its retained memory after the
+     * latest sample, byte for byte (SNAP sends what a battery would have kept). */
+    static uint8_t block[4096];
+    unsigned got = 0, size = 0;
+    const char *out = fake_uart_take();
+    for (;;) {
+        out = next_line(out, payload, sizeof payload);
+        if (payload[0] != 'B') {
+            break;
+        }
+        char *p;
+        unsigned off = (unsigned)strtoul(payload + 2, &p, 10);
+        size = (unsigned)strtoul(p + 1, &p, 10);
+        assert_int_equal(off, got);
+        assert_int_equal(*p++, ',');
+        for (; p[0] != '\0'; p += 2) {
+            block[got++] = (uint8_t)(hex_nibble(p[0]) * 16 + hex_nibble(p[1]));
+        }
+    }
+    assert_string_equal(payload, "OK,SNAP,29");
+    assert_true(size > 1000u && size < sizeof block);
+    assert_int_equal(got, size);
+    assert_memory_equal(block, fake_retained, size);
+}
+
+static void test_App_ShouldRefuseLoadWhileItsOwnStateIsInUse(void **state)
+{
+    (void)state;
+    /* the vectors' model has no start reference: the box's own state is always in use */
+    fake_uart_send("LOAD 0 00\r\n");
+    advance_and_poll(1);
+    assert_memory_equal(fake_uart_take(), "$E,IN_USE*", 10);
+}
+
 static void test_App_ShouldConfigureEveryChipForItsThermocoupleType(void **state)
 {
     (void)state;
@@ -680,6 +733,8 @@ int main(void)
         cmocka_unit_test_setup(test_App_ShouldResumeBitForBitAfterAWatchdogReset, boot),
         cmocka_unit_test_setup(test_App_ShouldBootColdWhenTheRetainedMemoryIsLost, boot),
         cmocka_unit_test_setup(test_App_ShouldRefuseResumeWhenThereIsNothingToContinue, boot),
+        cmocka_unit_test_setup(test_App_ShouldSendTheBlockItKeepsOnSnap, boot),
+        cmocka_unit_test_setup(test_App_ShouldRefuseLoadWhileItsOwnStateIsInUse, boot),
         cmocka_unit_test_setup(test_App_ShouldConfigureEveryChipForItsThermocoupleType, boot),
         cmocka_unit_test_setup(test_App_ShouldNotSampleBeforeThePeriodHasPassed, boot),
         cmocka_unit_test_setup(test_App_ShouldShowMissedPeriodsAsAGapInSeq, boot),

@@ -9,7 +9,7 @@
 
 #include "cmd.h"
 
-#define MAX_RESULTS 8
+#define MAX_RESULTS 16
 
 static cmd_t results[MAX_RESULTS];
 static int n_results;
@@ -101,6 +101,35 @@ static void test_Cmd_ShouldParseResumeWithinZeroTo65535(void **state)
     }
 }
 
+static void test_Cmd_ShouldParseSnapAndLoadPieces(void **state)
+{
+    (void)state;
+    FEED("SNAP\nLOAD 0 00ff\nLOAD 65535 A5\n"
+         "LOAD 1024 000102030405060708090a0b0c0d0e0f1011121314151617\n");
+    assert_int_equal(n_results, 4);
+    assert_int_equal(results[0].kind, CMD_SNAP);
+    assert_int_equal(results[1].kind, CMD_LOAD);
+    assert_int_equal(results[1].arg, 0);
+    assert_int_equal(results[1].n_bytes, 2);
+    assert_int_equal(results[1].data[0], 0x00);
+    assert_int_equal(results[1].data[1], 0xFF);
+    assert_int_equal(results[2].arg, 65535);
+    assert_int_equal(results[2].data[0], 0xA5);
+    assert_int_equal(results[3].arg, 1024);
+    assert_int_equal(results[3].n_bytes, CMD_LOAD_MAX_BYTES);
+    for (unsigned i = 0; i < CMD_LOAD_MAX_BYTES; i++) {
+        assert_int_equal(results[3].data[i], i);
+    }
+    /* no data, odd digits, not hex, 25 bytes, offset beyond 65535, two spaces, sign, text */
+    FEED("LOAD\nLOAD 0\nLOAD 0 \nLOAD 0 abc\nLOAD 0 0g\n"
+         "LOAD 0 00010203040506070809101112131415161718192021222324\n"
+         "LOAD 65536 00\nLOAD 0  00\nLOAD -1 00\nLOAD x 00\nLOAD 0 00 \n");
+    assert_int_equal(n_results, 11);
+    for (int i = 0; i < 11; i++) {
+        assert_error(i, "BAD_ARG");
+    }
+}
+
 static void test_Cmd_ShouldAnswerUnknownToOtherCommandsAndWrongCase(void **state)
 {
     (void)state;
@@ -187,6 +216,7 @@ int main(void)
         cmocka_unit_test(test_Cmd_ShouldRejectBadRateArguments),
         cmocka_unit_test(test_Cmd_ShouldParseResumeWithinZeroTo65535),
         cmocka_unit_test(test_Cmd_ShouldAnswerUnknownToOtherCommandsAndWrongCase),
+        cmocka_unit_test(test_Cmd_ShouldParseSnapAndLoadPieces),
         cmocka_unit_test(test_Cmd_ShouldAcceptALineOfExactly64Characters),
         cmocka_unit_test(test_Cmd_ShouldDiscardAnOverLongLineAndAnswerOnce),
         cmocka_unit_test(test_Cmd_ShouldAnswerBinaryForBytesOutsidePrintableAscii),

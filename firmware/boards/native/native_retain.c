@@ -42,11 +42,14 @@ void hal_retain_read(void *dst, size_t n)
     memcpy(dst, retained, n <= sizeof retained ? n : sizeof retained);
 }
 
-void hal_retain_write(const void *src, size_t n)
+void hal_retain_write(size_t offset, const void *src, size_t n)
 {
-    size_t k = n <= sizeof retained ? n : sizeof retained;
-    memcpy(retained, src, k);
-    if (retain_fd >= 0 && pwrite(retain_fd, retained, k, 0) != (ssize_t)k) {
+    if (offset >= sizeof retained) {
+        return;
+    }
+    size_t k = n <= sizeof retained - offset ? n : sizeof retained - offset;
+    memcpy(retained + offset, src, k);
+    if (retain_fd >= 0 && pwrite(retain_fd, retained + offset, k, (off_t)offset) != (ssize_t)k) {
         fputs("thermal_box: writing the retained-memory file failed\n", stderr);
     }
 }

@@ -323,8 +323,9 @@ void hal_retain_read(void *dst, size_t n)
     (void)n;
 }
 
-void hal_retain_write(const void *src, size_t n)
+void hal_retain_write(size_t offset, const void *src, size_t n)
 {
+    (void)offset;
     (void)src;
     (void)n;
 }

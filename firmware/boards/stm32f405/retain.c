@@ -53,12 +53,12 @@ void hal_retain_read(void *dst, size_t n)
     }
 }
 
-void hal_retain_write(const void *src, size_t n)
+void hal_retain_write(size_t offset, const void *src, size_t n)
 {
     enable();
     volatile uint8_t *to = (volatile uint8_t *)BKPSRAM_BASE;
     const uint8_t *from = src;
-    for (size_t i = 0; i < n && i < BKPSRAM_SIZE; i++) {
-        to[i] = from[i];
+    for (size_t i = 0; i < n && offset + i < BKPSRAM_SIZE; i++) {
+        to[offset + i] = from[i];
     }
 }
