@@ -18,6 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
+from contract import protocol
 from hil.feed import Feed
 from hil.link import LinkTimeout, SerialLink
 from hil.native import BoxStartError
@@ -106,12 +107,16 @@ class Restart:
     started). ``wdt_reset``: a warm reset (watchdog, brown-out): the retained memory survives
     and the box resumes where it was; otherwise a power cut: it boots cold. ``battery``: a
     cell on VBAT kept the retained memory through the cut (the box may be resumed, Resume);
+    ``kept``: no battery, but the controller kept the box's state: it asked SNAP after the
+    last sample before the cut (as the component does after every sample) and gives the
+    block back with LOAD after the boot, so a Resume continues it as on a battery;
     ``off``: the samples [at, at + off) pass while it is off (nothing is fed, no line)."""
 
     at: int
     wdt_reset: bool = False
     battery: bool = False
     off: int = 0
+    kept: bool = False
 
 
 @dataclass(frozen=True)
@@ -155,7 +160,7 @@ class Session:
     zero_acks: list[bytes] = field(default_factory=list)  # replies to ZERO ($OK or $E), in order
     seq0: int = 0  # seq of its first sample line: 0 after a cold boot, kept after a warm one
     meas_replies: list[bytes] = field(default_factory=list)  # replies to MEAS ($M), in order
-    battery: bool = False  # booted after a power cut with the retained memory kept
+    battery: bool = False  # booted after a power cut with the retained memory kept (or loaded)
     resumed: bool = False  # RESUME accepted: it continues the session before the cut
     resume_acks: list[bytes] = field(default_factory=list)  # replies to RESUME, in order
 
@@ -295,7 +300,10 @@ class _Replay:
                          f"MEAS before sample {point}"))
         elif isinstance(e, Restart):
             self.sync()  # the power cut falls between two samples, not inside one
+            block = self.snapshot(point) if e.kept else b""
             self.restart(point, e.wdt_reset, e.battery, e.off)
+            if e.kept:
+                self.load(block, point + e.off)
         elif isinstance(e, Resume):
             s = self.session
             if len(self.sessions) < 2 or s.n_fed or s.first_sample != point:
@@ -320,6 +328,22 @@ class _Replay:
 
         link.wait_for(answered, self.timeout, f"reply to {what}")
         return next(ln for ln in link.lines[start:] if ln.startswith(replies))
+
+    def snapshot(self, point: int) -> bytes:
+        """SNAP: the block the box keeps, put together from its $B pieces."""
+        link = self.box.link
+        start = link.count()
+        self.ask(b"SNAP\r\n", (b"$OK,SNAP,", b"$E,"), f"SNAP before sample {point}")
+        pieces = [protocol.decode(ln) for ln in link.lines[start:] if ln.startswith(b"$B,")]
+        return protocol.assemble_block([p for p in pieces if isinstance(p, protocol.BlockPiece)])
+
+    def load(self, block: bytes, point: int) -> None:
+        """LOAD: the block back into the freshly booted box, piece by piece."""
+        for line in protocol.encode_load(block):
+            reply = self.ask(line, (b"$OK,LOAD,", b"$E,"), f"LOAD before sample {point}")
+            if not reply.startswith(b"$OK,"):
+                raise BoxStartError(f"LOAD refused: {reply.decode(errors='replace')}")
+        self.session.battery = True
 
     def restart(self, point: int, wdt_reset: bool, battery: bool = False, off: int = 0) -> None:
         """Power cut and boot: a new session; the chips' faults are still there. ``off``

@@ -49,3 +49,32 @@ def test_without_a_battery_there_is_nothing_to_resume(setup):
     after = capture.sessions[1]
     assert not after.resumed and after.resume_acks[0].startswith(b"$E,NO_STATE")
     assert np.all(report.fw_status[CUT + OFF:] & NO_REF)  # holds until a ZERO
+
+
+def test_the_controllers_copy_of_the_state_stands_in_for_a_battery(setup):
+    """No battery, but the controller asked SNAP after the last sample and gives the block back
+    with LOAD after the boot: RESUME continues it line for line as on a battery."""
+    report, capture = hil_replay.run(setup, [Restart(CUT, off=OFF, kept=True),
+                                             Resume(CUT + OFF, OFF)])
+    assert report.ok, report.problems
+    after = capture.sessions[1]
+    assert after.resumed and after.resume_acks[0].startswith(b"$OK,RESUME,")
+    battery, _ = hil_replay.run(setup, [Restart(CUT, battery=True, off=OFF),
+                                        Resume(CUT + OFF, OFF)])
+    assert np.array_equal(report.fw_out_nm, battery.fw_out_nm)
+    assert np.array_equal(report.fw_status, battery.fw_status)
+
+
+def test_a_block_that_is_not_intact_is_not_continued(setup, monkeypatch):
+    """One byte of the uploaded block changed: RESUME refuses it (CRC-32) and the box waits for
+    a datum, as without any copy."""
+    from contract import protocol
+
+    real = protocol.encode_load
+    monkeypatch.setattr(protocol, "encode_load",
+                        lambda block: real(block[:100] + bytes([block[100] ^ 1]) + block[101:]))
+    report, capture = hil_replay.run(setup, [Restart(CUT, off=OFF, kept=True),
+                                             Resume(CUT + OFF, OFF)])
+    after = capture.sessions[1]
+    assert not after.resumed and after.resume_acks[0].startswith(b"$E,NO_STATE")
+    assert np.all(report.fw_status[CUT + OFF:] & NO_REF)
