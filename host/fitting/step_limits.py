@@ -59,12 +59,17 @@ def longest_still(values: np.ndarray, time_s: np.ndarray, period_s: float) -> in
     codes = np.zeros(values.size, dtype=np.int64)
     codes[ok] = temp_to_code(values[ok])
     steps = np.maximum(np.rint(np.diff(np.asarray(time_s, dtype=float)) / period_s), 1)
-    same = (ok[1:] & ok[:-1] & (codes[1:] == codes[:-1])).tolist()
-    best = cur = int(ok[0])
-    for i, (s, k) in enumerate(zip(same, steps.astype(np.int64).tolist(), strict=True)):
-        cur = cur + k if s else int(ok[i + 1])
-        best = max(best, cur)
-    return best
+    same = ok[1:] & ok[:-1] & (codes[1:] == codes[:-1])
+    # sample j continues the run of j-1 (adding its gap's samples) or starts one (counting
+    # 1 if it is a reading): the run's length at j is its start's count plus the samples
+    # added since, from one cumulative sum (integers: exact); no loop over the samples
+    added = np.zeros(values.size, dtype=np.int64)
+    added[1:] = np.where(same, steps.astype(np.int64), 0)
+    total = np.cumsum(added)
+    start = np.ones(values.size, dtype=bool)
+    start[1:] = ~same
+    first = np.maximum.accumulate(np.where(start, np.arange(values.size), 0))
+    return int(np.max(ok[first].astype(np.int64) + total - total[first]))
 
 
 def still_limits(model: dict, runs: Sequence[Run]) -> dict[str, int]:
