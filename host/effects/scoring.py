@@ -15,6 +15,7 @@ from contract.terms import Term
 from host.effects.candidates import Candidate
 from host.effects.residual import rounded
 from host.fitting import NO_REFERENCE, FoldGram, Reference, solve_normal, term_values
+from host.fitting.out_of_fold import SOLVE_TOLERANCE
 from host.io import Run
 
 MIN_GAIN = 0.10  # an effect must lower the validation RMSE by at least 10 %
@@ -208,12 +209,13 @@ class GramScorer(FoldGram):
         return scored
 
     def _effect_stability(self, scored: Scored, cols: Sequence[int], new: Sequence[int],
-                          betas: np.ndarray) -> None:
-        """Fill ``fold_spread`` and ``fold_active`` of the new columns' contribution."""
+                          betas: np.ndarray, full_beta: np.ndarray | None = None) -> None:
+        """Fill ``fold_spread`` and ``fold_active`` of the new columns' contribution
+        (``full_beta``: ``beta(cols)``, if known)."""
         pos = np.array([list(cols).index(c) + 1 for c in new])
         nz = np.array([c + 1 for c in new])
         C = self.M[np.ix_(nz, nz)] / self.n  # covariance of the (centred) new columns
-        full = self.beta(cols)[pos]
+        full = (self.beta(cols) if full_beta is None else full_beta)[pos]
         size = math.sqrt(max(float(full @ C @ full), 0.0))
         if not size > 0:
             scored.fold_spread = math.inf
@@ -229,12 +231,14 @@ class GramScorer(FoldGram):
         scored.fold_active = np.array(active)
 
     def partial_correlation(self, residual: np.ndarray, q: np.ndarray, base: Sequence[int],
-                            new: Sequence[int]) -> float:
-        """``partial_correlation`` from the Gram matrix; ``q`` = D.T @ residual (once a step)."""
+                            new: Sequence[int], P: np.ndarray | None = None) -> float:
+        """``partial_correlation`` from the Gram matrix; ``q`` = D.T @ residual (once a step);
+        ``P``: the projection of the new columns on the base, if known."""
         b = self.index(base)
         z = np.array([c + 1 for c in new], dtype=int)
         G = self.M
-        P = solve_normal(G[np.ix_(b, b)], G[np.ix_(b, z)])
+        if P is None:
+            P = solve_normal(G[np.ix_(b, b)], G[np.ix_(b, z)])
         zr = q[z] - P.T @ q[b]
         zz = G[np.ix_(z, z)] - G[np.ix_(z, b)] @ P
         rr = float(residual @ residual) - residual.size * float(residual.mean()) ** 2
@@ -245,6 +249,79 @@ class GramScorer(FoldGram):
             return float(zr[0]) / den if den > 0 else 0.0
         r2 = float(zr @ solve_normal(zz, zr)) / rr
         return math.sqrt(min(max(r2, 0.0), 1.0))
+
+
+    def score_many(self, requests: Sequence[tuple[Sequence[int], Sequence[int],
+                                                  Candidate | None]]) -> list[Scored]:
+        """``[score(cols, new, candidate) for cols, new, candidate in requests]``, with the
+        small normal-equation systems of all requests of one size solved in one stacked call
+        (``solve_many``): LAPACK solves each matrix of a stack as it solves it alone, so every
+        coefficient is the same to the last bit; only the per-call overhead goes."""
+        out: list[Scored | None] = [None] * len(requests)
+        by_size: dict[int, list[int]] = {}
+        for k, (cols, _, _) in enumerate(requests):
+            by_size.setdefault(len(cols), []).append(k)
+        for size, ks in by_size.items():
+            idx = np.array([self.index(requests[k][0]) for k in ks], dtype=int).reshape(
+                len(ks), size + 1)
+            rows, cols_ = idx[:, :, None], idx[:, None, :]
+            Mg = np.moveaxis(self.M_f[:, rows, cols_], 0, 1)  # (K, F, m, m)
+            vg = np.moveaxis(self.v_f[:, idx], 0, 1)  # (K, F, m)
+            Ms, vs = self.M[rows, cols_], self.v[idx]  # (K, m, m), (K, m)
+            betas = solve_many(Ms[:, None] - Mg, vs[:, None, :] - vg)  # K of (F, m)
+            stable = [j for j, k in enumerate(ks) if requests[k][1]]
+            full = solve_many(Ms[stable], vs[stable]) if stable else None
+            where = {j: i for i, j in enumerate(stable)}
+            for j, k in enumerate(ks):
+                cols, new, cand = requests[k]
+                b = betas[j]
+                # fold_sse's own operands: einsum's order of summation follows their memory
+                # layout, which a slice of the stack does not share
+                sse = self.fold_sse(cols, b)
+                scored = Scored(cand, math.sqrt(sse.sum() / self.n), np.sqrt(sse / self.n_f))
+                if new:
+                    self._effect_stability(scored, cols, new, b, full[where[j]])
+                out[k] = scored
+        return out  # type: ignore[return-value]
+
+    def projections(self, base: Sequence[int], news: Sequence[Sequence[int]]
+                    ) -> list[np.ndarray]:
+        """For each of ``news``, ``partial_correlation``'s projection of those columns on the
+        base columns (one stacked solve per count of new columns, see ``score_many``)."""
+        b = self.index(base)
+        Gbb = self.M[np.ix_(b, b)]
+        out: list[np.ndarray | None] = [None] * len(news)
+        by_size: dict[int, list[int]] = {}
+        for k, new in enumerate(news):
+            by_size.setdefault(len(new), []).append(k)
+        for ks in by_size.values():
+            Z = np.array([[c + 1 for c in news[k]] for k in ks], dtype=int)
+            rhs = np.moveaxis(self.M[b][:, Z], 0, 1)  # (K, base, new)
+            P = solve_many(np.broadcast_to(Gbb, (len(ks), *Gbb.shape)), rhs)
+            for j, k in enumerate(ks):
+                out[k] = P[j]
+        return out  # type: ignore[return-value]
+
+
+def solve_many(M: np.ndarray, v: np.ndarray) -> list[np.ndarray]:
+    """``[solve_normal(m, b) for m, b in zip(M, v)]`` in one stacked
+    ``np.linalg.solve``: M is (K, ..., m, m) and v (K, ..., m) (a vector each) or
+    (K, m, r) (r right-hand sides). Each request K is checked as solve_normal checks it, and
+    one that is singular or fails the check is solved again by solve_normal itself (falling
+    back to least squares as it does), so the result is solve_normal's, bit for bit."""
+    K = M.shape[0]
+    vector = v.ndim == M.ndim - 1
+    rhs = v[..., None] if vector else v
+    try:
+        beta = np.linalg.solve(M, rhs)
+    except np.linalg.LinAlgError:  # one of the stack is singular: each on its own
+        return [solve_normal(M[k], v[k]) for k in range(K)]
+    err = np.abs(M @ beta - rhs).reshape(K, -1).max(axis=1)
+    tol = SOLVE_TOLERANCE * np.maximum(1.0, np.abs(v).reshape(K, -1).max(axis=1))
+    out = list(beta[..., 0] if vector else beta)
+    for k in np.flatnonzero(~(np.isfinite(err) & (err <= tol))).tolist():
+        out[k] = solve_normal(M[k], v[k])
+    return out
 
 
 def score_candidates(cache: FeatureCache, y: np.ndarray, groups: np.ndarray,
@@ -262,14 +339,23 @@ def score_candidates(cache: FeatureCache, y: np.ndarray, groups: np.ndarray,
     ref = gram.score(base, [])
     residual = gram.residual(base)
     q = gram.D.T @ residual
-    scored = []
+    requests: list[tuple[list[int], list[int], Candidate | None]] = []
+    news: list[list[int]] = []
     for cand in candidates:
         cols = [index[t] for t in cand.apply(current)]
         new = [index[t] for t in cand.effect_terms]
-        s = gram.score(cols, new, cand)
+        requests.append((cols, new, cand))
+        news.append(new)
         if cand.family:
-            s.sensors_only = gram.score([c for c in cols if c not in new], [])
-        s.residual_corr = gram.partial_correlation(residual, q, base, new)
+            requests.append(([c for c in cols if c not in new], [], None))
+    # every candidate's systems solved in stacks (GramScorer.score_many), not one by one
+    done = iter(gram.score_many(requests))
+    scored = []
+    for cand, new, P in zip(candidates, news, gram.projections(base, news), strict=True):
+        s = next(done)
+        if cand.family:
+            s.sensors_only = next(done)
+        s.residual_corr = gram.partial_correlation(residual, q, base, new, P)
         scored.append(s)
     scored.sort(key=lambda s: s.validation_rmse_um)
     return ref, residual, scored
