@@ -68,11 +68,21 @@ def heat_cool_transitions(run: Run) -> np.ndarray:
     w = max(1, n // 10)  # smoothing: a tenth of the run
     if n < 4 * w or not run.temperatures.size:
         return np.zeros(0, dtype=int)
-    mean = np.convolve(run.temperatures.mean(axis=1), np.ones(w) / w, mode="valid")
+    mean = moving_average(run.temperatures.mean(axis=1), w)
     swing = max(TURN_SHARE * float(np.ptp(mean)), TURN_MIN_K)
     turns = np.sort(np.concatenate([find_peaks(mean, prominence=swing)[0],
                                     find_peaks(-mean, prominence=swing)[0]])) + w // 2
     return turns
+
+
+def moving_average(x: np.ndarray, w: int) -> np.ndarray:
+    """Mean of every ``w`` consecutive samples (``np.convolve(x, np.ones(w) / w, "valid")``
+    to float rounding), from one cumulative sum: linear in the run's length, where the
+    convolution over a tenth of the run was quadratic (1.8 s at 346k rows). Taken about the
+    first sample, so the sums stay small and lose no digits."""
+    x = np.asarray(x, dtype=float)
+    total = np.concatenate([[0.0], np.cumsum(x - x[0])])
+    return (total[w:] - total[:-w]) / w + x[0]
 
 
 def block_cuts(run: Run, n_blocks: int) -> tuple[list[int], bool]:
