@@ -80,6 +80,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.goal import INFO, goal
 from contract.box import BOX_CHANNELS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -590,7 +591,6 @@ def ours_models(job: Job, train: list, variant: str, column: str, nested: bool =
 
 def run_job(job: Job) -> tuple[list[dict], dict]:
     """Train every column of one job and score each (variant, test run, target)."""
-    from host.fitting import fold_groups
     from host.train import dropped_reason
 
     t_job = time.perf_counter()
@@ -635,13 +635,26 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
                         case.effects[column] = [e["name"] for e in axis.get("effects", [])
                                                 if not dropped_reason(e)]
 
+    t0 = time.perf_counter()
+    score_peers(job, train, test, cases)
+    timings["peers"] = time.perf_counter() - t0
+    timings["job"] = time.perf_counter() - t_job
+    return [asdict(c) for c in cases.values()], {"group": job.group, **timings}
+
+
+def score_peers(job: Job, train: list, test: list, cases: dict) -> None:
+    """Fit every peer on ``job``'s training runs and score it on each test run, into
+    ``cases`` ((variant, test name, target) -> CaseResult; bench.quick_accuracy's baseline
+    uses it too)."""
+    from host.fitting import fold_groups
+
+    period = train[0].period_s
     folds, _ = fold_groups(train)
     X = np.vstack([peer_features(r, job.reference, False) for r in train])
     XL = np.vstack([peer_features(r, job.reference, True) for r in train])
     tests = [(s, peer_features(r, job.reference, False), peer_features(r, job.reference, True), r)
              for s, r in test]
-    t0 = time.perf_counter()
-    for t in targets:
+    for t in job.targets:
         y = np.concatenate([peer_target(r, t, job.reference) for r in train])
         validation = peer_validation(X, XL, y, folds)
         for peer, fit in fit_peers(X, XL, y, folds).items():
@@ -656,9 +669,6 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
                     case.peer_validation_um[peer] = validation[peer]
                     if fit.note:
                         case.notes[peer] = fit.note
-    timings["peers"] = time.perf_counter() - t0
-    timings["job"] = time.perf_counter() - t_job
-    return [asdict(c) for c in cases.values()], {"group": job.group, **timings}
 
 
 # --------------------------------------------------------------------------- summary
@@ -944,7 +954,7 @@ def train_timing_row() -> dict:
         timing = timed_process([sys.executable, "-m", "host", "train", str(csv), "--target",
                                 "dz_um", "--out", str(Path(tmp) / "out"), "--json"])
     return {"name": "host train (defaults) 64 x 86,400 rows", "value": timing.fastest,
-            "unit": "s", "target": "< 10 s on 2 cores",
+            "unit": "s", "target": "< 10 s on 2 cores", "goal": goal("<", 10),
             "detail": f"peak RSS {timing.peak_mb:.0f} MB; {timing.describe()}, CSV parse + "
                       "selection + effects + codegen (bench/bench_train.py measures it too)"}
 
@@ -1042,45 +1052,48 @@ def summary_rows(summary: dict, n_cases: int) -> list[dict]:
         rows.append({"name": f"{source}: geomean default / best peer",
                      "value": s["geomean default / best peer"], "unit": "ratio",
                      "target": "<= 0.8" if source in TARGET_SOURCES else "",
+                     "goal": goal("<=", 0.8) if source in TARGET_SOURCES else INFO,
                      "detail": f"{s['cases']} cases; " + interval_detail(s["intervals"])})
         loop = s["intervals"]["default / no effects"]
         rows.append({"name": f"{source}: geomean default / no effects (the loop)",
-                     "value": loop["geomean"], "unit": "ratio",
+                     "value": loop["geomean"], "unit": "ratio", "goal": INFO,
                      "detail": interval_detail(s["intervals"], "default / no effects")})
         rows.append({"name": f"{source}: geomean default / strongest single peer",
                      "value": s["geomean default / strongest single peer"], "unit": "ratio",
+                     "goal": INFO,
                      "detail": f"{s['strongest single peer']}, itself "
                      f"{s['geomean strongest single peer / best peer']:.2f}x the best per case"})
         rows.append({"name": f"{source}: geomean default / peer picked by validation",
                      "value": s["geomean default / peer picked by validation"],
-                     "unit": "ratio", "detail": "the peer with the lowest out-of-fold error "
+                     "unit": "ratio", "goal": INFO,
+                     "detail": "the peer with the lowest out-of-fold error "
                      "on the training file"})
         if "geomean default / oracle" in s:
             rows.append({"name": f"{source}: geomean default / its manifest's oracle",
-                         "value": s["geomean default / oracle"], "unit": "ratio",
+                         "value": s["geomean default / oracle"], "unit": "ratio", "goal": INFO,
                          "detail": f"best peer {s['geomean best peer / oracle']:.2f}x; "
                          f"{s['cases with an oracle']} cases"})
         for target, v in s.get("against the oracle without hidden parts", {}).items():
             rows.append({"name": f"{source}: geomean default / oracle without hidden, {target}",
-                         "value": v["geomean default / it"], "unit": "ratio",
+                         "value": v["geomean default / it"], "unit": "ratio", "goal": INFO,
                          "detail": f"best peer {v['geomean best peer / it']:.2f}x; perfect "
                          f"sensors on every measurable node; {v['cases']} cases"})
         cal = summary["calibration"][source]
         rows.append({"name": f"{source}: promised error within 2x of test", "value":
-                     cal["within factor 2"], "unit": f"of {cal['cases']}",
+                     cal["within factor 2"], "unit": f"of {cal['cases']}", "goal": INFO,
                      "detail": f"test worse by > 2x in {cal['optimistic by more than 2']}, "
                      f"better in {cal['pessimistic by more than 2']}; median test / promised "
                      f"{cal['median test / promised']:.2f}; worse than twice the highest "
                      f"fold in {cal['worse than twice the highest fold']}"})
         rows.append({"name": f"{source}: test at or below the promise", "value":
                      cal.get("fraction at or below the promise", math.nan), "unit": "fraction",
-                     "target": ">= 0.8",
+                     "target": ">= 0.8", "goal": goal(">=", 0.8),
                      "detail": "above twice it: "
                      f"{cal.get('fraction above twice the promise', math.nan):.2f} "
                      "(target <= 0.05)"})
     rows.append({"name": "loop worse than its baseline by > 5 %",
                  "value": len(summary["loop_worse"]), "unit": f"of {n_cases}",
-                 "target": "0"})
+                 "target": "0", "goal": goal("==", 0)})
     return rows
 
 

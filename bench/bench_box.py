@@ -25,6 +25,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bench.goal import INFO, goal
+
 ROOT = Path(__file__).resolve().parents[1]
 N_SAMPLES = 30
 MODEL_FUNCTION = "tcm_step"
@@ -174,9 +176,9 @@ def measure(label: str, model: dict, test_csv: str, start_s: float | None, tmp: 
               f"{len(model['axes'])} axes, {n_terms} terms")
     flash, ram = sizes(build_firmware(header, work, "stm32f405"))
     rows = [{"name": f"{label}: flash (text+data)", "value": flash, "unit": "bytes",
-             "target": f"< {FLASH_BUDGET}", "detail": detail},
+             "target": f"< {FLASH_BUDGET}", "goal": goal("<", FLASH_BUDGET), "detail": detail},
             {"name": f"{label}: RAM (data+bss, 1 KiB stack)", "value": ram, "unit": "bytes",
-             "target": f"< {RAM_BUDGET}", "detail": detail}]
+             "target": f"< {RAM_BUDGET}", "goal": goal("<", RAM_BUDGET), "detail": detail}]
     if shutil.which("qemu-system-arm") is None:
         _log("qemu-system-arm not installed: no instruction counts")
         return rows
@@ -185,6 +187,7 @@ def measure(label: str, model: dict, test_csv: str, start_s: float | None, tmp: 
         per, calls, funcs = instructions_per_step(header, model, csv, work, cflags)
         rows.append({"name": f"{label}: instructions per model step ({opt})", "value": per,
                      "unit": "instr", "target": f"floor ~{DOT5_FLOOR_O3} for 5 terms at -O3",
+                     "goal": INFO,
                      "detail": f"{detail}; {calls} steps traced in {', '.join(funcs)}; "
                      f"{per / max(1, n_terms):.1f} per term"})
     return rows

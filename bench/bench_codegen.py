@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 import codegen
+from bench.goal import INFO, goal
 from codegen.fixed import FixedModel
 from contract.terms import make_lag, make_rate, make_speed, make_temp
 
@@ -84,19 +85,21 @@ def run() -> list[dict]:
     step_us = (time.perf_counter() - t0) / n_step * 1e6
 
     rows = [
-        {"name": "generate() 3 axes x 4 terms", "value": gen_ms, "unit": "ms"},
+        {"name": "generate() 3 axes x 4 terms", "value": gen_ms, "unit": "ms", "goal": INFO},
         {"name": f"twin evaluate_run, {N_SAMPLES} samples", "value": run_s, "unit": "s",
-         "target": "< 1 s", "detail": "3 axes, 6 channels, 3 lag/rate states"},
-        {"name": "twin step() per sample", "value": step_us, "unit": "us"},
+         "target": "< 1 s", "goal": goal("<", 1),
+         "detail": "3 axes, 6 channels, 3 lag/rate states"},
+        {"name": "twin step() per sample", "value": step_us, "unit": "us", "goal": INFO},
         {"name": "worst error bound over axes", "unit": "um", "target": "<= 0.01",
+         "goal": goal("<=", 0.01),
          "value": max(b.bound_um for b in gen.bounds)},
     ]
     sizes = _arm_sizes(gen)
     if sizes:
         rows += [
             {"name": "Cortex-M4 -Os runtime (model_eval.o) text", "value": sizes[0],
-             "unit": "bytes"},
+             "unit": "bytes", "goal": INFO},
             {"name": "Cortex-M4 model tables + strings (12 terms)", "value": sizes[1],
-             "unit": "bytes", "detail": "flash; RAM: one tcm_state_t = 264 bytes"},
+             "unit": "bytes", "goal": INFO, "detail": "flash; RAM: one tcm_state_t = 264 bytes"},
         ]
     return rows

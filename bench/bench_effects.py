@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.goal import INFO, goal
 from contract.terms import Term
 from host.analysis import diagnose
 from host.fitting import NO_REFERENCE, Reference, design_matrix
@@ -85,15 +86,17 @@ def _scenario_rows(tmp: Path) -> list[dict]:
                       + ("" if ok is None else f"; right kind named: {ok}"))
             base = f"{label} seed {seed} {axis}"
             rows.append({"name": f"{base}: held-out RMSE baseline", "value": before,
-                         "unit": "um"})
+                         "unit": "um", "goal": INFO})
             rows.append({"name": f"{base}: held-out RMSE with effects", "value": after,
-                         "unit": "um", "detail": detail})
+                         "unit": "um", "goal": INFO, "detail": detail})
             rows.append({"name": f"{base}: held-out reduction", "value": 100 * (1 - after / before),
                          "unit": "%", "target": ">= 40 %" if kinds else "no large claim",
+                         "goal": goal(">=", 40) if kinds else INFO,
                          "detail": detail})
         if kinds:
             rows.append({"name": f"{label}: seeds named and >= 40 % lower held out",
-                         "value": met, "unit": f"of {len(SEEDS)}", "target": ">= 3"})
+                         "value": met, "unit": f"of {len(SEEDS)}", "target": ">= 3",
+                         "goal": goal(">=", 3)})
     return rows
 
 
@@ -104,7 +107,8 @@ def _none_rows(tmp: Path) -> list[dict]:
         model = train_model([train], ["dz_um"], aux=["spindle_rpm"])
         added.append(bool(model["axes"]["dz_um"]["effects"]))
     return [{"name": "none: seeds with no effect added (dz, 3 h + 2 h runs)",
-             "value": 10 - sum(added), "unit": "of 10", "target": ">= 8"}]
+             "value": 10 - sum(added), "unit": "of 10", "target": ">= 8",
+             "goal": goal(">=", 8)}]
 
 
 def _drift_rows(tmp: Path) -> list[dict]:
@@ -120,7 +124,8 @@ def _drift_rows(tmp: Path) -> list[dict]:
         named += faulty == [(sensor, "drifting")]
         detail.append(f"seed {seed}: truth {sensor}, diagnose {faulty}")
     return [{"name": "drift: diagnose names exactly the drifting sensor", "value": named,
-             "unit": f"of {len(SEEDS)}", "target": f"{len(SEEDS)}", "detail": "; ".join(detail)}]
+             "unit": f"of {len(SEEDS)}", "target": f"{len(SEEDS)}",
+             "goal": goal("==", len(SEEDS)), "detail": "; ".join(detail)}]
 
 
 def _measured_rows(tmp: Path) -> list[dict]:
@@ -132,7 +137,8 @@ def _measured_rows(tmp: Path) -> list[dict]:
     # one continuous recording with one datum (docs/next-day.md section 1)
     model = train_model([train], targets, aux=["spindle_rpm"], reference="none")
     seconds = time.perf_counter() - t0
-    rows = [{"name": "FL_THERMAL: train 5 probes with effects", "value": seconds, "unit": "s"}]
+    rows = [{"name": "FL_THERMAL: train 5 probes with effects", "value": seconds, "unit": "s",
+             "goal": INFO}]
     for axis in targets:
         spec = model["axes"][axis]
         before = _held_out(spec["baseline"]["terms"], spec["baseline"]["intercept"], test, axis,
@@ -142,9 +148,9 @@ def _measured_rows(tmp: Path) -> list[dict]:
         detail = "; ".join(f"{e['kind']}:{e['feature']} (validation {e['rmse_before_um']:.2f}"
                            f"->{e['rmse_after_um']:.2f})" for e in spec["effects"]) or "none"
         rows.append({"name": f"FL_THERMAL {axis}: held-out (24-32 h) RMSE baseline",
-                     "value": before, "unit": "um"})
+                     "value": before, "unit": "um", "goal": INFO})
         rows.append({"name": f"FL_THERMAL {axis}: held-out RMSE with effects", "value": after,
-                     "unit": "um", "detail": f"effects: {detail}"})
+                     "unit": "um", "goal": INFO, "detail": f"effects: {detail}"})
     return rows
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.goal import INFO, goal
 from hil import replay as hil_replay
 from hil.example_model import default_terms, fit_example_model, write_model
 from host.io import write_run
@@ -83,14 +84,16 @@ def run() -> list[dict]:
               f"checks {'passed' if report.ok else 'FAILED: ' + '; '.join(report.problems[:3])}")
     return [
         {"name": "HIL replay 24 h @ 1 s: feed + lines", "value": report.elapsed_s,
-         "unit": "s", "target": "< 30 s", "detail": detail},
+         "unit": "s", "target": "< 30 s", "goal": goal("<", 30), "detail": detail},
         {"name": "HIL replay 24 h @ 1 s: incl. checks", "value": total, "unit": "s",
-         "target": "< 30 s", "detail": "replay plus twin, float model and residuals"},
+         "target": "< 30 s", "goal": goal("<", 30),
+         "detail": "replay plus twin, float model and residuals"},
         {"name": "HIL replay throughput", "value": report.samples / report.elapsed_s,
-         "unit": "samples/s", "detail": detail},
-        {"name": "HIL header + native build + load run", "value": t_prepare, "unit": "s"},
+         "unit": "samples/s", "goal": INFO, "detail": detail},
+        {"name": "HIL header + native build + load run", "value": t_prepare, "unit": "s",
+         "goal": INFO},
         {"name": "HIL twin mismatches (24 h)", "value": report.mismatches, "unit": "samples",
-         "target": "0"},
+         "target": "0", "goal": goal("==", 0)},
     ]
 
 

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import bench_accuracy as acc
+from bench.goal import goal
 from host.train.next_day import PROMISE_COVERAGE, PROMISE_TAIL
 
 RESULTS = acc.ROOT / "bench" / "results" / "promise.json"
@@ -319,9 +320,11 @@ def run(flags: Sequence[str] = ()) -> list[dict]:
     for s, v in cal["shipped"]["per source"].items():
         rows.append({"name": f"{s}: unseen runs at or below the promise",
                      "value": v["at or below"], "unit": "fraction",
-                     "target": f">= {COVERAGE}", "detail": f"{v['cases']} cases"})
+                     "target": f">= {COVERAGE}", "goal": goal(">=", COVERAGE),
+                     "detail": f"{v['cases']} cases"})
         rows.append({"name": f"{s}: unseen runs above twice the promise",
                      "value": v["above twice"], "unit": "fraction", "target": f"<= {TAIL}",
+                     "goal": goal("<=", TAIL),
                      "detail": f"median test / promise {v['median test / promise']:.2f}"})
     return rows
 

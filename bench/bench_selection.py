@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.goal import INFO
 from host.analysis import compare_methods
 from host.io import Run, load_run, window
 from host.sim import SimConfig, build_program, simulate, write_simulation
@@ -87,7 +88,7 @@ def _rows(label: str, errors: dict[str, list[float]]) -> list[dict]:
              not all(math.isnan(x) for x in errors[k])]
     best_peer = np.nanmin(np.array([errors[k] for k in peers]), axis=0)
     rows = [{"name": f"{label}: default >= best peer", "value": int((base <= best_peer).sum()),
-             "unit": f"of {base.size}", "detail": "peers: " + "; ".join(peers)}]
+             "unit": f"of {base.size}", "goal": INFO, "detail": "peers: " + "; ".join(peers)}]
     for method, errs in errors.items():
         e = np.array(errs)
         ok = ~np.isnan(e)
@@ -95,7 +96,7 @@ def _rows(label: str, errors: dict[str, list[float]]) -> list[dict]:
             continue
         ratio = float(np.exp(np.mean(np.log(e[ok] / base[ok]))))
         rows.append({"name": f"{label}: {method[:38]}", "value": float(np.mean(e[ok])),
-                     "unit": "um", "detail": f"ratio to default {ratio:.3f}; better "
+                     "unit": "um", "goal": INFO, "detail": f"ratio to default {ratio:.3f}; better "
                      f"{int((e[ok] < base[ok] - 1e-9).sum())}, worse "
                      f"{int((e[ok] > base[ok] + 1e-9).sum())} of {int(ok.sum())}"})
     return rows
@@ -108,7 +109,8 @@ def _per_cycle_rows(errors: dict[str, list[float]]) -> list[dict]:
     for method, errs in errors.items():
         per = np.array(errs).reshape(4, len(PROBES)).mean(axis=1)
         rows += [{"name": f"FL, cycle {i + 1} held out: {method[:38]}", "value": float(v),
-                  "unit": "um", "detail": "mean of the 5 probes"} for i, v in enumerate(per)]
+                  "unit": "um", "goal": INFO, "detail": "mean of the 5 probes"}
+                 for i, v in enumerate(per)]
     return rows
 
 
