@@ -28,3 +28,24 @@ def test_each_run_is_a_fresh_process_with_its_own_peak_memory():
 def test_a_failing_command_is_an_error_not_a_time():
     with pytest.raises(RuntimeError, match="failed"):
         timed_process([sys.executable, "-c", "raise SystemExit(3)"], repeat=1)
+
+
+def test_memory_is_summed_over_every_process_the_command_starts():
+    # three forked workers with 150 MB each of their own: the tree holds > 450 MB while no
+    # single process ever passes ~170 MB (what the old measure, one child's ru_maxrss, saw)
+    workers = ("import os, time\n"
+               "pids = []\n"
+               "for _ in range(3):\n"
+               "    pid = os.fork()\n"
+               "    if pid == 0:\n"
+               "        b = bytearray(150 * 1024 * 1024); b[::4096] = b'x' * len(b[::4096])\n"
+               "        time.sleep(1.0)\n"
+               "        os._exit(0)\n"
+               "    pids.append(pid)\n"
+               "for pid in pids:\n"
+               "    os.waitpid(pid, 0)\n")
+    timing = timed_process([sys.executable, "-c", workers], repeat=1)
+    assert timing.largest_mb < 200
+    assert timing.peak_mb > 420
+    assert timing.procs == 4
+    assert "(4 at most at once)" in timing.describe_memory()
