@@ -576,10 +576,21 @@ def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap,
             restart_box(plan, boxes, tap, False, faults)
             phase = "power_cut"
         if k in zero_after_cut:
-            # the operator's touch-off some samples after the box came back cold
-            records.append({"sample": k, "phase": "zero_after_cut",
-                            "awaiting_zero_before": machine.get(f"{COMP}.awaiting-zero"),
-                            "reply": _pulse_zero(machine, tap, timeout)})
+            # the operator's touch-off some samples after the box came back cold. ZERO after 1
+            # is the race of a touch-off before the component has even seen the restart: sent
+            # as it is. Later, the operator looks once the component has settled the restart:
+            # a touch-off only if it awaits one, not once it gave the box its kept state back
+            # and the box resumed (docs/linuxcnc.md, "Power cuts")
+            rec = {"sample": k, "phase": "zero_after_cut"}
+            if int(zero_after_cut[k]["zero_after"]) > 1:
+                machine.wait(lambda: not machine.get(f"{COMP}.restoring"), timeout,
+                             "the component to give the box its state back")
+            rec["awaiting_zero_before"] = machine.get(f"{COMP}.awaiting-zero")
+            if int(zero_after_cut[k]["zero_after"]) <= 1 or rec["awaiting_zero_before"]:
+                rec["reply"] = _pulse_zero(machine, tap, timeout)
+            else:
+                rec["skipped"] = "the box resumed its kept state: no touch-off needed"
+            records.append(rec)
             phase = "zero_after_cut"
         if noise and k == noise["at"]:
             tap.inject(garbage(int(noise.get("seed", 41))))

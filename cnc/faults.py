@@ -69,9 +69,11 @@ LETTERS = {"dx_um": "x", "dy_um": "y", "dz_um": "z"}  # LinuxCNC's axes (cnc/con
 # GAP (not PASS) and fails when one of them passes (then this entry must go) or another fails.
 KNOWN_GAPS = {
     "power cut, then ZERO": (
-        "without a battery on VBAT nothing is kept: a cold box's lag filters start at the "
-        "current readings, and mid warm-up the datum after the ZERO misses what the lags had "
-        "still to catch up (with the battery, RESUME continues: 'power cut on a battery')"),
+        "without a battery on VBAT and without the controller's copy of the box's state "
+        "([box] keep_state = no, or the controller lost its state_file too) nothing is kept: "
+        "a cold box's lag filters start at the current readings, and mid warm-up the datum "
+        "after the ZERO misses what the lags had still to catch up (with either copy, RESUME "
+        "continues: 'power cut on a battery', 'power cut, kept by CNC')"),
 }
 
 
@@ -133,6 +135,10 @@ def scenarios(n: int) -> list[Scenario]:
         Scenario("power cut on a battery", (Restart(500, battery=True, off=5), Resume(505, 5)),
                  what="off for 5 samples from 500, the backup SRAM kept on VBAT: the "
                       "controller sends RESUME 5 and the box goes on from its kept state"),
+        Scenario("power cut, kept by CNC",
+                 (Restart(500, off=5, kept=True), Resume(505, 5)),
+                 what="no battery: off for 5 samples from 500; the component kept the box's "
+                      "state (SNAP after each line) and gives it back (LOAD), then RESUME 5"),
         Scenario("loose connector", (ChipFault(400, ch, 1), ChipFault(401, ch, 0),
                                      CodeOffset(401, 402, ch, 12800)),
                  what="one OPEN sample on T05, then one reading +100 degC"),

@@ -258,7 +258,7 @@ def prepare_box(build: Path, n_samples: int, service: dict | None = None):
 def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
     """Copy the config, component, driver, decoder, firmware and feed; returns the INI."""
     (stage_dir / "cnc" / "config").mkdir(parents=True)
-    for f in ("thermalcomp.py", "driver.py"):
+    for f in ("thermalcomp.py", "keptstate.py", "driver.py"):
         shutil.copy2(ROOT / "cnc" / f, stage_dir / "cnc" / f)
     for f in CONFIG_DIR.iterdir():
         if f.is_file():
@@ -711,16 +711,22 @@ def _event_checks(name: str, at: int, raw: dict, rec: _Records, window: list[dic
     elif name.startswith("power cut"):
         cut = [r for r in window if r["sample"] <= at + 1]
         zero = [r for r in raw.get("records", []) if r.get("phase") == "zero_after_cut"
-                and "reply" in r and at < r["sample"]]
+                and "box" not in r and at < r["sample"]]
         held = before is not None and all(_moved_nm(r, before, a) <= MOVED_NM
                                           for r in cut for a in rec.letters)
         no_ref = any(r["box"]["status"] & (1 << 13) for r in cut)
-        replied = bool(zero) and zero[0]["reply"].startswith("$OK,ZERO")
+        replied = bool(zero) and zero[0].get("reply", "").startswith("$OK,ZERO")
+        # or the component gave the box its kept state back (LOAD, RESUME): its datum goes on
+        # (the old sequence continues after the cut) and the operator has nothing to touch off
+        resumed = bool(zero) and "skipped" in zero[0] and any(
+            r["box"]["seq"] > (before or {}).get("box", {}).get("seq", 1 << 32)
+            and r["box"]["status"] & (1 << 11) for r in window)
+        what = (zero[0].get("reply") or zero[0].get("skipped")) if zero else "not sent"
         detail.append(f"box NO_REF {'yes' if no_ref else 'NO'}, offsets held "
                       f"{'yes' if held else 'NO'}, ZERO at {zero[0]['sample'] if zero else '-'}"
-                      f" ({zero[0]['reply'] if zero else 'not sent'}; awaiting-zero before "
+                      f" ({what}; awaiting-zero before "
                       f"it: {'yes' if zero and zero[0]['awaiting_zero_before'] else 'no'})")
-        ok &= held and no_ref and replied
+        ok &= held and no_ref and (replied or resumed)
     elif name == "watchdog restart":
         r = rec.idx.get(at)
         resumed = (r is not None and before is not None

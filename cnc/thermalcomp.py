@@ -70,6 +70,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from cnc.keptstate import StateKeeper  # noqa: E402  (stdlib + contract, like this file)
 from contract import model_file, protocol  # noqa: E402  (stdlib only: docs/architecture.md)
 from contract.box import DEFAULT_AXIS_STEP_UM_PER_S  # noqa: E402
 from contract.errors import InputError  # noqa: E402
@@ -137,6 +138,8 @@ class Config:
     model_path: Path | None = None  # where model_hash and the step limits came from
     max_abs_um: float = DEFAULT_MAX_ABS_UM  # no offset ever beyond this (the box's clamp)
     resume: bool = True  # after a power cut ask the box to RESUME its kept state (no: ZERO)
+    keep_state: bool = True  # SNAP after each sample with a datum; LOAD it back after a cut
+    state_file: Path | None = None  # where that block is also kept (survives this process)
     probe_axis: str | None = None  # [probe] axis: the LinuxCNC axis the probe measures
     probe_timeout_s: float = 2.0  # no $M answer within this: TIMEOUT
     probed_includes_offset: bool = True  # LinuxCNC 2.9: #5063 contains the external offset
@@ -186,6 +189,13 @@ def load_config(path: str | Path) -> Config:
     if resume not in ("yes", "no"):
         raise ConfigError(f"{path}: [box] resume = {resume!r}: yes or no")
     cfg.resume = resume == "yes"
+    keep = str(get("box", "keep_state", str, "yes")).strip().lower()
+    if keep not in ("yes", "no"):
+        raise ConfigError(f"{path}: [box] keep_state = {keep!r}: yes or no")
+    cfg.keep_state = keep == "yes"
+    if parser.has_option("box", "state_file"):
+        kept = Path(parser.get("box", "state_file").strip())
+        cfg.state_file = kept if kept.is_absolute() else path.resolve().parent / kept
     if not (math.isfinite(cfg.max_abs_um) and cfg.max_abs_um > 0):
         raise ConfigError(f"{path}: [box] max_abs_um = {cfg.max_abs_um:g} must be positive")
     model: dict | None = None
@@ -398,6 +408,11 @@ class Compensator:
         # after a power cut: RESUME <n> to send (n periods off), and sent but not answered
         self.resume_wanted: int | None = None
         self.resume_pending = False
+        # the box's state block kept here (SNAP), given back before that RESUME (LOAD)
+        self.keeper = (StateKeeper(cfg.model_hash, cfg.state_file)
+                       if cfg.keep_state and cfg.resume else None)
+        self.loaded = False  # the kept block was given back since the latest restart
+        self.load_extra = 0  # samples after the kept block's, before the cut (RESUME runs them)
         self.cut_t: tuple[float | None, float] = (None, 0.0)
         # ZERO refused while an axis held ($E,HOLDING): sent again on the first line without a
         # hold bit, so the touch-off waiting for zero-acks happens on a datum the box can keep
@@ -514,6 +529,7 @@ class Compensator:
         """Apply one sample line; True when it confirmed a box restart (ask INFO again)."""
         before_t, self.last_line_t, self.status, self.stale = (self.last_line_t, now,
                                                                s.status, False)
+        old_seq = self.last_seq
         verdict = self._sequence(s.seq)
         if verdict == "suspect":  # when the old stream's last line and the new first came
             self.cut_t = (before_t, now)
@@ -533,6 +549,10 @@ class Compensator:
                          "were taken in: holding the last offsets until ZERO")
                 if s.status & NO_REF and self.cfg.resume:
                     self.resume_wanted = self._periods_off()
+                    self.loaded = False
+                    if self.keeper is not None:
+                        self.keeper.forget_pending()
+                        self.load_extra = self.keeper.extra_periods(old_seq)
             else:
                 self.log(f"the box restarted (seq {s.seq}): holding until it has walked back "
                          "from 0 and INFO confirms its model")
@@ -643,6 +663,14 @@ class Compensator:
         if period is None or period <= 0 or before is None:
             return 0
         return max(0, min(protocol.RESUME_MAX, round((first - before) / period) - 1))
+
+    @property
+    def restoring(self) -> bool:
+        """After a power cut: the box's kept state is being given back (LOAD) or RESUME is
+        outstanding; awaiting-zero is only settled once this is over."""
+        loading = self.keeper is not None and (self.keeper.load_pending or
+                                               bool(self.keeper.to_load))
+        return self.resume_wanted is not None or self.resume_pending or loading
 
     def resumed(self, seq: int) -> None:
         """``$OK,RESUME,<seq>``: the box continues the state it had before the power cut
@@ -832,6 +860,7 @@ class HalDriver:
                 ("model-mismatch", hal.HAL_BIT, hal.HAL_OUT),
                 ("awaiting-zero", hal.HAL_BIT, hal.HAL_OUT),
                 ("zero-deferred", hal.HAL_BIT, hal.HAL_OUT),
+                ("restoring", hal.HAL_BIT, hal.HAL_OUT),
                 # probing in service (MEAS): docs/linuxcnc.md "Probing in service"
                 ("meas-mm", hal.HAL_FLOAT, hal.HAL_IN), ("meas-request", hal.HAL_BIT, hal.HAL_IN),
                 ("meas-done", hal.HAL_BIT, hal.HAL_OUT), ("meas-applied", hal.HAL_BIT, hal.HAL_OUT),
@@ -920,6 +949,7 @@ class HalDriver:
         h["model-mismatch"] = comp.model_mismatch
         h["awaiting-zero"] = comp.await_zero
         h["zero-deferred"] = comp.zero_deferred
+        h["restoring"] = comp.restoring
         h["stale"] = comp.stale
         h["holding"] = comp.holding
         h["walking"] = comp.walking
@@ -987,11 +1017,13 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
     if isinstance(msg, protocol.Sample):
         if comp.take_sample(msg, now):
             port.write(b"INFO\r\n")  # a restarted box may carry another model
-        if comp.resume_wanted is not None:
-            n, comp.resume_wanted = comp.resume_wanted, None
-            if port.write(protocol.encode_command("RESUME", n)):
-                comp.resume_pending = True
-                comp.log(f"asked the box to RESUME after {n} sample periods off")
+        _resume_step(comp, port)
+        keeper = comp.keeper
+        if (keeper is not None and msg.status & REFERENCED and not comp.hold_reason
+                and comp.resume_wanted is None and not comp.resume_pending):
+            line = keeper.ask(msg.seq)  # keep the state this datum lives in (issue 41)
+            if line is not None:
+                port.write(line)
         if comp.deferred_zero_due() and port.write(b"ZERO\r\n"):
             comp.zero_deferred = False
             comp.zero_sent()
@@ -1002,11 +1034,56 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
         comp.zeroed(msg.value)
     elif isinstance(msg, protocol.Ack) and msg.command == "RESUME":
         comp.resumed(msg.value)
+    elif isinstance(msg, protocol.BlockPiece):
+        if comp.keeper is not None:
+            comp.keeper.take_piece(msg)
+    elif isinstance(msg, protocol.Ack) and msg.command == "SNAP":
+        why = comp.keeper.snapped(msg.value) if comp.keeper is not None else "no keeper"
+        if why:
+            comp.log(why)
+    elif isinstance(msg, protocol.Ack) and msg.command == "LOAD":
+        if comp.keeper is None or not comp.keeper.load_pending:
+            comp.log(f"$OK,LOAD,{msg.value} without a LOAD sent: ignored")
+            return
+        line = comp.keeper.next_load()
+        if line is not None:
+            port.write(line)
+        else:
+            _resume_step(comp, port)
     elif isinstance(msg, protocol.MeasReply):
         comp.take_meas_reply(msg)
     elif isinstance(msg, protocol.ErrorReply):
-        if not comp.meas_error(msg.reason):
+        keeper = comp.keeper
+        if comp.meas_error(msg.reason):
+            return
+        if keeper is not None and keeper.load_refused():
+            comp.log(f"the box refused its kept state ({msg.reason}): RESUME without it")
+            comp.load_extra = 0
+            _resume_step(comp, port)
+        elif not comp.resume_pending and keeper is not None and keeper.refused():
+            pass  # SNAP before the box had a state to give (NO_STATE): asked again later
+        else:
             comp.refused(msg.reason)
+
+
+def _resume_step(comp: Compensator, port: Port) -> None:
+    """After a power cut: give the box its kept state back (LOAD), then RESUME it."""
+    keeper = comp.keeper
+    if comp.resume_wanted is None or (keeper is not None and keeper.load_pending):
+        return
+    if keeper is not None and keeper.kept is not None and not comp.loaded:
+        comp.loaded = True
+        line = keeper.start_load()
+        if line is not None and port.write(line):
+            comp.log(f"giving the box the state it had at seq {keeper.kept.seq} (LOAD, "
+                     f"{len(keeper.kept.block)} bytes), then RESUME")
+            return
+        keeper.load_refused()
+    n, comp.resume_wanted = comp.resume_wanted + (comp.load_extra if comp.loaded else 0), None
+    n = min(n, protocol.RESUME_MAX)
+    if port.write(protocol.encode_command("RESUME", n)):
+        comp.resume_pending = True
+        comp.log(f"asked the box to RESUME after {n} sample periods off")
 
 
 def main(argv: list[str] | None = None) -> int:

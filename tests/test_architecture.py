@@ -39,7 +39,8 @@ BELOW = {
             "host.service"},  # hil replay --probe-*: the probe readings as host evaluate makes them
     # the LinuxCNC side: the HAL component and the headless driver run under Debian's
     # /usr/bin/python3 with the contract only; the session (make cnc) builds with the rest
-    "cnc.thermalcomp": {"contract"},
+    "cnc.thermalcomp": {"contract", "cnc.keptstate"},
+    "cnc.keptstate": {"contract"},
     "cnc.driver": {"contract"},
     "cnc": {"contract", "codegen", "hil", "host.io", "host.fitting", "host.sim",
             "host.progress", "cnc.thermalcomp"},

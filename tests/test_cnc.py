@@ -209,21 +209,24 @@ def test_a_forged_line_was_taken_and_moved_every_axis_by_its_step_limit_at_most(
 
 
 @pytest.mark.slow
-def test_a_power_cut_holds_the_offsets_and_awaits_zero(cnc_run):
-    """Cold boot: NO_REF, every offset held (not walked to 0); with the operator's ZERO three
-    samples later awaiting-zero rose first; after ZERO held base + the box's change."""
+def test_a_power_cut_holds_the_offsets_then_the_kept_state_goes_on(cnc_run):
+    """Cold boot: NO_REF, every offset held (not walked to 0). A touch-off one sample later
+    (before the component saw the restart) is the new datum: held base + the box's change.
+    Three samples later nobody touches off: the component gave the box the state it kept
+    (SNAP after each line, LOAD after the boot) and RESUME continued it, within the bound."""
     result, _ = cnc_run
-    for prefix, awaited in (("power cut (ZERO after 1)", False),
-                            ("power cut (ZERO after 3)", True)):
+    for prefix in ("power cut (ZERO after 1)", "power cut (ZERO after 3)"):
         row = _event(result.summary, prefix)
         assert row["ok"], row
         assert "restarts +1" in row["flags"] and "box NO_REF" in row["flags"]
-        assert ("awaiting-zero" in row["flags"]) == awaited, row["flags"]
         assert "offsets held yes" in row["detail"]
     zeros = [r for r in result.raw["records"] if r.get("phase") == "zero_after_cut"
-             and "reply" in r]
-    assert [z["awaiting_zero_before"] for z in zeros] == [False, True]
-    assert all(z["reply"].startswith("$OK,ZERO,") for z in zeros)
+             and "box" not in r]
+    assert [("reply" in z, z["awaiting_zero_before"]) for z in zeros] == [(True, False),
+                                                                        (False, False)]
+    assert zeros[0]["reply"].startswith("$OK,ZERO,")
+    resumed = _event(result.summary, "power cut (ZERO after 3)")
+    assert "resumed its kept state" in resumed["detail"] and "box WDT_RESET" in resumed["flags"]
 
 
 @pytest.mark.slow

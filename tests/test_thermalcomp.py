@@ -720,3 +720,76 @@ def test_without_a_kept_state_the_box_refuses_resume_and_zero_is_awaited(tmp_pat
     assert port.written[-1] == b"RESUME 0\r\n"
     tc.handle_line(comp, port, tc.protocol.encode_line("E", ["NO_STATE"]).rstrip(b"\r\n"), 6.0)
     assert comp.await_zero and not comp.resume_pending
+
+
+def _ok(*fields) -> bytes:
+    return protocol.encode_line("OK", list(fields)).rstrip(b"\r\n")
+
+
+def _kept_then_cut(tmp_path, text: str = FAST, answer_last_snap: bool = True):
+    """Seq 0..4 with a datum (REFERENCED), each answered SNAP with a 30-byte block whose
+    first byte is the seq; then the box's power-up's first two lines (NO_REF)."""
+    comp = _comp(tmp_path, text)
+    port = _WritePort()
+    for k in range(5):
+        tc.handle_line(comp, port, _raw(k, 0, 200 * k, status=tc.REFERENCED), 1.0 * k)
+        assert port.written[-1] == b"SNAP\r\n"
+        if k < 4 or answer_last_snap:
+            block = bytes([k]) + bytes(range(1, 30))
+            for off in (0, 16):
+                tc.handle_line(comp, port, protocol.encode(protocol.BlockPiece(
+                    off, 30, block[off:off + 16])).rstrip(b"\r\n"), 1.0 * k)
+            tc.handle_line(comp, port, _ok("SNAP", k), 1.0 * k)
+    cold = tc.NO_REF | tc.HOLD | tc.NO_DATA
+    tc.handle_line(comp, port, _raw(0, 0, 0, status=cold), 11.0)
+    tc.handle_line(comp, port, _raw(1, 0, 0, status=cold), 12.0)
+    return comp, port
+
+
+def test_the_state_kept_by_the_controller_goes_back_before_resume(tmp_path):
+    """No battery: the component kept the box's block (SNAP after each line with a datum) and
+    gives it back piece by piece (each after the previous one's $OK,LOAD), then RESUME."""
+    comp, port = _kept_then_cut(tmp_path)
+    assert comp.keeper.kept.seq == 4 and comp.keeper.kept.block[0] == 4
+    loads = protocol.encode_load(bytes([4]) + bytes(range(1, 30)))
+    assert len(loads) == 2 and port.written[-1] == loads[0]  # one at a time
+    tc.handle_line(comp, port, _ok("LOAD", 24), 12.1)
+    assert port.written[-1] == loads[1]
+    tc.handle_line(comp, port, _ok("LOAD", 30), 12.2)
+    assert port.written[-1] == b"RESUME 6\r\n"  # 7 periods after seq 4, less one
+    tc.handle_line(comp, port, _ok("RESUME", 12), 12.3)
+    assert not comp.await_zero and not comp.resume_pending
+
+
+def test_a_block_older_than_the_last_line_is_resumed_over_the_difference(tmp_path):
+    """The SNAP after seq 4 was not answered before the cut: the block is seq 3's, so the box
+    must also run sample 4 (RESUME n + 1)."""
+    comp, port = _kept_then_cut(tmp_path, answer_last_snap=False)
+    assert comp.keeper.kept.seq == 3
+    tc.handle_line(comp, port, _ok("LOAD", 24), 12.1)
+    tc.handle_line(comp, port, _ok("LOAD", 30), 12.2)
+    assert port.written[-1] == b"RESUME 7\r\n"
+
+
+def test_a_refused_load_falls_back_to_a_plain_resume(tmp_path):
+    comp, port = _kept_then_cut(tmp_path)
+    tc.handle_line(comp, port, protocol.encode_line("E", ["NO_RETAIN"]).rstrip(b"\r\n"), 12.1)
+    assert port.written[-1] == b"RESUME 6\r\n"
+    tc.handle_line(comp, port, protocol.encode_line("E", ["NO_STATE"]).rstrip(b"\r\n"), 12.2)
+    assert comp.await_zero and not comp.resume_pending  # holds until ZERO, as before
+
+
+def test_the_kept_state_survives_a_restart_of_the_component(tmp_path):
+    text = FAST.replace("[box]", "[box]\nstate_file = box.state", 1)
+    comp, _ = _kept_then_cut(tmp_path, text)
+    again = _comp(tmp_path, text)
+    assert again.keeper.kept.block == comp.keeper.kept.block and again.keeper.kept.seq == 4
+    other = _comp(tmp_path, text.replace(HASH, "0" * len(HASH)))  # another model: not taken
+    assert other.keeper.kept is None
+
+
+def test_keep_state_no_sends_no_snap(tmp_path):
+    comp = _comp(tmp_path, FAST.replace("[box]", "[box]\nkeep_state = no", 1))
+    port = _WritePort()
+    tc.handle_line(comp, port, _raw(0, 0, 0, status=tc.REFERENCED), 0.0)
+    assert b"SNAP\r\n" not in port.written and comp.keeper is None
