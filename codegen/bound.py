@@ -12,10 +12,10 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from codegen.quantise import QAxis, QModel, QTerm
-from contract.fixed_point import ALPHA_FRAC_BITS, TEMP_FRAC_BITS
+from contract.fixed_point import ALPHA_FRAC_BITS, FINAL_ROUNDING_NM, TEMP_FRAC_BITS
 from contract.terms import FILTER_KINDS
 
-FINAL_ROUNDING_NM = Fraction(1, 2)
+__all__ = ["FINAL_ROUNDING_NM", "AxisBound", "model_bounds", "round_up"]
 INPUT_HALF_LSB_C = Fraction(1, 2 << TEMP_FRAC_BITS)  # +-1/256 degC
 
 

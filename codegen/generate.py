@@ -15,10 +15,8 @@ from codegen.quantise import QModel, quantise
 from codegen.render import render
 from contract import __version__ as CODEGEN_VERSION
 from contract.box import HEADER_FORMAT
-from contract.fixed_point import ACC_LIMIT
+from contract.fixed_point import ACC_LIMIT, DEFAULT_MAX_ERROR_UM
 from contract.model_file import ModelFormatError, read_model, write_text_atomic
-
-DEFAULT_MAX_ERROR_UM = 0.01
 
 
 @dataclass(frozen=True)

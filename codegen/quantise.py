@@ -12,7 +12,6 @@ docs/fixed-point.md; the choices it leaves open are docs/codegen.md.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
@@ -48,7 +47,7 @@ from contract.fixed_point import (
     rdiv,
     round_half_away,
 )
-from contract.model_file import SCHEMA, ModelFormatError, check_model
+from contract.model_file import NAME_RE, SCHEMA, ModelFormatError, check_model
 from contract.service import SERVICE_FIELDS
 from contract.terms import AUX_KINDS, FILTER_KINDS, KIND_CODES, TC_TYPES, TEMPERATURE_KINDS
 from contract.tilt import AXIS_UNITS
@@ -62,9 +61,8 @@ MAX_TERMS_PER_AXIS = RUNTIME_MAX_TERMS_PER_AXIS
 DEFAULT_MIN_C = CHANNEL_MIN_C
 DEFAULT_MAX_C = CHANNEL_MAX_C
 
-# Names end up in C string literals, comments and the wire protocol's INFO line
-# (separators , ; : *), so they are restricted to characters safe in all three.
-NAME_RE = re.compile(r"^[A-Za-z0-9_.+-]{1,32}$")
+# Names end up in C string literals, comments and the wire protocol's INFO line: the
+# contract's NAME_RE (contract/model_file.py) says which characters are safe in all three.
 
 # Value of one unit of x_j in the unit the coefficient is per (degC, degC^2, rpm, rpm^2, s);
 # `time` uses the sample period and is filled in per model.

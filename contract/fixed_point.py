@@ -27,6 +27,12 @@ UINT32_MAX = (1 << 32) - 1
 # of the range's span; host evaluate/diagnose use the same rule. Exact: window codes must not
 # depend on float 0.05.
 EXTRAPOLATION_MARGIN = Fraction(1, 20)
+# codegen's proof of the box's error: the default bound (--max-error-um) and the final rounding
+# of the output to whole nm, which no model avoids; host.effects refuses what would break them
+DEFAULT_MAX_ERROR_UM = 0.01
+FINAL_ROUNDING_NM = Fraction(1, 2)
+# one unit of a filter state in degC: a code (TEMP_LSB_C) scaled by 2^STATE_FRAC_BITS
+STATE_LSB_C = Fraction(1, 1 << (TEMP_FRAC_BITS + STATE_FRAC_BITS))
 
 
 def round_half_away(x: Fraction) -> int:

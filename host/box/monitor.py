@@ -57,10 +57,6 @@ SIGN_NOTE = ("sign: a correction is the box's prediction of the thermal displace
              "sign of the displacement measured in the thermal test (compensated = measured − "
              "correction): the offset to apply is −correction")
 
-# Status and channel-fault bits a newer box may send that this contract may not name yet
-# (docs/protocol.md): shown by name when present, never an error on an older box.
-_EXTRA_STATUS = {11: "REFERENCED", 12: "IMPLAUSIBLE"}
-_EXTRA_CHANNEL_FAULT = {10: "IMPLAUSIBLE"}
 # flags that mean some channel is faulted: ask STATUS which one
 _FAULT_FLAGS = {"HOLD", "RANGE", "OPEN", "TC_FAULT", "AUX_FAULT", "NO_DATA", "IMPLAUSIBLE",
                 "BEYOND"}
@@ -76,23 +72,16 @@ class MonitorError(InputError):
 
 
 def status_names(status: int) -> list[str]:
-    """Names of the bits set in a status word, including bits newer than this contract."""
-    names = protocol.status_names(status)
-    named = set(range(len(protocol.STATUS_BITS)))
-    for bit, name in _EXTRA_STATUS.items():
-        if bit not in named and status >> bit & 1 and name not in names:
-            names.append(name)
-    named |= set(_EXTRA_STATUS)
-    return names + [f"bit{b}" for b in range(16) if status >> b & 1 and b not in named]
+    """Names of the bits set in a status word; a bit newer than this contract (a newer box)
+    shows as ``bit<n>``, never as an error."""
+    named = len(protocol.STATUS_BITS)
+    return protocol.status_names(status) + [f"bit{b}" for b in range(named, 16)
+                                             if status >> b & 1]
 
 
 def channel_fault_names(word: int) -> list[str]:
     """Names of a STATUS per-channel fault word's bits (MAX31856 SR, then the box's own)."""
-    names = [f.name for f in protocol.ChannelFault if word & f.value and f.name]
-    for bit, name in _EXTRA_CHANNEL_FAULT.items():
-        if word >> bit & 1 and name not in names:
-            names.append(name)
-    return names
+    return [f.name for f in protocol.ChannelFault if word & f.value and f.name]
 
 
 @dataclass

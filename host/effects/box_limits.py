@@ -8,23 +8,29 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from contract.fixed_point import ALPHA_FRAC_BITS
+from contract.fixed_point import (
+    ALPHA_FRAC_BITS,
+    DEFAULT_MAX_ERROR_UM,
+    FINAL_ROUNDING_NM,
+    STATE_LSB_C,
+)
 from contract.terms import Term
 
-MAX_ERROR_UM = 0.01  # codegen's default --max-error-um
+MAX_ERROR_UM = DEFAULT_MAX_ERROR_UM  # codegen's default --max-error-um
 STATE_SHARE = 0.75  # share of the codegen bound the filter states may use
-FINAL_ROUNDING_UM = 0.0005
+FINAL_ROUNDING_UM = float(FINAL_ROUNDING_NM) / 1000.0
 
 
 
 
 def state_quantisation_um(terms: Sequence[Term], coefs: Sequence[float]) -> float:
-    """docs/fixed-point.md: sum over lag/rate of |c| * 0.5/alpha state units (2^-23 degC)."""
+    """docs/fixed-point.md: sum over lag/rate of |c| * 0.5/alpha state units (STATE_LSB_C,
+    2^-23 degC)."""
     total = 0.0
     for t, c in zip(terms, coefs, strict=True):
         if t.kind in ("lag", "rate"):
             a = round(t.params["alpha"] * (1 << ALPHA_FRAC_BITS))
-            total += abs(float(c)) * 2.0 ** -23 * 0.5 * (1 << ALPHA_FRAC_BITS) / a
+            total += abs(float(c)) * float(STATE_LSB_C) * 0.5 * (1 << ALPHA_FRAC_BITS) / a
     return total
 
 

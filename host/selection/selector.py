@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contract.errors import InputError
-from host.fitting import FoldGram
+from host.fitting import DEFAULT_BLOCKS, FoldGram  # one home: validation's folds
 from host.selection.clustering import DEFAULT_RESTARTS, hard_c_means
 from host.selection.correlation import thermal_parameters
 
@@ -56,7 +56,6 @@ REFINE_MARGIN = 0.01
 REFINE_MAX_SWAPS = 10
 DEFAULT_GROUPS = 10
 DEFAULT_MAX_SENSORS = 5
-DEFAULT_BLOCKS = 3
 EXHAUSTIVE_MAX_GROUPS = 12  # 4095 subsets; above this, sizes > max_sensors are grown greedily
 
 
