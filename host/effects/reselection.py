@@ -101,7 +101,7 @@ def _reselected_family(variants: Sequence[Candidate], cache: FeatureCache, y: np
     fam_terms = list(dict.fromkeys(t for c in variants for t in c.add))
     allcols = list(temps) + [t for t in fixed if t not in temps] + fam_terms
     index = {t: i for i, t in enumerate(allcols)}
-    gram = GramScorer(cache.matrix(allcols), y, groups)
+    gram = cache.gram(allcols, y, groups)
     every = [index[t] for t in [*temps, *fixed] if t in index]
     best = min(variants, key=lambda c: gram.score(
         list(dict.fromkeys(every + [index[t] for t in c.add])), []).validation_rmse_um)

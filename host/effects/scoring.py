@@ -14,8 +14,16 @@ import numpy as np
 from contract.terms import Term
 from host.effects.candidates import Candidate
 from host.effects.residual import rounded
-from host.fitting import NO_REFERENCE, FoldGram, Reference, solve_normal, term_values
-from host.fitting.out_of_fold import SOLVE_TOLERANCE
+from host.fitting import (
+    NO_REFERENCE,
+    SOLVE_TOLERANCE,
+    FoldGram,
+    Reference,
+    first_order_lag,
+    shared_filter,
+    solve_normal,
+    term_values,
+)
 from host.io import Run
 
 MIN_GAIN = 0.10  # an effect must lower the validation RMSE by at least 10 %
@@ -59,17 +67,42 @@ class FeatureCache:
         self._cache: dict[Term, np.ndarray] = {}
 
     def column(self, term: Term) -> np.ndarray:
-        if term not in self._cache:
-            self._cache[term] = np.concatenate(
-                [self.reference.apply(term_values(term, cols, self.period_s))[::self.stride]
-                 for cols in self.columns])
+        self._fill([term])
         return self._cache[term]
 
     def matrix(self, terms: Sequence[Term]) -> np.ndarray:
         n = sum(len(c["time_s"][::self.stride]) for c in self.columns)
         if not terms:
             return np.empty((n, 0))
-        return np.column_stack([self.column(t) for t in terms])
+        self._fill(terms)
+        return np.column_stack([self._cache[t] for t in terms])
+
+    def gram(self, terms: Sequence[Term], y: np.ndarray, groups: np.ndarray) -> GramScorer:
+        """``GramScorer(self.matrix(terms), y, groups)``, the columns copied straight into its
+        design (FoldGram.of_columns): a thousand candidate columns do not sit in memory twice."""
+        self._fill(terms)
+        return GramScorer.of_columns([self._cache[t] for t in terms], y, groups)
+
+    def _fill(self, terms: Sequence[Term]) -> None:
+        """Compute the columns of ``terms`` not cached yet. The lags and rates of one sensor
+        and time constant come from one filter pass per run (they share the filter, as on the
+        box), one such group at a time, so one group's full-rate rows are held at most."""
+        groups: dict[object, list[Term]] = {}
+        for i, term in enumerate(dict.fromkeys(terms)):
+            if term not in self._cache:
+                key = shared_filter(term, self.columns[0]) if self.columns else None
+                groups.setdefault(key or i, []).append(term)
+        for group in groups.values():
+            pieces: list[list[np.ndarray]] = [[] for _ in group]
+            for cols in self.columns:
+                key = shared_filter(group[0], cols) if len(group) > 1 else None
+                lag = (None if key is None else
+                       first_order_lag(np.asarray(cols[group[0].source], dtype=float), key[1]))
+                for j, term in enumerate(group):
+                    pieces[j].append(self.reference.apply(
+                        term_values(term, cols, self.period_s, lag))[::self.stride])
+            for term, parts in zip(group, pieces, strict=True):
+                self._cache[term] = np.concatenate(parts)
 
 
 @dataclass(frozen=True)
@@ -334,7 +367,7 @@ def score_candidates(cache: FeatureCache, y: np.ndarray, groups: np.ndarray,
     for t in [*current, *(t for cand in candidates for t in cand.add)]:
         index.setdefault(t, len(index))
     terms = list(index)
-    gram = GramScorer(cache.matrix(terms), y, groups)
+    gram = cache.gram(terms, y, groups)
     base = [index[t] for t in current]
     ref = gram.score(base, [])
     residual = gram.residual(base)

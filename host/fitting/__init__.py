@@ -6,9 +6,16 @@ score their subsets with it, and ``validation_rmse`` judges one design with it.
 
 from __future__ import annotations
 
-from host.fitting.features import axis_terms, design_matrix, first_order_lag, term_values
+from host.fitting.features import (
+    axis_terms,
+    design_matrix,
+    first_order_lag,
+    shared_filter,
+    term_values,
+)
 from host.fitting.linear import condition_number, fit_linear, r_squared, rmse, variance_inflation
 from host.fitting.out_of_fold import (
+    SOLVE_TOLERANCE,
     FoldGram,
     out_of_fold_predictions,
     solve_normal,
@@ -46,7 +53,9 @@ __all__ = [
     "out_of_fold_predictions",
     "r_squared",
     "rmse",
+    "shared_filter",
     "solve_normal",
+    "SOLVE_TOLERANCE",
     "run_labels",
     "stack",
     "term_values",

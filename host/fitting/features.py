@@ -6,7 +6,8 @@ reference used for fitting and evaluation, ``codegen.fixed`` the integer twin.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -25,8 +26,12 @@ def first_order_lag(x: np.ndarray, alpha: float) -> np.ndarray:
     return y
 
 
-def term_values(term: Term, columns: Mapping[str, np.ndarray], period_s: float) -> np.ndarray:
-    """The float feature of one term over a run's columns (see the module docstring)."""
+def term_values(term: Term, columns: Mapping[str, np.ndarray], period_s: float,
+                lag: np.ndarray | None = None) -> np.ndarray:
+    """The float feature of one term over a run's columns (see the module docstring).
+    ``lag``: for a lag or rate term, ``first_order_lag`` of its source with its alpha if it
+    is at hand (a lag and a rate of one sensor and time constant share the filter, as on the
+    box)."""
     if term.kind == "time":
         n = len(next(iter(columns.values())))
         return np.arange(n, dtype=float) * period_s
@@ -38,9 +43,9 @@ def term_values(term: Term, columns: Mapping[str, np.ndarray], period_s: float) 
     if term.kind == "speed2":
         return x * x
     if term.kind == "lag":
-        return first_order_lag(x, term.params["alpha"])
+        return first_order_lag(x, term.params["alpha"]) if lag is None else lag
     if term.kind == "rate":
-        return x - first_order_lag(x, term.params["alpha"])
+        return x - (first_order_lag(x, term.params["alpha"]) if lag is None else lag)
     if term.kind == "square":
         return (x - term.params["ref_c"]) ** 2
     raise AssertionError(term.kind)
@@ -52,7 +57,35 @@ def design_matrix(terms: list[Term], columns: Mapping[str, np.ndarray],
     if not terms:
         n = len(next(iter(columns.values())))
         return np.empty((n, 0))
-    return np.column_stack([term_values(t, columns, period_s) for t in terms])
+    return np.column_stack(list(terms_values(terms, columns, period_s)))
+
+
+def shared_filter(term: Term, columns: Mapping[str, np.ndarray]) -> tuple | None:
+    """The filter a lag or rate term runs (its source and alpha; None for other terms, or a
+    source not in ``columns``): terms with one key share one ``first_order_lag``."""
+    if term.kind not in ("lag", "rate") or term.source not in columns:
+        return None
+    return term.source, term.params["alpha"]
+
+
+def terms_values(terms: Sequence[Term], columns: Mapping[str, np.ndarray],
+                 period_s: float) -> Iterator[np.ndarray]:
+    """``term_values`` of each term in turn, each filter run once: a lag kept while a term
+    still to come (a rate, or the lag itself) needs it, the same array it would compute."""
+    keys = [shared_filter(t, columns) for t in terms]
+    left = Counter(k for k in keys if k is not None)
+    lags: dict[tuple, np.ndarray] = {}
+    for t, key in zip(terms, keys, strict=True):
+        if key is None:
+            yield term_values(t, columns, period_s)
+            continue
+        if key not in lags:
+            lags[key] = first_order_lag(np.asarray(columns[t.source], dtype=float), key[1])
+        lag = lags[key]
+        left[key] -= 1
+        if not left[key]:
+            del lags[key]
+        yield term_values(t, columns, period_s, lag)
 
 
 def axis_terms(model: dict, axis: str) -> tuple[list[Term], np.ndarray, float]:

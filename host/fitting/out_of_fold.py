@@ -51,6 +51,15 @@ def solve_normal(M: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.array([np.linalg.lstsq(m, b, rcond=None)[0] for m, b in zip(M, v, strict=True)])
 
 
+def _rows(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``a[mask]``; a view when the rows are one contiguous block (a fold is a run or a time
+    block of one), which BLAS reads as it reads the copy."""
+    at = np.flatnonzero(mask)
+    if at.size and at[-1] - at[0] + 1 == at.size:
+        return a[at[0]:at[-1] + 1]
+    return a[mask]
+
+
 class FoldGram:
     """Out-of-fold and training least squares of any subset of the columns of X, plus intercept.
 
@@ -61,14 +70,38 @@ class FoldGram:
 
     def __init__(self, X: np.ndarray, y: np.ndarray, folds: np.ndarray) -> None:
         X = np.asarray(X, dtype=float)
-        y = np.asarray(y, dtype=float)
         n, p = X.shape
+        sd = X.std(axis=0)  # of X as given: a reduction's order follows its memory layout
+        D = np.empty((n, p + 1))
+        np.subtract(X, X.mean(axis=0), out=D[:, 1:])
+        self._standardised(D, sd, y, folds)
+
+    @classmethod
+    def of_columns(cls, columns: Sequence[np.ndarray], y: np.ndarray, folds: np.ndarray
+                   ) -> FoldGram:
+        """``cls(np.column_stack(columns), y, folds)`` without that matrix: the columns go
+        straight into the design (one rows x columns array less at the peak; the same numbers:
+        the means and SDs of a row-major block are reduced row by row, in place or not)."""
+        D = np.empty((len(y), len(columns) + 1))
+        for j, column in enumerate(columns):
+            D[:, j + 1] = column
+        X = D[:, 1:]
         sd = X.std(axis=0)
+        X -= X.mean(axis=0)
+        gram = cls.__new__(cls)
+        gram._standardised(D, sd, y, folds)
+        return gram
+
+    def _standardised(self, D: np.ndarray, sd: np.ndarray, y: np.ndarray, folds: np.ndarray
+                      ) -> None:
+        """Set up from ``D`` holding the centred columns after its first and their SDs (scaled
+        in place, the intercept column set)."""
+        y = np.asarray(y, dtype=float)
+        n, p = D.shape[0], D.shape[1] - 1
         sd[sd == 0] = 1.0
-        self.D = np.empty((n, p + 1))
-        self.D[:, 0] = 1.0
-        np.subtract(X, X.mean(axis=0), out=self.D[:, 1:])
-        self.D[:, 1:] /= sd
+        D[:, 1:] /= sd
+        D[:, 0] = 1.0
+        self.D = D
         self.y0 = y - y.mean()
         self.n = n
         self.folds = np.asarray(folds)
@@ -80,7 +113,7 @@ class FoldGram:
         self.v_f = np.empty((F, p + 1))
         self.s_f = np.empty(F)
         for i, r in enumerate(self.rows):
-            Df, yf = self.D[r], self.y0[r]
+            Df, yf = _rows(self.D, r), _rows(self.y0, r)
             self.M_f[i] = Df.T @ Df
             self.v_f[i] = Df.T @ yf
             self.s_f[i] = float(yf @ yf)
