@@ -31,7 +31,7 @@ lag = direct_lag  # written out as a loop, independent of host.fitting
 
 
 def by_hand(model: dict, axis_name: str, run) -> np.ndarray:
-    """The model's output on a run, from its terms, with the start reference of docs/next-day:
+    """The model's output on a run, from its terms, with the start reference of docs/training.md:
     minus the running mean of the first k outputs, frozen after them."""
     axis = model["axes"][axis_name]
     out = np.full(run.n_samples, float(axis["intercept"]))

@@ -483,7 +483,7 @@ def _fig_run(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
                "the box measures. Bottom: what is left (RMS in the legend)"
                + (f"; the shaded band is ± the RMS host train promised: "
                   f"{html.escape(str(metrics.get('promise') or promised))} (from its nested "
-                  "folds, docs/next-day.md section 2), dotted the worst fold."
+                  "folds, docs/training.md), dotted the worst fold."
                   if promised is not None else ".")
                + (" This run was used for training." if entry[axis_name]["in_training"]
                   else " The model never saw this run."))

@@ -58,7 +58,7 @@ def add_data_arguments(parser: argparse.ArgumentParser, tilts: bool = False) -> 
                              "moves, not an even warming (a column bent by its front against "
                              "its back: Y of a vertical machining center); its ridge then "
                              "penalises the response to an even warming (repeatable; "
-                             "docs/next-day.md section 12)")
+                             "docs/training.md)")
     parser.add_argument("--sensors", default="T*", metavar="GLOB",
                         help="temperature columns (glob, default %(default)s)")
     parser.add_argument("--aux", action="append", default=[], metavar="COL",
@@ -113,12 +113,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "and lags of every sensor the box reads, shrunk (every um/K "
                              "alike); ols: least squares on "
                              "the selected terms and effects (paper 000's eq. 4); auto: the "
-                             "family with the lowest nested error (docs/next-day.md)")
+                             "family with the lowest nested error (docs/training.md)")
     parser.add_argument("--prefilter-s", type=float, default=PREFILTER_TAU_S, metavar="S",
                         help="the ridge is fitted to its rows low-passed by this time constant "
                              "(the probes' and thermocouples' noise out of the fit; the box "
                              "runs the same coefficients on raw readings); 0: the raw rows "
-                             "(default %(default)g; docs/next-day.md section 13)")
+                             "(default %(default)g; docs/training.md)")
     parser.add_argument("--no-fill-channels", action="store_true",
                         help="the ridge reads only the selected sensors (default: also the "
                              "best of the others, by an L1 ranking, on the box's free channels)")
@@ -208,8 +208,8 @@ def print_effects(doc: dict) -> None:
             print(f"  the box's model on the nested folds (the pipeline, effects search "
                   f"included, refitted without each fold): {_fmt(box['without_effects'])} {u} "
                   f"without the effects, {_fmt(box['with_effects'])} {u} with them "
-                  f"({change:+.0f} %); a weak guide to the next day (docs/next-day.md "
-                  "section 16): judge the effects on a run the model never saw "
+                  f"({change:+.0f} %); a weak guide to the next day (docs/training.md): "
+                  "judge the effects on a run the model never saw "
                   "(host report --runs)")
         for e in effects:
             ev = e.get("evidence") or {}

@@ -13,7 +13,7 @@ scored on the raw rows (host.fitting.ridge.fit_ridge's ``fit_on``): the box sees
 
 180 s is below the structure's fastest modelled time constant (the ridge's 900 s lag) and
 above the sample periods of the runs measured (15 and 60 s). The time constant was measured
-from 60 to 1,200 s on the three sources (docs/next-day.md section 13).
+from 60 to 1,200 s on the three sources (docs/training.md).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ samples of the series (the box's ``BOX_ZERO_SAMPLES``, contract.box.ZERO_SAMPLES
 box reference alike), taken causally as the box does after ZERO: at sample i < samples it is
 the mean of samples 0..i (so the first output is exactly 0), then it is frozen. The same rule
 applies to the measured displacement and to the prediction, so it cancels wherever the model
-tracks; docs/next-day.md has the measurement.
+tracks; docs/training.md has the measurement.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ Columns in one unit share one scale (``shared``: the temperatures, lags and rate
 kelvin): the penalty then weighs every micrometre per kelvin alike. Scaled each by its own
 spread, a slow lag that barely moves in the training run was cheap to give a coefficient of
 tens of um/K, and it extrapolates on a day that heats differently; in kelvin the ridge was
-lower on every source on unseen runs (docs/next-day.md). Other columns (speed, squares) are
+lower on every source on unseen runs (docs/training.md). Other columns (speed, squares) are
 scaled by their own spread.
 
 A bending axis (a column bent by its front against its back) hardly moves when the structure
@@ -18,7 +18,7 @@ warms evenly, though each of its sensors moves it by tens of um/K. ``even`` flag
 whose coefficients sum to that response (temperatures and lags, not rates: a rate settles to
 zero), and ``even_penalty`` (kappa) penalises the square of the sum kappa times as much as one
 coefficient's: the ridge then gives the front and the back large coefficients of opposite sign
-rather than shrinking both toward the common warming (docs/next-day.md section 12).
+rather than shrinking both toward the common warming (docs/training.md).
 
 The coefficients may be fitted to the rows prefiltered (``fit_on``, host.fitting.prefilter)
 while the out-of-fold error that picks the penalty is scored on the raw rows the box will see.

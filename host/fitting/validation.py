@@ -12,7 +12,7 @@ filter states the box would have. Folds are given as a group label per stacked s
   input, the mean temperature turns) within a quarter block of the equal split, so a block is
   a whole phase of the test rather than a slice through one, as an unseen day is. The effect
   search, the fit's validation, the ridge's penalty and the nested promise keep equal blocks:
-  on whole phases the effect rule missed 3 of 8 injected effects (docs/next-day.md section 6).
+  on whole phases the effect rule missed 3 of 8 injected effects (docs/training.md).
 The fits themselves (and their out-of-fold errors) are host.fitting.out_of_fold's.
 """
 
@@ -123,7 +123,7 @@ def penalty_groups(runs: list[Run], n_blocks: int = DEFAULT_BLOCKS) -> tuple[np.
     """The folds a ridge's penalty is chosen on, and their description: fold_groups's, except
     for exactly two days (two runs, not two pieces of one run). There each fold of
     leave-one-run-out fits on one day alone, so the folds are each run's ``n_blocks`` equal
-    blocks instead (measured in docs/next-day.md section 8; with three runs or more
+    blocks instead (measured in docs/training.md; with three runs or more
     leave-one-run-out did better)."""
     if len(runs) != 2 or any(r.piece for r in runs):
         return fold_groups(runs, n_blocks)

@@ -5,7 +5,7 @@ inputs and shrinkage copes with more. A lasso over every sensor's temperature an
 first-order lags (referenced as the model is, columns standardised, penalty chosen on the
 training folds) ranks the sensors by the weight it gives each one's group of features; the
 next-day ridge then reads the selected sensors plus the best-ranked others up to the channel
-budget (host.train.next_day). Measured on unseen runs of three sources in docs/next-day.md.
+budget (host.train.next_day). Measured on unseen runs of three sources in docs/training.md.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ def joint_l1_ranking(runs: Sequence[Run], targets: Sequence[str], sensors: Seque
     """``sensors`` ordered by the weight one multi-task lasso (every target at once, each in
     its own unit, not standardised: the channels go where the drift is) gives each sensor's
     temperature and lags, largest first. Used when the axes share the box's channels
-    (host.train.channel_budget); measured in docs/next-day.md section 9."""
+    (host.train.channel_budget); measured in docs/training.md."""
     from sklearn.linear_model import MultiTaskLassoCV  # imported here, as in l1_ranking
     from sklearn.model_selection import PredefinedSplit
 

@@ -63,7 +63,7 @@ def fit_channel_budget(selected: Selected, max_channels: int,
     (host.selection.joint_l1_ranking). Before, the budget either dropped the sensors whose
     loss raised least squares' out-of-fold error least, or pooled the sensors most axes
     chose; the pool by the joint lasso was lower on unseen runs of every source
-    (docs/next-day.md section 9).
+    (docs/training.md).
     """
     terms_of = {t: terms for t, (terms, _) in selected.items()}
     union = channels_of(terms_of)

@@ -66,12 +66,12 @@ from host.selection import fill_free_channels, l1_ranking
 from host.train.axis_fit import axis_dict
 
 FITS = ("auto", "ols", "ridge")
-DEFAULT_FIT = "ridge"  # measured best on unseen runs of every source (docs/next-day.md)
+DEFAULT_FIT = "ridge"  # measured best on unseen runs of every source (docs/training.md)
 LAG_TAUS_S = (900.0, 3600.0)  # a fast and a slow part of the structure behind each sensor
 # a bending axis's ridge: the response to an even, settled warming (the sum of its temperature
 # and lag coefficients) costs this many times one coefficient; 1 / 3 / 10 / 30 measured on
 # both simulators' column-bending dy, 3 the highest before the project simulator's dy (whose
-# frame does respond to an even warming a little) lost (docs/next-day.md section 12)
+# frame does respond to an even warming a little) lost (docs/training.md)
 EVEN_WARMING_PENALTY = 3.0
 EVEN_WARMING_KINDS = ("temp", "lag")  # a rate settles to zero: no part of the settled sum
 # the promise (issue 43): "RMS on an unseen day <= X on PROMISE_COVERAGE of days", X the
@@ -80,7 +80,7 @@ EVEN_WARMING_KINDS = ("temp", "lag")  # a rate settles to zero: no part of the s
 # simulator and its other machines, sim_dev, FL_THERMAL leave-one-cycle-out and forward in
 # time) had at least PROMISE_COVERAGE of its unseen days at or below X and at most
 # PROMISE_TAIL above 2 X; FL forward in time needs it, the others 0.74-1.46 (``python -m
-# bench promise``, docs/next-day.md section 2)
+# bench promise``, docs/training.md)
 PROMISE_COVERAGE = 0.80
 PROMISE_TAIL = 0.05
 PROMISE_FACTOR = 2.6
@@ -114,7 +114,7 @@ TrainFold = Callable[[list[Run]], FoldTerms]
 @dataclass(frozen=True)
 class RidgeOptions:
     """How an axis's ridge is fitted beyond its basis: ``bending``, its response to an even
-    warming penalised too (EVEN_WARMING_PENALTY, section 12 of docs/next-day.md), and
+    warming penalised too (EVEN_WARMING_PENALTY; docs/training.md, the bending axis), and
     ``prefilter_s``, the low-pass its rows are fitted through (host.fitting.prefilter; 0: the
     raw rows, as before main 4102d6e)."""
 
@@ -147,7 +147,7 @@ def ridge_start(terms: Sequence[Term], effects: Sequence[dict], fastest_s: float
     of what it has already; a faster one is not. Beside those lags, the effect's own slower
     filter was neutral to harmful on unseen runs: of 142 bench cases the model was worse than
     without its effects by more than 5 % in 10, each with a lag or rate of 1,200 s or slower
-    (docs/next-day.md section 10). The effect stays named in the report, with its evidence."""
+    (docs/training.md). The effect stays named in the report, with its evidence."""
     added = [t for t in lag_family_filters(effects) if t.params["tau_s"] >= fastest_s]
     kept = [t for t in terms if t not in added]
     return reading(kept, [s for s in term_sensors(added) if s in term_sensors(terms)])
@@ -178,7 +178,7 @@ def promise_from_folds(folds: Sequence[float]) -> float:
 
     Until issue 43 it was the lowest fold, unscaled: a coin toss at best (median test /
     promised near 1), and forward in time on FL 3 of 20 unseen days came in at or below it
-    (docs/next-day.md section 2 has the table before and after)."""
+    (docs/training.md has the table before and after)."""
     v = np.asarray(folds, dtype=float)
     if not v.size:
         return math.nan

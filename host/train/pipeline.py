@@ -299,7 +299,7 @@ def ridge_refusal(with_effects, without) -> str | None:
     out-of-fold error than the ridge over the baseline's basis. The search judges an effect on
     least squares over the selected terms; the box runs the ridge over every wired sensor and
     its lags, which often covers what the effect adds, and there an effect that does not gain
-    hurt unseen runs (docs/next-day.md section 17)."""
+    hurt unseen runs (docs/training.md)."""
     a, b = with_effects.validation_rmse_um, without.validation_rmse_um
     if a <= (1 - MIN_GAIN) * b:
         return None
@@ -605,7 +605,7 @@ def _free_channel_fill(data: TrainingData, selected: dict[str, tuple[list[Term],
     """The sensors the box's free channels get (the axes' L1 rankings, next_day.channel_fill),
     settled before the effects are searched. An effect that took a free channel changed what
     every axis's ridge reads: axes without an effect of their own got worse on unseen runs
-    (docs/next-day.md section 9). With one axis there is no other axis to harm, and its effects
+    (docs/training.md). With one axis there is no other axis to harm, and its effects
     (the shop-air family above all) keep the first claim on the free channels."""
     wired = [n for n in data.names if n in channels_of({t: terms for t, (terms, _)
                                                         in selected.items()})]

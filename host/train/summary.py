@@ -77,7 +77,7 @@ def box_effects_evidence(axis: dict) -> dict | None:
     the effects' own before/after is least squares on the selected terms. None without
     effects or nested validation.
 
-    A noisy judge of one training file's effects (docs/next-day.md section 16 measures how often
+    A noisy judge of one training file's effects (docs/training.md measures how often
     it agrees with the unseen runs), shown so a user can weigh them; it decides nothing here."""
     fit = axis.get("fit") or {}
     rms = (fit.get("nested") or {}).get("rmse_um") or {}
