@@ -127,8 +127,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "promised error); 3-4x faster; auto then means ols")
     parser.add_argument("--jobs", type=int, default=None, metavar="N",
                         help="processes that train the nested folds of a long run at once "
-                             "(default: up to twice the usable cores; 1: this process only); "
-                             "the model is the same whatever N")
+                             "(default 1: this process only; forked workers pay only on an "
+                             "idle machine and each adds its memory); the model is the same "
+                             "whatever N")
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 

@@ -103,7 +103,8 @@ class ThermalModel(RegressorMixin, BaseEstimator):
     ``to_model_json()``.
 
     ``n_jobs``: processes for the nested folds of long runs (``host train --jobs``; None or
-    -1: up to twice the usable cores; the model does not depend on it).
+    -1: the default, this process alone, host.parallel.default_workers; the model does not
+    depend on it).
 
     Fitted attributes: ``model_`` (the model.json dict), ``axes_`` (target names),
     ``sensors_`` (the thermocouples the box reads), ``columns_`` (the name of each column of

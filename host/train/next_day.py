@@ -323,9 +323,10 @@ def nested_validation(runs: Sequence[Run], target: str, train_fold: TrainFold, *
     """Each family's held-out error with the whole pipeline refitted without each fold
     (a progress bar over the folds: each is a whole training). The folds are Python-bound
     (on two threads they took as long as on one: 3.2 s for a 24-h run's three folds either
-    way), so runs of at least ``PARALLEL_MIN_ROWS`` samples train them in forked processes,
-    at most ``jobs`` (default: host.parallel.default_workers); shorter ones in this process,
-    where a fork costs more than a fold. The errors do not depend on ``jobs``.
+    way), so runs of at least ``PARALLEL_MIN_ROWS`` samples may train them in forked
+    processes, at most ``jobs`` (default: host.parallel.default_workers, this process alone);
+    shorter ones in this process, where a fork costs more than a fold. The errors do not
+    depend on ``jobs``.
 
     Runs of more than ``NESTED_MAX_ROWS`` samples in all are judged on every k-th sample
     (thinned): thermal signals change over minutes, and the folds are most of the time a
