@@ -78,3 +78,23 @@ def test_a_block_that_is_not_intact_is_not_continued(setup, monkeypatch):
     after = capture.sessions[1]
     assert not after.resumed and after.resume_acks[0].startswith(b"$E,NO_STATE")
     assert np.all(report.fw_status[CUT + OFF:] & NO_REF)
+
+
+def _sample_lines_from(capture, first: int) -> list[bytes]:
+    lines = [ln for s in capture.sessions for ln in s.lines if ln.startswith(b"$C,")]
+    return [ln for ln in lines if int(ln.split(b",")[1]) >= first]
+
+
+def test_a_watchdog_reset_before_resume_does_not_continue_the_held_block(setup):
+    """Battery cut, then a watchdog reset before the controller's RESUME: the block kept for
+    RESUME is marked held, so the warm boot does not continue it as if the box had never been
+    off (before the mark: 1.5 um off on dx at once); RESUME then gives the battery case's lines
+    byte for byte."""
+    _, battery = hil_replay.run(setup, [Restart(CUT, battery=True, off=OFF),
+                                        Resume(CUT + OFF, OFF)])
+    _, capture = hil_replay.run(setup, [Restart(CUT, battery=True, off=OFF),
+                                        Restart(CUT + OFF, wdt_reset=True),
+                                        Resume(CUT + OFF, OFF)])
+    assert capture.sessions[2].resumed
+    want = _sample_lines_from(battery, CUT + OFF)
+    assert len(want) > 100 and _sample_lines_from(capture, CUT + OFF) == want

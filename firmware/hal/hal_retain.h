@@ -10,12 +10,12 @@
 /* Bytes of retained memory; 0 when the board has none (the box then always boots cold). */
 size_t hal_retain_size(void);
 
-/* Copy the first n <= hal_retain_size() bytes of the retained memory out, or n bytes into it
- * from byte `offset` on (offset + n <= hal_retain_size(); bytes beyond are not written: the
- * box writes its whole block after each sample, a state block the controller uploads (LOAD)
- * arrives in pieces). Its content after a power cut is arbitrary: the caller checks it
- * (magic, CRC). */
-void hal_retain_read(void *dst, size_t n);
+/* Copy n bytes of the retained memory from byte `offset` on out, or into it (offset + n <=
+ * hal_retain_size(); bytes beyond are neither read nor written: the box writes its whole
+ * block after each sample, a state block the controller uploads (LOAD) arrives in pieces,
+ * and a marker word sits after the block). Its content after a power cut is arbitrary: the
+ * caller checks it (magic, CRC). */
+void hal_retain_read(size_t offset, void *dst, size_t n);
 void hal_retain_write(size_t offset, const void *src, size_t n);
 
 #endif

@@ -230,22 +230,47 @@ static bool retained_valid(void)
     if (!app.model_ok || hal_retain_size() < sizeof snap) {
         return false;
     }
-    hal_retain_read(&snap, sizeof snap);
+    hal_retain_read(0u, &snap, sizeof snap);
     return snap.magic == RETAIN_MAGIC && snap.size == (uint32_t)sizeof snap &&
            snap.model_crc == model_binding_expected_crc() && snap.crc == snap_crc() &&
            snap.rate >= 1u && snap.rate <= 3600u && snap.rate_left >= 1u &&
            snap.rate_left <= snap.rate;
 }
 
-/* After a warm reset: resume from the retained state if it is this model's and intact. After
- * a cold power-up an intact block is kept for RESUME (resumable) and the box starts cold. */
+/* A block kept for RESUME (found by a cold power-up, or written by LOAD) is marked in the word
+ * after it. A watchdog reset before RESUME or ZERO must not continue that block as if the box
+ * had never been off (it would skip the periods off and the samples since the power-up): with
+ * the mark the box boots as it did after the power cut, and the block waits for RESUME. */
+#define HELD_MAGIC UINT32_C(0x48454c44) /* "HELD" */
+
+static void set_resumable(bool resumable)
+{
+    app.resumable = resumable;
+    if (hal_retain_size() >= sizeof snap + sizeof(uint32_t)) {
+        const uint32_t word = resumable ? HELD_MAGIC : 0u;
+        hal_retain_write(sizeof snap, &word, sizeof word);
+    }
+}
+
+static bool marked_held(void)
+{
+    uint32_t word = 0u;
+    if (hal_retain_size() >= sizeof snap + sizeof(uint32_t)) {
+        hal_retain_read(sizeof snap, &word, sizeof word);
+    }
+    return word == HELD_MAGIC;
+}
+
+/* After a warm reset: resume from the retained state if it is this model's and intact, and not
+ * a block held for RESUME. After a cold power-up an intact block is kept for RESUME
+ * (resumable) and the box starts cold. */
 static bool retain_restore(void)
 {
     if (!retained_valid()) {
         return false;
     }
-    if (!hal_reset_was_warm()) {
-        app.resumable = app.needs_ref; /* only a referenced state is worth continuing */
+    if (!hal_reset_was_warm() || marked_held()) {
+        set_resumable(app.needs_ref); /* only a referenced state is worth continuing */
         return false;
     }
     retain_apply();
@@ -749,7 +774,7 @@ static void handle_resume(uint32_t off)
 {
     if (!app.resumable || !retained_valid()) {
         if (app.resumable) { /* the block changed since power-up: start afresh */
-            app.resumable = false;
+            set_resumable(false);
             tcm_state_init(tcm);
             est_reset_all();
         }
@@ -758,7 +783,7 @@ static void handle_resume(uint32_t off)
     }
     const uint32_t since_boot = app.seq; /* samples this power-up has taken */
     retain_apply();
-    app.resumable = false;
+    set_resumable(false);
     app.sticky |= STATUS_WDT_RESET; /* reset, resumed from the retained state */
     app.skipping = true;
     for (uint32_t i = 0; i < off + since_boot; i++) {
@@ -821,7 +846,7 @@ static void handle_load(const cmd_t *c)
         return;
     }
     hal_retain_write(c->arg, c->data, c->n_bytes);
-    app.resumable = true;
+    set_resumable(true);
     send_ok("LOAD", c->arg + c->n_bytes);
 }
 
@@ -847,7 +872,7 @@ static void handle_command(const cmd_t *c)
             break;
         }
         app.zero_pending = true; /* the reference starts with the next sample */
-        app.resumable = false;   /* a new datum: the retained one is not continued */
+        set_resumable(false); /* a new datum: the retained one is not continued */
         send_ok("ZERO", app.sampled ? app.seq - 1u : 0u);
         retain_save();
         break;

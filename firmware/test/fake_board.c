@@ -148,9 +148,9 @@ size_t hal_retain_size(void)
     return sizeof fake_retained;
 }
 
-void hal_retain_read(void *dst, size_t n)
+void hal_retain_read(size_t offset, void *dst, size_t n)
 {
-    memcpy(dst, fake_retained, n);
+    memcpy(dst, fake_retained + offset, n);
 }
 
 void hal_retain_write(size_t offset, const void *src, size_t n)

@@ -37,9 +37,12 @@ size_t hal_retain_size(void)
     return sizeof retained;
 }
 
-void hal_retain_read(void *dst, size_t n)
+void hal_retain_read(size_t offset, void *dst, size_t n)
 {
-    memcpy(dst, retained, n <= sizeof retained ? n : sizeof retained);
+    if (offset >= sizeof retained) {
+        return;
+    }
+    memcpy(dst, retained + offset, n <= sizeof retained - offset ? n : sizeof retained - offset);
 }
 
 void hal_retain_write(size_t offset, const void *src, size_t n)

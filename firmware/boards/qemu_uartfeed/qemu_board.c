@@ -317,8 +317,9 @@ size_t hal_retain_size(void)
     return 0u;
 }
 
-void hal_retain_read(void *dst, size_t n)
+void hal_retain_read(size_t offset, void *dst, size_t n)
 {
+    (void)offset;
     (void)dst;
     (void)n;
 }

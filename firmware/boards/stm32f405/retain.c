@@ -43,13 +43,13 @@ size_t hal_retain_size(void)
     return size;
 }
 
-void hal_retain_read(void *dst, size_t n)
+void hal_retain_read(size_t offset, void *dst, size_t n)
 {
     enable();
     const volatile uint8_t *from = (const volatile uint8_t *)BKPSRAM_BASE;
     uint8_t *to = dst;
-    for (size_t i = 0; i < n && i < BKPSRAM_SIZE; i++) {
-        to[i] = from[i];
+    for (size_t i = 0; i < n && offset + i < BKPSRAM_SIZE; i++) {
+        to[i] = from[offset + i];
     }
 }
 
