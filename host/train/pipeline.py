@@ -90,6 +90,17 @@ DEFAULT_TC_TYPE = "K"
 BLAS_THREADS = 1
 
 
+def _sensor_columns(temperatures: np.ndarray, idx: list[int]) -> np.ndarray:
+    """``temperatures[:, idx]``: a copy, column-major (numpy lays out a gather along the
+    second axis so, and every later sum over a run follows that layout). Already
+    column-major with every column in order (``host train`` hands its runs so), the array is
+    that copy's twin and is used as it is: 44 MB less for 64 sensors x 86,400 rows."""
+    if (temperatures.ndim == 2 and temperatures.shape[1] >= 2
+            and temperatures.flags.f_contiguous and idx == list(range(temperatures.shape[1]))):
+        return temperatures
+    return temperatures[:, idx]
+
+
 def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str | list[str],
              aux: list[str], fill_gaps: int, tilts: Sequence[Tilt] = ()) -> list[Run]:
     """Load paths (tilt targets computed from their probes); restrict already-loaded runs to
@@ -118,7 +129,7 @@ def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str 
             raise TrainingError(f"{run.path}: no sensor column matches {sensors!r}; the run's "
                                 f"columns: {', '.join(run.sensor_names)}")
         idx = [run.sensor_names.index(n) for n in names]
-        out.append(Run(run.path, run.time_s, names, run.temperatures[:, idx],
+        out.append(Run(run.path, run.time_s, names, _sensor_columns(run.temperatures, idx),
                        list(run.target_names), run.displacements, list(run.aux_names), run.aux,
                        run.filled_cells))
     first = out[0].sensor_names
