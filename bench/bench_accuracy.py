@@ -955,8 +955,9 @@ def train_timing_row() -> dict:
                                 "dz_um", "--out", str(Path(tmp) / "out"), "--json"])
     return {"name": "host train (defaults) 64 x 86,400 rows", "value": timing.fastest,
             "unit": "s", "target": "< 10 s on 2 cores", "goal": goal("<", 10),
-            "detail": f"peak RSS {timing.peak_mb:.0f} MB; {timing.describe()}, CSV parse + "
-                      "selection + effects + codegen (bench/bench_train.py measures it too)"}
+            "detail": f"peak memory {timing.peak_mb:.0f} MB (process tree); "
+                      f"{timing.describe()}, CSV parse + selection + effects + codegen "
+                      "(bench/bench_train.py measures it too)"}
 
 
 def _log(msg: str) -> None:

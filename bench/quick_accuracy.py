@@ -10,13 +10,22 @@ here too): after / before per source with its interval, the cases moved by more 
 and ours / best peer before and after. Run on an unchanged tree, every ratio is 1.000: the
 check that the saved bench and the code still agree.
 
+Without a saved bench it compares against the one the repository ships,
+bench/data/accuracy_baseline.json: the peers and our default column (trained as here) on
+every case, from the commit it names, so a fresh clone needs no 15-minute bench first.
+``--write-baseline`` computes that file again (our column and the ten peers on every job,
+without nested validation: a few minutes on 2 cores); where it is missing, it is computed
+first, and the run says so.
+
 docs/next-day.md sections 15-21 measured their variants this way (each rebuilt by hand
 before section 21).
 
-    python -m bench accuracy                       # once: bench/results/accuracy.json
+    python -m bench.quick_accuracy                 # against the shipped baseline
     # ... change host/ ...
-    python -m bench.quick_accuracy bench/results/accuracy.json -o /tmp/variant.json
+    python -m bench.quick_accuracy -o /tmp/variant.json
+    python -m bench.quick_accuracy bench/results/accuracy.json   # against your own bench
     python -m bench.quick_accuracy SAVED.json --source fl --column "no effects"
+    python -m bench.quick_accuracy --write-baseline  # after a change the baseline should keep
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import subprocess
 import sys
 import tempfile
 import time
@@ -36,6 +46,7 @@ from bench import bench_accuracy as acc
 from bench import compare_accuracy as cmp
 
 DEFAULT_OUT = Path("/tmp/accuracy_quick.json")
+BASELINE = Path(__file__).parent / "data" / "accuracy_baseline.json"
 
 Key = cmp.Key
 
@@ -110,9 +121,67 @@ def run(saved: dict[Key, acc.CaseResult], sources: Sequence[str], column: str, w
     return merged(saved, errors, column)
 
 
+def baseline_job(job: acc.Job, column: str) -> list[dict]:
+    """Every case of ``job`` with our ``column`` (as ``scored`` trains it) and every peer."""
+    targets = list(job.targets)
+    train = [acc._load(s, targets) for s in job.train]
+    test = [(s, acc._load(s, targets)) for s in job.test]
+    cases = {(g, s.name, t): acc.CaseResult(job.source, g, s.name, t, job.reference, job.group)
+             for g, _ in job.ours_variants() for s, _ in test for t in targets}
+    for (_, group, name, t), err in scored(job, column):
+        cases[(group, name, t)].rmse_um[column] = err
+    acc.score_peers(job, train, test, cases)
+    return [asdict(c) for c in cases.values()]
+
+
+def _commit() -> str:
+    done = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True,
+                          text=True, cwd=Path(__file__).parent)
+    return done.stdout.strip() if done.returncode == 0 else "unknown"
+
+
+def write_baseline(out: Path, column: str, workers: int) -> Path:
+    """The shipped baseline: our ``column`` and the peers on every job of every source."""
+    cases: list[dict] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        todo = acc.jobs_for(acc.SOURCES, Path(tmp))
+        order = sorted(todo, key=lambda j: "S0_64" not in j.group)  # the longest first
+        t0 = time.perf_counter()
+        with ProcessPoolExecutor(workers, initializer=acc._worker_init,
+                                 initargs=(workers > 1,)) as pool:
+            futures = {pool.submit(baseline_job, job, column): job for job in order}
+            for n, fut in enumerate(as_completed(futures), 1):
+                cases += fut.result()
+                acc._log(f"baseline {n}/{len(todo)} {futures[fut].source} "
+                         f"{futures[fut].group} ({time.perf_counter() - t0:.0f} s so far)")
+    cases.sort(key=lambda c: (acc.SOURCES.index(c["source"]), c["group"], c["test"],
+                              c["target"]))
+    about = (f"bench.quick_accuracy --write-baseline at {_commit()}: our {column!r} column "
+             "(no nested validation) and the peers on every case of the accuracy bench; what "
+             "`python -m bench.quick_accuracy` compares against by default")
+    write_cases(out, about, column, cases)
+    return out
+
+
+KEPT = ("source", "group", "test", "target", "reference", "training_set", "rmse_um", "raw_um")
+
+
+def write_cases(out: Path, about: str, column: str, cases: list[dict]) -> None:
+    """The baseline file: what the comparison reads of each case, one case a line."""
+    lines = [json.dumps({k: c[k] for k in KEPT if k in c}, allow_nan=True) for c in cases]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(f'{{"about": {json.dumps(about)},\n "column": {json.dumps(column)},\n'
+                   ' "cases": [\n' + ",\n".join(lines) + "\n]}\n")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("saved", type=Path, help="an accuracy bench's JSON (its peers are reused)")
+    ap.add_argument("saved", type=Path, nargs="?", default=None,
+                    help="an accuracy bench's JSON (its peers are reused; default: the "
+                    f"shipped baseline, {BASELINE.relative_to(acc.ROOT)})")
+    ap.add_argument("--write-baseline", action="store_true",
+                    help=f"compute {BASELINE.relative_to(acc.ROOT)} again (every source) "
+                    "and stop")
     ap.add_argument("--source", action="append", choices=acc.SOURCES,
                     help="only these sources (repeatable; default all)")
     ap.add_argument("--column", default="default",
@@ -124,6 +193,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error("--jobs must be at least 1")
+    if args.write_baseline:
+        print(f"wrote {write_baseline(BASELINE, args.column, args.jobs)}", file=sys.stderr)
+        return 0
+    if args.saved is None:
+        if not BASELINE.exists():
+            acc._log(f"no {BASELINE}: computing it first (every source, a few minutes)")
+            write_baseline(BASELINE, "default", args.jobs)
+        args.saved = BASELINE
+        about = json.loads(BASELINE.read_text()).get("about", "")
+        acc._log(f"against the shipped baseline {BASELINE.relative_to(acc.ROOT)} ({about})")
     saved = cmp.load(args.saved)  # before the work: a wrong file fails at once
     cases = run(saved, args.source or acc.SOURCES, args.column, args.jobs)
     args.out.write_text(json.dumps({"quick": {"saved": str(args.saved), "column": args.column},

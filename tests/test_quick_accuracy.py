@@ -46,3 +46,16 @@ def test_moved_most_lists_the_largest_ratios_first_and_says_when_none_moved():
     same = dict(zip(before, quick.merged(before, {k: 1.0 for k in before}, "default"),
                     strict=True))
     assert quick.moved_most(before, same, "default") == "no case's default moved"
+
+
+def test_the_shipped_baseline_holds_the_peers_and_the_default_column_of_every_source():
+    # `python -m bench.quick_accuracy` on a fresh clone compares against this file
+    # (bench/results/ is not in git): every source, the ten peers and our default column
+    from bench import compare_accuracy as cmp
+
+    saved = cmp.load(quick.BASELINE)
+    assert {k[0] for k in saved} == set(acc.SOURCES)
+    for case in saved.values():
+        assert "default" in case.rmse_um
+        assert set(acc.PEERS) <= set(case.rmse_um)
+        assert case.training_set  # the intervals resample whole training sets
