@@ -473,6 +473,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
                   max_delay_s=max_delay_s, seed=seed)
     selected = _selected_within_budget(data, targets, max_channels, choose, quiet)
+    data.done_selecting()
     if fill_first is None:  # the harm it prevents is between axes (_free_channel_fill)
         fill_first = fill_channels and fit != "ols" and len(targets) > 1
     # the axes' L1 rankings for the free channels: once, for the fill before the effects and

@@ -32,7 +32,7 @@ class TrainingData:
     period_s: float
     ref: Reference
     n_blocks: int
-    X: np.ndarray
+    X: np.ndarray | None  # None once done_selecting
     ys: dict[str, np.ndarray]
     run_ids: np.ndarray
     folds: np.ndarray  # the selection's folds (a single run's blocks follow its phases)
@@ -67,6 +67,8 @@ class TrainingData:
     def select(self, target: str, pool: list[str] | None = None, **choose
                ) -> tuple[list[Term], dict]:
         """host.selection on the live sensors of ``pool`` (default all): terms and trace."""
+        if self.X is None:
+            raise AssertionError("select() after done_selecting()")
         cols = [self.names.index(n) for n in (self.names if pool is None else pool)]
         cols = [i for i in cols if i not in self.dead]
         result = select_sensors(self.X[:, cols], self.ys[target], self.run_ids, self.folds,
@@ -76,6 +78,11 @@ class TrainingData:
                                 scheme=self.folds_scheme)
         pool_names = [self.names[i] for i in cols]
         return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
+
+    def done_selecting(self) -> None:
+        """Free the stacked temperatures only the selection reads (a day of 64 sensors at 1 s
+        is 44 MB, held through the effects and the next-day fits otherwise)."""
+        self.X = None
 
     def vrmse(self, target: str, terms: list[Term]) -> float:
         """Out-of-fold RMSE of ``terms`` fitted on ``target`` (the budget's cost)."""
