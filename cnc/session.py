@@ -258,7 +258,8 @@ def prepare_box(build: Path, n_samples: int, service: dict | None = None):
 def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
     """Copy the config, component, driver, decoder, firmware and feed; returns the INI."""
     (stage_dir / "cnc" / "config").mkdir(parents=True)
-    for f in ("thermalcomp.py", "keptstate.py", "driver.py"):
+    for f in ("thermalcomp.py", "compconfig.py", "compensator.py", "serialport.py",
+              "keptstate.py", "driver.py"):
         shutil.copy2(ROOT / "cnc" / f, stage_dir / "cnc" / f)
     for f in CONFIG_DIR.iterdir():
         if f.is_file():
@@ -582,7 +583,7 @@ def clean_reference(setup, scenario: Scenario) -> dict:
     period_s = float(model["sample_period_s"])
     slew_nm = cfg.slew_nm_per_s * round(period_s * 1000.0) / 1000.0
     max_abs_nm = cfg.max_abs_um * 1000.0
-    steps = {a.letter: float(thermalcomp._axis_step_nm(CONFIG_DIR, f"axis.{a.letter}",
+    steps = {a.letter: float(thermalcomp.axis_step_nm(CONFIG_DIR, f"axis.{a.letter}",
                                                         a.box_axis, model, None, True))
              for a in cfg.axes}
     offset: dict[str, list[float]] = {a.letter: [] for a in cfg.axes}

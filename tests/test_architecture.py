@@ -39,7 +39,10 @@ BELOW = {
             "host.service"},  # hil replay --probe-*: the probe readings as host evaluate makes them
     # the LinuxCNC side: the HAL component and the headless driver run under Debian's
     # /usr/bin/python3 with the contract only; the session (make cnc) builds with the rest
-    "cnc.thermalcomp": {"contract", "cnc.keptstate"},
+    "cnc.thermalcomp": {"contract", "cnc.compconfig", "cnc.compensator", "cnc.serialport"},
+    "cnc.compensator": {"contract", "cnc.compconfig", "cnc.keptstate", "cnc.serialport"},
+    "cnc.compconfig": {"contract"},
+    "cnc.serialport": set(),
     "cnc.keptstate": {"contract"},
     "cnc.driver": {"contract"},
     "cnc": {"contract", "codegen", "hil", "host.io", "host.fitting", "host.sim",
