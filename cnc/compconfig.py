@@ -68,30 +68,71 @@ class Config:
     probed_includes_offset: bool = True  # LinuxCNC 2.9: #5063 contains the external offset
 
 
-def load_config(path: str | Path) -> Config:
-    """Read the component's config file (INI syntax, see cnc/config/thermalcomp.conf)."""
-    path = Path(path)
-    parser = configparser.ConfigParser(inline_comment_prefixes=("#", ";"))
-    if not parser.read(path):
-        raise ConfigError(f"{path}: component config not found or unreadable")
+class _Ini:
+    """The parsed file and its path, for errors that name file, section and key."""
 
-    def get(section: str, key: str, kind: type, default: object = None) -> object:
-        if not parser.has_option(section, key):
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.parser = configparser.ConfigParser(inline_comment_prefixes=("#", ";"))
+        if not self.parser.read(path):
+            raise ConfigError(f"{path}: component config not found or unreadable")
+
+    def has(self, section: str, key: str) -> bool:
+        return self.parser.has_option(section, key)
+
+    def fail(self, what: str) -> ConfigError:
+        return ConfigError(f"{self.path}: {what}")
+
+    def get(self, section: str, key: str, kind: type, default: object = None) -> object:
+        if not self.parser.has_option(section, key):
             if default is None:
-                raise ConfigError(f"{path}: [{section}] needs '{key}'")
+                raise self.fail(f"[{section}] needs '{key}'")
             return default
-        text = parser.get(section, key)
+        text = self.parser.get(section, key)
         try:
             return kind(text)
         except ValueError:
-            raise ConfigError(f"{path}: [{section}] {key} = {text!r} is not a valid "
-                              f"{kind.__name__}") from None
+            raise self.fail(f"[{section}] {key} = {text!r} is not a valid "
+                            f"{kind.__name__}") from None
 
-    if not parser.has_section("box"):
-        raise ConfigError(f"{path}: no [box] section (port, stale_periods, ...)")
-    units = str(get("machine", "units", str, "mm")) if parser.has_section("machine") else "mm"
+    def yes_no(self, section: str, key: str, default: str = "yes") -> bool:
+        text = str(self.get(section, key, str, default)).strip().lower()
+        if text not in ("yes", "no"):
+            raise self.fail(f"[{section}] {key} = {text!r}: yes or no")
+        return text == "yes"
+
+    def file(self, section: str, key: str) -> Path:
+        """A path given in the file: absolute, or relative to the file."""
+        given = Path(self.parser.get(section, key).strip())
+        return given if given.is_absolute() else self.path.resolve().parent / given
+
+
+def load_config(path: str | Path) -> Config:
+    """Read the component's config file (INI syntax, see cnc/config/thermalcomp.conf)."""
+    ini = _Ini(Path(path))
+    if not ini.parser.has_section("box"):
+        raise ini.fail("no [box] section (port, stale_periods, ...)")
+    cfg = _box(ini)
+    model = _model(ini, cfg)
+    for section in ini.parser.sections():
+        if section.startswith("axis."):
+            cfg.axes.append(_axis(ini, section, model, cfg.model_hash is not None))
+    if not cfg.axes:
+        raise ini.fail("no [axis.<letter>] section: nothing to drive")
+    letters = [a.letter for a in cfg.axes]
+    if len(set(letters)) != len(letters):
+        raise ini.fail(f"an axis letter appears twice ({', '.join(letters)})")
+    if ini.parser.has_section("probe"):
+        _probe(ini, cfg, letters)
+    return cfg
+
+
+def _box(ini: _Ini) -> Config:
+    """[box] and [machine]: the port, the clocks, the bounds, what happens after a power cut."""
+    get = ini.get
+    units = str(get("machine", "units", str, "mm")) if ini.parser.has_section("machine") else "mm"
     if units not in UNITS_MM:
-        raise ConfigError(f"{path}: [machine] units = {units!r}: mm or inch")
+        raise ini.fail(f"[machine] units = {units!r}: mm or inch")
     period = get("box", "period_s", float, -1.0)
     cfg = Config(port=str(get("box", "port", str)), baud=int(get("box", "baud", int, 115200)),
                  stale_periods=float(get("box", "stale_periods", float, 3.0)),
@@ -104,91 +145,83 @@ def load_config(path: str | Path) -> Config:
                             ("slew_nm_per_s", cfg.slew_nm_per_s, 1e-9),
                             ("poll_s", cfg.poll_s, 1e-4)):
         if not (math.isfinite(value) and value >= lo):
-            raise ConfigError(f"{path}: [box] {name} = {value:g} must be at least {lo:g}")
+            raise ini.fail(f"[box] {name} = {value:g} must be at least {lo:g}")
     if cfg.period_s is not None and not cfg.period_s > 0:
-        raise ConfigError(f"{path}: [box] period_s = {cfg.period_s:g} must be positive")
+        raise ini.fail(f"[box] period_s = {cfg.period_s:g} must be positive")
     cfg.max_abs_um = float(get("box", "max_abs_um", float, DEFAULT_MAX_ABS_UM))
-    resume = str(get("box", "resume", str, "yes")).strip().lower()
-    if resume not in ("yes", "no"):
-        raise ConfigError(f"{path}: [box] resume = {resume!r}: yes or no")
-    cfg.resume = resume == "yes"
-    keep = str(get("box", "keep_state", str, "yes")).strip().lower()
-    if keep not in ("yes", "no"):
-        raise ConfigError(f"{path}: [box] keep_state = {keep!r}: yes or no")
-    cfg.keep_state = keep == "yes"
-    if parser.has_option("box", "state_file"):
-        kept = Path(parser.get("box", "state_file").strip())
-        cfg.state_file = kept if kept.is_absolute() else path.resolve().parent / kept
+    cfg.resume = ini.yes_no("box", "resume")
+    cfg.keep_state = ini.yes_no("box", "keep_state")
+    if ini.has("box", "state_file"):
+        cfg.state_file = ini.file("box", "state_file")
     if not (math.isfinite(cfg.max_abs_um) and cfg.max_abs_um > 0):
-        raise ConfigError(f"{path}: [box] max_abs_um = {cfg.max_abs_um:g} must be positive")
+        raise ini.fail(f"[box] max_abs_um = {cfg.max_abs_um:g} must be positive")
+    return cfg
+
+
+def _model(ini: _Ini, cfg: Config) -> dict | None:
+    """[box] model and/or model_hash: the model the box must carry (its hash into cfg)."""
     model: dict | None = None
-    if parser.has_option("box", "model"):
-        model_path = Path(parser.get("box", "model").strip())
-        if not model_path.is_absolute():
-            model_path = path.resolve().parent / model_path  # relative to this file
+    if ini.has("box", "model"):
+        model_path = ini.file("box", "model")
         try:
             model = model_file.read_model(model_path)
         except (InputError, OSError) as exc:
-            raise ConfigError(f"{path}: [box] model = {model_path}: {exc}") from None
+            raise ini.fail(f"[box] model = {model_path}: {exc}") from None
         cfg.model_path = model_path
         cfg.model_hash = model_file.model_hash(model)
-    if parser.has_option("box", "model_hash"):
-        given = parser.get("box", "model_hash").strip()
+    if ini.has("box", "model_hash"):
+        given = ini.parser.get("box", "model_hash").strip()
         if not given:
-            raise ConfigError(f"{path}: [box] model_hash is empty")
+            raise ini.fail("[box] model_hash is empty")
         if cfg.model_hash is not None and given != cfg.model_hash:
-            raise ConfigError(f"{path}: [box] model_hash = {given} but the model "
-                              f"{cfg.model_path} has hash {cfg.model_hash}: which one is it?")
+            raise ini.fail(f"[box] model_hash = {given} but the model {cfg.model_path} has "
+                           f"hash {cfg.model_hash}: which one is it?")
         cfg.model_hash = given
-    for section in parser.sections():
-        if not section.startswith("axis."):
-            continue
-        letter = section[5:].lower()
-        if letter not in "xyzabcuvw" or len(letter) != 1:
-            raise ConfigError(f"{path}: [{section}]: the axis letter must be one of XYZABCUVW")
-        sign_text = str(get(section, "sign", str)).strip()
-        if sign_text not in ("+1", "1", "+", "-1", "-"):
-            raise ConfigError(f"{path}: [{section}] sign = {sign_text!r}: +1 or -1")
-        nm = float(get(section, "nm_per_count", float, 1.0))
-        if not (math.isfinite(nm) and nm > 0):
-            raise ConfigError(f"{path}: [{section}] nm_per_count = {nm:g} must be positive")
-        box_axis = str(get(section, "box_axis", str))
-        if unit_of(box_axis) != "um":
-            raise ConfigError(f"{path}: [{section}] box_axis = {box_axis}: a tilt axis (urad) "
-                              "is not a linear offset; only axes in um drive external offsets")
-        given = (float(get(section, "max_step_um", float))
-                 if parser.has_option(section, "max_step_um") else None)
-        step_nm = axis_step_nm(path, section, box_axis, model, given,
-                                cfg.model_hash is not None)
-        if step_nm is not None and nm > step_nm:
-            raise ConfigError(f"{path}: [{section}] nm_per_count = {nm:g} is larger than the "
-                              f"axis's step limit ({step_nm:g} nm per sample): one count "
-                              "would already be more than the step limit")
-        cfg.axes.append(AxisMap(letter, box_axis,
-                                -1 if sign_text.startswith("-") else 1, nm, step_nm))
-    if not cfg.axes:
-        raise ConfigError(f"{path}: no [axis.<letter>] section: nothing to drive")
-    letters = [a.letter for a in cfg.axes]
-    if len(set(letters)) != len(letters):
-        raise ConfigError(f"{path}: an axis letter appears twice ({', '.join(letters)})")
-    if parser.has_section("probe"):
-        axis = str(get("probe", "axis", str)).strip().lower()
-        if axis not in letters:
-            raise ConfigError(f"{path}: [probe] axis = {axis!r}: not one of the driven axes "
-                              f"({', '.join(letters)})")
-        cfg.probe_axis = axis
-        cfg.probe_timeout_s = float(get("probe", "timeout_s", float, 2.0))
-        try:
-            cfg.probed_includes_offset = parser.getboolean("probe", "probed_includes_offset",
+    return model
+
+
+def _axis(ini: _Ini, section: str, model: dict | None, need_step: bool) -> AxisMap:
+    """One [axis.<letter>] section: the LinuxCNC axis, its box axis, sign, count and step."""
+    path, get = ini.path, ini.get
+    letter = section[5:].lower()
+    if letter not in "xyzabcuvw" or len(letter) != 1:
+        raise ini.fail(f"[{section}]: the axis letter must be one of XYZABCUVW")
+    sign_text = str(get(section, "sign", str)).strip()
+    if sign_text not in ("+1", "1", "+", "-1", "-"):
+        raise ini.fail(f"[{section}] sign = {sign_text!r}: +1 or -1")
+    nm = float(get(section, "nm_per_count", float, 1.0))
+    if not (math.isfinite(nm) and nm > 0):
+        raise ini.fail(f"[{section}] nm_per_count = {nm:g} must be positive")
+    box_axis = str(get(section, "box_axis", str))
+    if unit_of(box_axis) != "um":
+        raise ini.fail(f"[{section}] box_axis = {box_axis}: a tilt axis (urad) is not a linear "
+                       "offset; only axes in um drive external offsets")
+    given = float(get(section, "max_step_um", float)) if ini.has(section, "max_step_um") else None
+    step_nm = axis_step_nm(path, section, box_axis, model, given, need_step)
+    if step_nm is not None and nm > step_nm:
+        raise ini.fail(f"[{section}] nm_per_count = {nm:g} is larger than the axis's step "
+                       f"limit ({step_nm:g} nm per sample): one count would already be more "
+                       "than the step limit")
+    return AxisMap(letter, box_axis, -1 if sign_text.startswith("-") else 1, nm, step_nm)
+
+
+def _probe(ini: _Ini, cfg: Config, letters: list[str]) -> None:
+    """[probe]: the axis the touch probe measures, its answer timeout, LinuxCNC's #5063."""
+    axis = str(ini.get("probe", "axis", str)).strip().lower()
+    if axis not in letters:
+        raise ini.fail(f"[probe] axis = {axis!r}: not one of the driven axes "
+                       f"({', '.join(letters)})")
+    cfg.probe_axis = axis
+    cfg.probe_timeout_s = float(ini.get("probe", "timeout_s", float, 2.0))
+    try:
+        cfg.probed_includes_offset = ini.parser.getboolean("probe", "probed_includes_offset",
                                                            fallback=True)
-        except ValueError:
-            raise ConfigError(f"{path}: [probe] probed_includes_offset = "
-                              f"{parser.get('probe', 'probed_includes_offset')!r}: yes or "
-                              "no") from None
-        if not (math.isfinite(cfg.probe_timeout_s) and cfg.probe_timeout_s > 0):
-            raise ConfigError(f"{path}: [probe] timeout_s = {cfg.probe_timeout_s:g} must be "
-                              "positive")
-    return cfg
+    except ValueError:
+        raise ini.fail(f"[probe] probed_includes_offset = "
+                       f"{ini.parser.get('probe', 'probed_includes_offset')!r}: yes or "
+                       "no") from None
+    if not (math.isfinite(cfg.probe_timeout_s) and cfg.probe_timeout_s > 0):
+        raise ini.fail(f"[probe] timeout_s = {cfg.probe_timeout_s:g} must be positive")
 
 
 def axis_step_nm(path: Path, section: str, box_axis: str, model: dict | None,

@@ -165,6 +165,15 @@ class HalDriver:
         return a.nm_per_count * 1e-6 / self.cfg.units_mm
 
     def update(self, now: float, port: Port) -> None:
+        """One poll: the offsets to LinuxCNC, the operator's zero, the probe, the pins."""
+        self.offsets(now)
+        self.zero(port)
+        self.probe(now, port)
+        self.comp.check_stale(now)
+        self.show(now, port)
+
+    def offsets(self, now: float) -> None:
+        """Counts for what the component wants, with the machine-off and enable resync."""
         h, comp = self.h, self.comp
         live = bool(h["machine-on"]) and bool(h["homed"])
         enabled = bool(h["enable"])
@@ -195,6 +204,10 @@ class HalDriver:
                     self.last_write = now
             if self.need_sync:
                 self.last_write, self.need_sync = now, False
+
+    def zero(self, port: Port) -> None:
+        """``zero`` rising: ZERO to the box, or deferred while it cannot take a datum."""
+        h, comp = self.h, self.comp
         zero = bool(h["zero"])
         if zero and not self.zero_was:
             wait = comp.zero_wait_reason()
@@ -207,11 +220,12 @@ class HalDriver:
             else:
                 comp.log("zero: box not connected, ZERO not sent")
         self.zero_was = zero
-        self.probe(now, port)
-        comp.check_stale(now)
-        status = comp.status
+
+    def show(self, now: float, port: Port) -> None:
+        """The status pins."""
+        h, comp, status = self.h, self.comp, self.comp.status
         h["connected"] = port.fd is not None and comp.info is not None and comp.info_fresh
-        h["active"] = self.live_since is not None and not self.need_sync and enabled
+        h["active"] = self.live_since is not None and not self.need_sync and bool(h["enable"])
         h["fault"] = comp.fault or comp.model_mismatch
         h["model-mismatch"] = comp.model_mismatch
         h["awaiting-zero"] = comp.await_zero
@@ -266,6 +280,8 @@ def _s32(value: int) -> int:
 
 
 def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
+    """One line from the box, in the order it came: to the compensator, and what the
+    component answers on the wire (INFO after a restart, SNAP / LOAD / RESUME, a ZERO)."""
     if not raw:
         return
     if raw is OVERLONG:
@@ -278,55 +294,72 @@ def handle_line(comp: Compensator, port: Port, raw: bytes, now: float) -> None:
         comp.bad_line(raw, exc)
         return
     if isinstance(msg, protocol.Sample):
-        if comp.take_sample(msg, now):
-            port.write(b"INFO\r\n")  # a restarted box may carry another model
-        _resume_step(comp, port)
-        keeper = comp.keeper
-        if (keeper is not None and msg.status & REFERENCED and not comp.hold_reason
-                and comp.resume_wanted is None and not comp.resume_pending):
-            line = keeper.ask(msg.seq)  # keep the state this datum lives in (issue 41)
-            if line is not None:
-                port.write(line)
-        if comp.deferred_zero_due() and port.write(b"ZERO\r\n"):
-            comp.zero_deferred = False
-            comp.zero_sent()
-            comp.log(f"zero: the box no longer holds (seq {msg.seq}): sending the deferred ZERO")
+        _sample(comp, port, msg, now)
     elif isinstance(msg, protocol.Info):
         comp.take_info(msg)
     elif isinstance(msg, protocol.Ack) and msg.command == "ZERO":
         comp.zeroed(msg.value)
     elif isinstance(msg, protocol.Ack) and msg.command == "RESUME":
         comp.resumed(msg.value)
-    elif isinstance(msg, protocol.BlockPiece):
-        if comp.keeper is not None:
-            comp.keeper.take_piece(msg)
-    elif isinstance(msg, protocol.Ack) and msg.command == "SNAP":
-        why = comp.keeper.snapped(msg.value) if comp.keeper is not None else "no keeper"
+    elif isinstance(msg, protocol.BlockPiece | protocol.Ack) and comp.keeper is not None:
+        _kept_state(comp, port, msg)
+    elif isinstance(msg, protocol.MeasReply):
+        comp.take_meas_reply(msg)
+    elif isinstance(msg, protocol.ErrorReply):
+        _refused(comp, port, msg.reason)
+
+
+def _sample(comp: Compensator, port: Port, msg: protocol.Sample, now: float) -> None:
+    if comp.take_sample(msg, now):
+        port.write(b"INFO\r\n")  # a restarted box may carry another model
+    _resume_step(comp, port)
+    keeper = comp.keeper
+    if (keeper is not None and msg.status & REFERENCED and not comp.hold_reason
+            and comp.resume_wanted is None and not comp.resume_pending):
+        line = keeper.ask(msg.seq)  # keep the state this datum lives in (issue 41)
+        if line is not None:
+            port.write(line)
+    if comp.deferred_zero_due() and port.write(b"ZERO\r\n"):
+        comp.zero_deferred = False
+        comp.zero_sent()
+        comp.log(f"zero: the box no longer holds (seq {msg.seq}): sending the deferred ZERO")
+
+
+def _kept_state(comp: Compensator, port: Port,
+                msg: protocol.BlockPiece | protocol.Ack) -> None:
+    """The box's state block coming in (SNAP) or going back (LOAD)."""
+    keeper = comp.keeper
+    assert keeper is not None
+    if isinstance(msg, protocol.BlockPiece):
+        keeper.take_piece(msg)
+    elif msg.command == "SNAP":
+        why = keeper.snapped(msg.value)
         if why:
             comp.log(why)
-    elif isinstance(msg, protocol.Ack) and msg.command == "LOAD":
-        if comp.keeper is None or not comp.keeper.load_pending:
+    elif msg.command == "LOAD":
+        if not keeper.load_pending:
             comp.log(f"$OK,LOAD,{msg.value} without a LOAD sent: ignored")
             return
-        line = comp.keeper.next_load()
+        line = keeper.next_load()
         if line is not None:
             port.write(line)
         else:
             _resume_step(comp, port)
-    elif isinstance(msg, protocol.MeasReply):
-        comp.take_meas_reply(msg)
-    elif isinstance(msg, protocol.ErrorReply):
-        keeper = comp.keeper
-        if comp.meas_error(msg.reason):
-            return
-        if keeper is not None and keeper.load_refused():
-            comp.log(f"the box refused its kept state ({msg.reason}): RESUME without it")
-            comp.load_extra = 0
-            _resume_step(comp, port)
-        elif not comp.resume_pending and keeper is not None and keeper.refused():
-            pass  # SNAP before the box had a state to give (NO_STATE): asked again later
-        else:
-            comp.refused(msg.reason)
+
+
+def _refused(comp: Compensator, port: Port, reason: str) -> None:
+    """``$E,<reason>``: the answer to the command outstanding (MEAS, LOAD, RESUME, SNAP, ZERO)."""
+    keeper = comp.keeper
+    if comp.meas_error(reason):
+        return
+    if keeper is not None and keeper.load_refused():
+        comp.log(f"the box refused its kept state ({reason}): RESUME without it")
+        comp.load_extra = 0
+        _resume_step(comp, port)
+    elif not comp.resume_pending and keeper is not None and keeper.refused():
+        pass  # SNAP before the box had a state to give (NO_STATE): asked again later
+    else:
+        comp.refused(reason)
 
 
 def _resume_step(comp: Compensator, port: Port) -> None:
