@@ -10,8 +10,9 @@ Every command is timed in fresh processes (interpreter start and CSV parsing inc
 fastest of ``REPEAT``, every run shown), once with codegen and the effects search off
 (selection + fit + validation) and once as a user runs it by default (effects + codegen).
 
-Memory is that of every process the command starts: ``host train`` forks workers for its
-nested folds (host/parallel.py), each with its own address space. A small launcher
+Memory is that of every process the command starts: ``host train`` can fork workers for its
+nested folds (``--jobs N``, host/parallel.py; by default since ca1e363 it does not), each with
+its own address space. A small launcher
 (LAUNCHER) starts the command and, every ``BENCH_SAMPLE_S`` (0.05 s) while it runs, sums the
 proportional set size (``Pss`` of /proc/PID/smaps_rollup; ``VmRSS`` where the kernel has no
 rollup) over the command's process and all its descendants; the peak of that sum is the
