@@ -57,7 +57,16 @@ def pearson_r(temperatures: np.ndarray, displacement: np.ndarray) -> np.ndarray:
 
 # Sensors transformed together: a multiple of the widest SIMD group of doubles (8), so the FFT
 # groups the columns as it does the whole array at once (the same numbers to the last bit).
-FFT_COLUMNS = 16
+FFT_COLUMNS = 8
+
+
+def _column_blocks(k: int, width: int) -> list[tuple[int, int]]:
+    """[a, b) ranges of ``width`` columns covering k; a last block of one column joins the one
+    before (numpy sums a lone column pairwise, a block's columns row by row, as the whole)."""
+    starts = list(range(0, k, width)) or [0]
+    if len(starts) > 1 and k - starts[-1] < 2:
+        starts.pop()
+    return list(zip(starts, [*starts[1:], k], strict=True))
 
 
 def cross_correlation(temperatures: np.ndarray, displacement: np.ndarray,
@@ -70,19 +79,23 @@ def cross_correlation(temperatures: np.ndarray, displacement: np.ndarray,
     n = T.shape[0]
     max_lag = int(max(0, min(max_lag, n - 1)))
     lags = np.arange(-max_lag, max_lag + 1)
-    Tc = T - T.mean(axis=0)
+    mean = T.mean(axis=0)
     dc = d - d.mean()
-    scale = n * np.sqrt((Tc ** 2).mean(axis=0) * float(dc @ dc) / n)
+    dd = float(dc @ dc)
     nfft = 1 << int(n + max_lag).bit_length()  # power of two >= n + max_lag + 1: no wrap
-    # sum_t d(t) T(t + tau) = irfft(conj(D) * T)[tau] (negative tau wraps to the end), for
-    # FFT_COLUMNS sensors at a time: all 64 of a day at 1 s at once held 400 MB of spectra
+    # sum_t d(t) T(t + tau) = irfft(conj(D) * T)[tau] (negative tau wraps to the end), a few
+    # sensors at a time (FFT_COLUMNS), centred there: all 64 of a day at 1 s at once held
+    # 400 MB of spectra and centred copies
     spectrum = np.conj(np.fft.rfft(dc, nfft))[:, None]
-    raw = np.empty((2 * max_lag + 1, Tc.shape[1]))
-    for a in range(0, Tc.shape[1], FFT_COLUMNS):
-        full = np.fft.irfft(spectrum * np.fft.rfft(Tc[:, a:a + FFT_COLUMNS], nfft, axis=0),
-                            nfft, axis=0)
-        raw[:max_lag, a:a + FFT_COLUMNS] = full[nfft - max_lag:]
-        raw[max_lag:, a:a + FFT_COLUMNS] = full[:max_lag + 1]
+    k = T.shape[1]
+    raw = np.empty((2 * max_lag + 1, k))
+    scale = np.empty(k)
+    for a, b in _column_blocks(k, FFT_COLUMNS):
+        Tc = T[:, a:b] - mean[a:b]
+        scale[a:b] = n * np.sqrt((Tc ** 2).mean(axis=0) * dd / n)
+        full = np.fft.irfft(spectrum * np.fft.rfft(Tc, nfft, axis=0), nfft, axis=0)
+        raw[:max_lag, a:b] = full[nfft - max_lag:]
+        raw[max_lag:, a:b] = full[:max_lag + 1]
     with np.errstate(invalid="ignore", divide="ignore"):
         curves = np.where(scale > 0, raw / np.where(scale > 0, scale, 1.0), 0.0)
     return lags, curves
@@ -133,10 +146,12 @@ def thermal_parameters(segments: Sequence[tuple[np.ndarray, np.ndarray]], period
     lags = None
     r = None
     for (T, d), n in zip(segments, lengths, strict=True):
-        lags, curves = cross_correlation(T, d, max_lag)
         w = n / total
-        combined = curves * w if combined is None else combined + curves * w
+        # r first: its centred copy of the run is not held beside the curves
         r = pearson_r(T, d) * w if r is None else r + pearson_r(T, d) * w
+        lags, curves = cross_correlation(T, d, max_lag)
+        combined = curves * w if combined is None else combined + curves * w
+        del curves
     assert combined is not None and lags is not None and r is not None
     r = np.clip(r, -1.0, 1.0)
     tau = _peak(lags, combined, refine)
