@@ -505,56 +505,85 @@ def _drain_errors(machine: Machine) -> str:
 def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap,
            records: list[dict] | None = None) -> list[dict]:
     """Feed every sample, apply the plan's events, record what LinuxCNC does after each."""
-    feed = Path(plan["feed"]).read_text().splitlines()
-    ev = plan.get("events", {})
-    open_tc, stale, bad = ev.get("open"), ev.get("stale"), ev.get("bad_line")
-    off, zero, dis = ev.get("machine_off"), ev.get("zero"), ev.get("disable")
-    wdt, forged = ev.get("wdt_restart"), ev.get("forged")
-    cuts = {c["at"]: c for c in ev.get("power_cut", [])}  # a power cut: the box boots cold
-    zero_after_cut = {c["at"] + int(c["zero_after"]): c for c in cuts.values()}
-    noise, link = ev.get("garbage"), ev.get("reconnect")
-    faults: dict[int, int] = {}
-    start_mdi = plan["start_mdi"]
-    timeout = float(plan.get("timeout_s", 10.0))
-    records = records if records is not None else []
-    probe = plan.get("probe")
-    probe_at = set(probe["at"]) if probe else set()
-    chips = {int(k): float(v) for k, v in probe.get("chips", {}).items()} if probe else {}
-    for k, line in enumerate(feed):
-        phase = "track"
-        if probe:
+    run = _Replay(plan, machine, boxes, tap, records if records is not None else [])
+    for k, line in enumerate(Path(plan["feed"]).read_text().splitlines()):
+        run.sample(k, line)
+    return run.records
+
+
+class _Replay:
+    """One replay: the plan's events by sample, the boxes, the tap and the records so far."""
+
+    def __init__(self, plan: dict, machine: Machine, boxes: list[Box], tap: Tap,
+                 records: list[dict]) -> None:
+        self.plan, self.machine, self.boxes, self.tap, self.records = (plan, machine, boxes,
+                                                                       tap, records)
+        ev = plan.get("events", {})
+        self.ev = ev
+        self.cuts = {c["at"]: c for c in ev.get("power_cut", [])}  # the box boots cold
+        self.zero_after_cut = {c["at"] + int(c["zero_after"]): c for c in self.cuts.values()}
+        self.faults: dict[int, int] = {}
+        self.timeout = float(plan.get("timeout_s", 10.0))
+        self.probe = plan.get("probe")
+        self.probe_at = set(self.probe["at"]) if self.probe else set()
+        self.chips = ({int(k): float(v) for k, v in self.probe.get("chips", {}).items()}
+                      if self.probe else {})
+
+    def sample(self, k: int, line: str) -> None:
+        machine = self.machine
+        if self.probe:
             # the machine's thermal drift at this sample moves the artifact's surface
-            hal.set_p("artifact.in0", repr(float(probe["drift_mm"][k])))
+            hal.set_p("artifact.in0", repr(float(self.probe["drift_mm"][k])))
         # before any injection: garbage is counted as soon as the component reads it
         bad_before = machine.get(f"{COMP}.bad-lines")
-        if k == 0 and plan.get("zero_at_start"):
-            # a start-referenced box holds (NO_REF) until ZERO: the job's touch-off
-            records.append({"sample": k, "phase": "zero_start",
-                            "reply": _pulse_zero(machine, tap, timeout)})
-            if probe:
-                # the reference touch right after ZERO (the offsets are 0)
-                machine.wait(lambda: all(abs(machine.get(f"axis.{a}.eoffset")) < 1e-9
-                                         for a in machine.letters), timeout,
-                             "the offsets at 0 after ZERO")
-                records.append(probe_touch(machine, tap, probe, 0, k))
-        if open_tc and k == open_tc["at"]:
-            faults[open_tc["channel"]] = 1
-            boxes[-1].feed(f"F {open_tc['channel']} 01\n")
-        if open_tc and k == open_tc["stop"]:
-            faults[open_tc["channel"]] = 0
-            boxes[-1].feed(f"F {open_tc['channel']} 00\n")
+        if k == 0 and self.plan.get("zero_at_start"):
+            self.zero_at_start(k)
+        phase = self.before(k)
+        link = self.ev.get("reconnect")
+        link_down = bool(link and link["at"] <= k < link["at"] + link["samples"])
+        phase = self.link_events(k, phase, link_down)
+        box_line = self.feed(k, line, phase, bad_before, link_down)
+        phase = self.after(k, phase)
+        _settle(machine, self.timeout, k)
+        self.records.append({"sample": k, "phase": phase, "box": box_line,
+                             **machine.snapshot()})
+        forged = self.ev.get("forged")
+        if forged and k == forged["at"]:
+            self.forge(k, box_line, int(forged["delta_nm"]))
+        if k in self.probe_at:
+            self.records.append(probe_touch(machine, self.tap, self.probe, 1, k,
+                                            self.chips.get(k, 0.0)))
+
+    def zero_at_start(self, k: int) -> None:
+        """A start-referenced box holds (NO_REF) until ZERO: the job's touch-off."""
+        machine, timeout = self.machine, self.timeout
+        self.records.append({"sample": k, "phase": "zero_start",
+                             "reply": _pulse_zero(machine, self.tap, timeout)})
+        if self.probe:
+            # the reference touch right after ZERO (the offsets are 0)
+            machine.wait(lambda: all(abs(machine.get(f"axis.{a}.eoffset")) < 1e-9
+                                     for a in machine.letters), timeout,
+                         "the offsets at 0 after ZERO")
+            self.records.append(probe_touch(machine, self.tap, self.probe, 0, k))
+
+    def before(self, k: int) -> str:
+        """The events before sample k is fed; the sample's phase."""
+        ev, machine, boxes, phase = self.ev, self.machine, self.boxes, "track"
+        open_tc, stale, bad = ev.get("open"), ev.get("stale"), ev.get("bad_line")
+        off, zero, dis = ev.get("machine_off"), ev.get("zero"), ev.get("disable")
+        if open_tc and k in (open_tc["at"], open_tc["stop"]):
+            self.faults[open_tc["channel"]] = 1 if k == open_tc["at"] else 0
+            boxes[-1].feed(f"F {open_tc['channel']} {self.faults[open_tc['channel']]:02x}\n")
         if open_tc and open_tc["at"] <= k < open_tc["stop"]:
             phase = "open"
         if stale and k == stale["at"]:
             # the box goes quiet: nothing is fed for pause_s of wall time
             before = machine.snapshot()
             time.sleep(float(stale["pause_s"]))
-            during = machine.snapshot()
-            records.append({"sample": k, "phase": "stale_pause", "before": before,
-                            "during": during})
+            self.records.append({"sample": k, "phase": "stale_pause", "before": before,
+                                 "during": machine.snapshot()})
         if bad and k == bad["at"]:
-            tap.corrupt_next = True
-            phase = "bad_line"
+            self.tap.corrupt_next, phase = True, "bad_line"
         if off and k == off["at"]:
             machine.off()
         if off and off["at"] <= k < off["at"] + off["samples"]:
@@ -565,53 +594,69 @@ def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap,
             phase = "disabled"
         if zero and k == zero["at"]:
             acks = machine.get(f"{COMP}.zero-acks")
-            records.append({"sample": k, "phase": "zero_sent",
-                            "reply": _pulse_zero(machine, tap, timeout),
-                            "zero_acks_before": acks})
+            self.records.append({"sample": k, "phase": "zero_sent", "zero_acks_before": acks,
+                                 "reply": _pulse_zero(machine, self.tap, self.timeout)})
             phase = "zero"
+        return self.restarts(k, phase)
+
+    def restarts(self, k: int, phase: str) -> str:
+        wdt = self.ev.get("wdt_restart")
         if wdt and k == wdt["at"]:
-            restart_box(plan, boxes, tap, True, faults)
+            restart_box(self.plan, self.boxes, self.tap, True, self.faults)
             phase = "wdt_restart"
-        if k in cuts:
-            restart_box(plan, boxes, tap, False, faults)
+        if k in self.cuts:
+            restart_box(self.plan, self.boxes, self.tap, False, self.faults)
             phase = "power_cut"
-        if k in zero_after_cut:
-            # the operator's touch-off some samples after the box came back cold. ZERO after 1
-            # is the race of a touch-off before the component has even seen the restart: sent
-            # as it is. Later, the operator looks once the component has settled the restart:
-            # a touch-off only if it awaits one, not once it gave the box its kept state back
-            # and the box resumed (docs/linuxcnc.md, "Power cuts")
-            rec = {"sample": k, "phase": "zero_after_cut"}
-            if int(zero_after_cut[k]["zero_after"]) > 1:
-                machine.wait(lambda: not machine.get(f"{COMP}.restoring"), timeout,
-                             "the component to give the box its state back")
-            rec["awaiting_zero_before"] = machine.get(f"{COMP}.awaiting-zero")
-            if int(zero_after_cut[k]["zero_after"]) <= 1 or rec["awaiting_zero_before"]:
-                rec["reply"] = _pulse_zero(machine, tap, timeout)
-            else:
-                rec["skipped"] = "the box resumed its kept state: no touch-off needed"
-            records.append(rec)
+        if k in self.zero_after_cut:
+            self.zero_after_power_cut(k, int(self.zero_after_cut[k]["zero_after"]))
             phase = "zero_after_cut"
+        return phase
+
+    def zero_after_power_cut(self, k: int, after: int) -> None:
+        """The operator's touch-off some samples after the box came back cold. ZERO after 1 is
+        the race of a touch-off before the component has even seen the restart: sent as it
+        is. Later, the operator looks once the component has settled the restart: a touch-off
+        only if it awaits one, not once it gave the box its kept state back and the box
+        resumed (docs/linuxcnc.md, "Power cuts")."""
+        machine = self.machine
+        rec: dict = {"sample": k, "phase": "zero_after_cut"}
+        if after > 1:
+            machine.wait(lambda: not machine.get(f"{COMP}.restoring"), self.timeout,
+                         "the component to give the box its state back")
+        rec["awaiting_zero_before"] = machine.get(f"{COMP}.awaiting-zero")
+        if after <= 1 or rec["awaiting_zero_before"]:
+            rec["reply"] = _pulse_zero(machine, self.tap, self.timeout)
+        else:
+            rec["skipped"] = "the box resumed its kept state: no touch-off needed"
+        self.records.append(rec)
+
+    def link_events(self, k: int, phase: str, link_down: bool) -> str:
+        """Garbage on the wire, the cable pulled and plugged in again."""
+        machine, noise, link = self.machine, self.ev.get("garbage"), self.ev.get("reconnect")
         if noise and k == noise["at"]:
-            tap.inject(garbage(int(noise.get("seed", 41))))
+            self.tap.inject(garbage(int(noise.get("seed", 41))))
             phase = "garbage"
-        link_down = bool(link and link["at"] <= k < link["at"] + link["samples"])
         if link and k == link["at"]:
-            tap.drop_link()  # the cable is pulled: the component's reads fail
-            machine.wait(lambda: not machine.get(f"{COMP}.connected"), timeout,
+            self.tap.drop_link()  # the cable is pulled: the component's reads fail
+            machine.wait(lambda: not machine.get(f"{COMP}.connected"), self.timeout,
                          "the component to notice the dropped link")
         if link_down:
             phase = "link_down"
         if link and k == link["at"] + link["samples"]:
-            tap.restore_link()  # plugged in again: the same port name, a new device
+            self.tap.restore_link()  # plugged in again: the same port name, a new device
             machine.wait(lambda: machine.get(f"{COMP}.connected"), 20,
                          "the component to reopen the port and read INFO")
             phase = "reconnected"
+        return phase
+
+    def feed(self, k: int, line: str, phase: str, bad_before: int, link_down: bool) -> dict:
+        """Sample k to the box; wait until the component took (or refused) its line."""
+        machine, tap, timeout, forged = self.machine, self.tap, self.timeout, self.ev.get("forged")
         n_before = len(tap.samples)
         holds = machine.get(f"{COMP}.holds")
-        boxes[-1].feed(line + "\n")
-        tap.wait(lambda n=n_before: len(tap.samples) > n, timeout, f"the box's line of sample "
-                 f"{k}")
+        self.boxes[-1].feed(line + "\n")
+        tap.wait(lambda n=n_before: len(tap.samples) > n, timeout,
+                 f"the box's line of sample {k}")
         box_line = tap.samples[n_before]
         if link_down:
             time.sleep(0.01)  # nothing reaches the component
@@ -622,42 +667,46 @@ def replay(plan: dict, machine: Machine, boxes: list[Box], tap: Tap,
             if phase == "garbage":
                 time.sleep(0.1)  # the rest of the run and the box's line it swallowed
             if forged and k == forged["at"] + 1:
-                machine.wait(lambda s=box_line["seq"]: machine.get(f"{COMP}.seq") == s, timeout,
-                             f"the component to take seq {box_line['seq']} (sample {k})")
+                machine.wait(lambda s=box_line["seq"]: machine.get(f"{COMP}.seq") == s,
+                             timeout, f"the component to take seq {box_line['seq']} "
+                             f"(sample {k})")
         else:
             seq = box_line["seq"]
             # taken (seq) or held (a line whose seq went back: a restarted box)
             machine.wait(lambda s=seq, h=holds: machine.get(f"{COMP}.seq") == s or
                          machine.get(f"{COMP}.holds") > h, timeout,
                          f"the component to take seq {seq} (sample {k})")
+        return box_line
+
+    def after(self, k: int, phase: str) -> str:
+        """Machine on and compensation on again, after their last sample off."""
+        machine, off, dis = self.machine, self.ev.get("machine_off"), self.ev.get("disable")
         if off and k == off["at"] + off["samples"] - 1:
             machine.on()
             # LinuxCNC put the old offset into the program position at machine-off; the next
             # move (here: back to the start position) takes it out again
-            machine.wait(lambda: machine.get(f"{COMP}.active"), timeout,
+            machine.wait(lambda: machine.get(f"{COMP}.active"), self.timeout,
                          "the component to resynchronise after machine-on")
-            machine.mdi(start_mdi)
+            machine.mdi(self.plan["start_mdi"])
             phase = "machine_on"
         if dis and k == dis["at"] + dis["samples"] - 1:
             machine.setp(f"{COMP}.enable", 1)
-            machine.wait(lambda: machine.get(f"{COMP}.active"), timeout,
+            machine.wait(lambda: machine.get(f"{COMP}.active"), self.timeout,
                          "the component to resynchronise after enable")
             phase = "enabled"
-        _settle(machine, timeout, k)
-        records.append({"sample": k, "phase": phase, "box": box_line, **machine.snapshot()})
-        if forged and k == forged["at"]:
-            # between this sample and the next: one extra line, CRC-valid, 60 um off
-            fake = forged_line(box_line, int(forged["delta_nm"]))
-            tap.inject(fake)
-            machine.wait(lambda s=(box_line["seq"] + 1) % (1 << 32):
-                         machine.get(f"{COMP}.seq") == _s32(s), timeout,
-                         "the component to take the forged line")
-            _settle(machine, timeout, k)
-            records.append({"sample": k, "phase": "forged",
-                            "line": fake.decode().strip(), **machine.snapshot()})
-        if k in probe_at:
-            records.append(probe_touch(machine, tap, probe, 1, k, chips.get(k, 0.0)))
-    return records
+        return phase
+
+    def forge(self, k: int, box_line: dict, delta_nm: int) -> None:
+        """Between this sample and the next: one extra line, CRC-valid, delta_nm off."""
+        machine = self.machine
+        fake = forged_line(box_line, delta_nm)
+        self.tap.inject(fake)
+        machine.wait(lambda s=(box_line["seq"] + 1) % (1 << 32):
+                     machine.get(f"{COMP}.seq") == _s32(s), self.timeout,
+                     "the component to take the forged line")
+        _settle(machine, self.timeout, k)
+        self.records.append({"sample": k, "phase": "forged", "line": fake.decode().strip(),
+                             **machine.snapshot()})
 
 
 def _s32(value: int) -> int:
