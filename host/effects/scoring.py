@@ -16,11 +16,11 @@ from host.effects.candidates import Candidate
 from host.effects.residual import rounded
 from host.fitting import (
     NO_REFERENCE,
-    SOLVE_TOLERANCE,
     FoldGram,
     Reference,
     first_order_lag,
     shared_filter,
+    solve_many,
     solve_normal,
     term_values,
 )
@@ -334,27 +334,6 @@ class GramScorer(FoldGram):
             for j, k in enumerate(ks):
                 out[k] = P[j]
         return out  # type: ignore[return-value]
-
-
-def solve_many(M: np.ndarray, v: np.ndarray) -> list[np.ndarray]:
-    """``[solve_normal(m, b) for m, b in zip(M, v)]`` in one stacked
-    ``np.linalg.solve``: M is (K, ..., m, m) and v (K, ..., m) (a vector each) or
-    (K, m, r) (r right-hand sides). Each request K is checked as solve_normal checks it, and
-    one that is singular or fails the check is solved again by solve_normal itself (falling
-    back to least squares as it does), so the result is solve_normal's, bit for bit."""
-    K = M.shape[0]
-    vector = v.ndim == M.ndim - 1
-    rhs = v[..., None] if vector else v
-    try:
-        beta = np.linalg.solve(M, rhs)
-    except np.linalg.LinAlgError:  # one of the stack is singular: each on its own
-        return [solve_normal(M[k], v[k]) for k in range(K)]
-    err = np.abs(M @ beta - rhs).reshape(K, -1).max(axis=1)
-    tol = SOLVE_TOLERANCE * np.maximum(1.0, np.abs(v).reshape(K, -1).max(axis=1))
-    out = list(beta[..., 0] if vector else beta)
-    for k in np.flatnonzero(~(np.isfinite(err) & (err <= tol))).tolist():
-        out[k] = solve_normal(M[k], v[k])
-    return out
 
 
 def score_candidates(cache: FeatureCache, y: np.ndarray, groups: np.ndarray,

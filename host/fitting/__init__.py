@@ -15,9 +15,9 @@ from host.fitting.features import (
 )
 from host.fitting.linear import condition_number, fit_linear, r_squared, rmse, variance_inflation
 from host.fitting.out_of_fold import (
-    SOLVE_TOLERANCE,
     FoldGram,
     out_of_fold_predictions,
+    solve_many,
     solve_normal,
     validation_rmse,
 )
@@ -54,8 +54,8 @@ __all__ = [
     "r_squared",
     "rmse",
     "shared_filter",
+    "solve_many",
     "solve_normal",
-    "SOLVE_TOLERANCE",
     "run_labels",
     "stack",
     "term_values",

@@ -51,6 +51,27 @@ def solve_normal(M: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.array([np.linalg.lstsq(m, b, rcond=None)[0] for m, b in zip(M, v, strict=True)])
 
 
+def solve_many(M: np.ndarray, v: np.ndarray) -> list[np.ndarray]:
+    """``[solve_normal(m, b) for m, b in zip(M, v)]`` in one stacked
+    ``np.linalg.solve``: M is (K, ..., m, m) and v (K, ..., m) (a vector each) or
+    (K, m, r) (r right-hand sides). Each request K is checked as solve_normal checks it, and
+    one that is singular or fails the check is solved again by solve_normal itself (falling
+    back to least squares as it does), so the result is solve_normal's, bit for bit."""
+    K = M.shape[0]
+    vector = v.ndim == M.ndim - 1
+    rhs = v[..., None] if vector else v
+    try:
+        beta = np.linalg.solve(M, rhs)
+    except np.linalg.LinAlgError:  # one of the stack is singular: each on its own
+        return [solve_normal(M[k], v[k]) for k in range(K)]
+    err = np.abs(M @ beta - rhs).reshape(K, -1).max(axis=1)
+    tol = SOLVE_TOLERANCE * np.maximum(1.0, np.abs(v).reshape(K, -1).max(axis=1))
+    out = list(beta[..., 0] if vector else beta)
+    for k in np.flatnonzero(~(np.isfinite(err) & (err <= tol))).tolist():
+        out[k] = solve_normal(M[k], v[k])
+    return out
+
+
 def _column_sd(X: np.ndarray, width: int = 128) -> np.ndarray:
     """``X.std(axis=0)`` of a row-major block, ``width`` columns at a time: the SD's
     temporary is a slice's size, not X's (70 MB for the effect search's thousand columns).
@@ -170,6 +191,24 @@ class FoldGram:
         sse = (self.s_f - 2 * np.einsum("fi,fi->f", betas, vg)
                + np.einsum("fi,fij,fj->f", betas, Mg, betas))
         return np.where(self._unpredictable, np.nan, np.maximum(sse, 0.0))
+
+    def validation_rmses(self, subsets: Sequence[Sequence[int]]) -> list[float]:
+        """``[validation_rmse(cols) for cols in subsets]``, the fits without each fold of all
+        subsets of one size solved in one stacked call (``solve_many``: the same numbers)."""
+        out: list[float] = [math.nan] * len(subsets)
+        by_size: dict[int, list[int]] = {}
+        for k, cols in enumerate(subsets):
+            by_size.setdefault(len(cols), []).append(k)
+        for size, ks in by_size.items():
+            idx = np.array([self.index(subsets[k]) for k in ks], dtype=int).reshape(
+                len(ks), size + 1)
+            rows, cols_ = idx[:, :, None], idx[:, None, :]
+            Mg = np.moveaxis(self.M_f[:, rows, cols_], 0, 1)  # (K, F, m, m)
+            vg = np.moveaxis(self.v_f[:, idx], 0, 1)  # (K, F, m)
+            betas = solve_many(self.M[rows, cols_][:, None] - Mg, self.v[idx][:, None, :] - vg)
+            for j, k in enumerate(ks):
+                out[k] = self.validation_rmse(subsets[k], betas[j])
+        return out
 
     def validation_rmse(self, cols: Sequence[int], betas: np.ndarray | None = None) -> float:
         """RMSE of all out-of-fold predictions (each fold predicted by a fit without it)."""

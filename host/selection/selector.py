@@ -84,6 +84,13 @@ class GramCache(FoldGram):
         """``kind`` is "validation" (out-of-fold RMSE) or "train" (training RMSE)."""
         return self.validation_rmse(cols) if kind == "validation" else self.train_rmse(cols)
 
+    def errors(self, subsets: Sequence[Sequence[int]], kind: str) -> list[float]:
+        """``[error(cols, kind) for cols in subsets]``; out-of-fold errors of many subsets
+        from stacked solves (FoldGram.validation_rmses), the same numbers."""
+        if kind == "validation":
+            return self.validation_rmses(subsets)
+        return [self.train_rmse(cols) for cols in subsets]
+
 
 @dataclass
 class SequentialStep:
@@ -102,7 +109,7 @@ def sequential_selection(cache: GramCache, labels: np.ndarray, error: str
         members = [int(i) for i in np.flatnonzero(labels == g)]
         if not members:
             continue
-        errors = [cache.error([*reps, m], error) for m in members]
+        errors = cache.errors([[*reps, m] for m in members], error)
         best = members[int(np.argmin(errors))]  # first of equal errors: deterministic
         reps.append(best)
         steps.append(SequentialStep(g, members, errors, best))
@@ -138,8 +145,8 @@ def ec_reduction(cache: GramCache, reps: Sequence[int], error: str, max_sensors:
     best_sub: list[list[int]] = []
     for size in range(1, exhaustive_to + 1):
         err, sub = math.inf, None
-        for combo in itertools.combinations(reps, size):  # in representative order
-            e = cache.error(combo, error)
+        combos = list(itertools.combinations(reps, size))  # in representative order
+        for combo, e in zip(combos, cache.errors(combos, error), strict=True):
             if e < err:
                 err, sub = e, list(combo)
         best_err.append(err)
@@ -147,11 +154,8 @@ def ec_reduction(cache: GramCache, reps: Sequence[int], error: str, max_sensors:
     for _size in range(exhaustive_to + 1, c + 1):  # greedy growth beyond the exhaustive range
         base = best_sub[-1]
         err, sub = math.inf, None
-        for r in reps:
-            if r in base:
-                continue
-            combo = [x for x in reps if x in base or x == r]
-            e = cache.error(combo, error)
+        combos = [[x for x in reps if x in base or x == r] for r in reps if r not in base]
+        for combo, e in zip(combos, cache.errors(combos, error), strict=True):
             if e < err:
                 err, sub = e, combo
         best_err.append(err)
