@@ -92,6 +92,12 @@ class GramCache(FoldGram):
         return [self.train_rmse(cols) for cols in subsets]
 
 
+def _errors(cache: GramCache, subsets: Sequence[Sequence[int]], kind: str) -> list[float]:
+    """``cache.error`` of each subset; many at once where the cache can (GramCache.errors)."""
+    many = getattr(cache, "errors", None)
+    return many(subsets, kind) if many else [cache.error(s, kind) for s in subsets]
+
+
 @dataclass
 class SequentialStep:
     group: int
@@ -109,7 +115,7 @@ def sequential_selection(cache: GramCache, labels: np.ndarray, error: str
         members = [int(i) for i in np.flatnonzero(labels == g)]
         if not members:
             continue
-        errors = cache.errors([[*reps, m] for m in members], error)
+        errors = _errors(cache, [[*reps, m] for m in members], error)
         best = members[int(np.argmin(errors))]  # first of equal errors: deterministic
         reps.append(best)
         steps.append(SequentialStep(g, members, errors, best))
@@ -146,7 +152,7 @@ def ec_reduction(cache: GramCache, reps: Sequence[int], error: str, max_sensors:
     for size in range(1, exhaustive_to + 1):
         err, sub = math.inf, None
         combos = list(itertools.combinations(reps, size))  # in representative order
-        for combo, e in zip(combos, cache.errors(combos, error), strict=True):
+        for combo, e in zip(combos, _errors(cache, combos, error), strict=True):
             if e < err:
                 err, sub = e, list(combo)
         best_err.append(err)
@@ -155,7 +161,7 @@ def ec_reduction(cache: GramCache, reps: Sequence[int], error: str, max_sensors:
         base = best_sub[-1]
         err, sub = math.inf, None
         combos = [[x for x in reps if x in base or x == r] for r in reps if r not in base]
-        for combo, e in zip(combos, cache.errors(combos, error), strict=True):
+        for combo, e in zip(combos, _errors(cache, combos, error), strict=True):
             if e < err:
                 err, sub = e, combo
         best_err.append(err)
