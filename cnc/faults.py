@@ -31,23 +31,16 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from cnc.thermalcomp import (
-    AxisMap,
-    Compensator,
-    Config,
-    Port,
-    handle_line,
-)
+from cnc.follow import Followed, Forge, Garbage, Silence, WireEvent, follow
 from contract import model_file, protocol
 from hil import replay as hil_replay
 from hil.checks import step_limits_nm
 from hil.runner import (
-    Capture,
     ChipFault,
     CodeOffset,
     CodeOverride,
@@ -75,38 +68,6 @@ KNOWN_GAPS = {
         "after the ZERO misses what the lags had still to catch up (with either copy, RESUME "
         "continues: 'power cut on a battery', 'power cut, kept by CNC')"),
 }
-
-
-# --- what happens on the wire between the box and the controller -------------------------
-@dataclass(frozen=True)
-class Forge:
-    """After the line of sample ``after``: a CRC-valid ``$C`` line with the next seq and every
-    correction moved by ``delta_nm`` (a forged or damaged-but-valid line)."""
-
-    after: int
-    delta_nm: int = 60_000
-
-
-@dataclass(frozen=True)
-class Garbage:
-    """After the line of sample ``after``: these bytes arrive at the component."""
-
-    after: int
-    data: bytes
-
-
-@dataclass(frozen=True)
-class Silence:
-    """The lines of samples [start, stop) never reach the component (a stale stream); with
-    ``reconnect`` the port closed at ``start`` and opened again at ``stop`` (a USB-serial
-    adapter unplugged and plugged in: the component asks INFO again)."""
-
-    start: int
-    stop: int
-    reconnect: bool = False
-
-
-WireEvent = Forge | Garbage | Silence
 
 
 @dataclass(frozen=True)
@@ -159,137 +120,6 @@ def scenarios(n: int) -> list[Scenario]:
         Scenario("reconnect", wire=(Silence(600, 603, reconnect=True),),
                  what="the serial port goes away for 3 samples and comes back"),
     ]
-
-
-# --- the controller, following the box ----------------------------------------------------
-class _Wire:
-    """The component's port, offline: what it writes is noted (INFO, ZERO)."""
-
-    def __init__(self) -> None:
-        self.asked_info = False
-        self.sent_zero = False
-        self.port = Port("(campaign)", 115200)
-        self.port.synced = True
-
-    def write(self, data: bytes) -> bool:
-        if data.startswith(b"INFO"):
-            self.asked_info = True
-        elif data.startswith(b"ZERO"):
-            self.sent_zero = True
-        return True
-
-
-@dataclass
-class Followed:
-    """Per sample: the offset the component commands (nm, box units) and whether it held."""
-
-    offset_nm: np.ndarray  # (n, n_axes)
-    holding: np.ndarray  # (n,) bool
-    walking: np.ndarray  # (n,) bool: walking back to the box's value after a hold
-    box_status: np.ndarray  # (n,) the box's status word on that sample's line (-1: none)
-    flags: set[str] = field(default_factory=set)
-    log: list[str] = field(default_factory=list)
-    touch_offs: list[int] = field(default_factory=list)  # samples of the datums in force
-    zero_resent_after: list[int] = field(default_factory=list)  # the component's own ZEROs
-
-
-def follow(model: dict, capture: Capture, axes: Sequence[str],
-           wire: Sequence[WireEvent] = ()) -> Followed:
-    """Feed the box's lines, in the order it sent them, to the component's logic."""
-    period = float(model["sample_period_s"])
-    steps = step_limits_nm(model)
-    cfg = Config(port="(campaign)", axes=[AxisMap(a, a, 1, 1.0, float(steps[a]))
-                                          for a in axes],
-                 model_hash=model_file.model_hash(model))
-    out = Followed(np.zeros((capture.n_samples, len(axes))),
-                   np.zeros(capture.n_samples, dtype=bool),
-                   np.zeros(capture.n_samples, dtype=bool),
-                   np.full(capture.n_samples, -1, dtype=np.int64))
-    comp = Compensator(cfg, log=out.log.append)
-    port = _Wire()
-    silent = [w for w in wire if isinstance(w, Silence)]
-    info_line = b""
-
-    def deliver(raw: bytes, t: float) -> None:
-        handle_line(comp, port, raw, t)  # type: ignore[arg-type]  (write() is all it uses)
-        if port.asked_info and info_line:
-            port.asked_info = False
-            handle_line(comp, port, info_line, t)  # the box answers INFO
-
-    k = 0
-    for s in capture.sessions:
-        while k < s.first_sample:  # the box was off (Restart.off): no line, the offsets hold
-            comp.check_stale(k * period)
-            _record(out, comp, k, -1)
-            k += 1
-        zero_replies = list(s.zero_acks)
-        for raw in s.lines:
-            if raw.startswith(b"$I,"):
-                info_line = raw
-            t = k * period
-            gone = next((w for w in silent if w.start <= k < w.stop), None)
-            if gone is not None:
-                if gone.reconnect and k == gone.start and comp.info_fresh:
-                    comp.info_fresh = False  # as main() does when the port goes away
-                    out.log.append("port closed: offsets held, reopening")
-                if raw.startswith(b"$C,"):
-                    comp.check_stale(t)
-                    _record(out, comp, k, -1)
-                    k += 1
-                continue
-            if zero_replies and raw == zero_replies[0]:
-                zero_replies.pop(0)
-                comp.zero_sent()
-                if raw.startswith(b"$E,"):
-                    out.flags.add("ZERO refused: " + raw.decode(errors="replace").split("*")[0])
-                else:  # the operator touches off once the ZERO is acknowledged
-                    out.touch_offs.append(k)
-            if any(w.reconnect and w.stop == k for w in silent) and comp.needs_info():
-                handle_line(comp, port, info_line, t)  # reopened: the component asks INFO
-            deliver(raw, t)
-            comp.check_stale(t)
-            if not raw.startswith(b"$C,"):
-                continue
-            msg = protocol.decode(raw)
-            assert isinstance(msg, protocol.Sample)
-            _record(out, comp, k, msg.status)
-            if port.sent_zero:  # a deferred ZERO: the runner must send it before sample k+1
-                port.sent_zero = False
-                out.zero_resent_after.append(k)
-                out.flags.add("ZERO deferred and sent again")
-            for w in wire:
-                if isinstance(w, Forge) and w.after == k:
-                    forged = protocol.encode_sample(
-                        msg.seq + 1, msg.status,
-                        [c + w.delta_nm for c in msg.corrections_nm], msg.temp_codes)
-                    deliver(forged.rstrip(b"\r\n"), t)
-                    out.offset_nm[k] = [a.want for a in cfg.axes]  # what the forged line did
-                    out.flags.add("forged line taken (bounded)" if comp.bad_lines == 0
-                                  else "forged line refused")
-                elif isinstance(w, Garbage) and w.after == k:
-                    for line in port.port.feed(w.data):
-                        deliver(line, t)
-            k += 1
-    if comp.bad_lines:
-        out.flags.add(f"bad-lines {comp.bad_lines}")
-    if comp.restarts:
-        out.flags.add(f"restarts {comp.restarts}")
-    return out
-
-
-def _record(out: Followed, comp: Compensator, k: int, status: int) -> None:
-    if k >= len(out.holding):
-        return
-    out.offset_nm[k] = [a.want for a in comp.cfg.axes]
-    out.holding[k] = comp.holding or bool(comp.hold_reason)
-    out.walking[k] = comp.walking
-    out.box_status[k] = status
-    if comp.hold_reason:
-        out.flags.add("held: " + comp.hold_reason)
-    if comp.await_zero:
-        out.flags.add("awaiting-zero")
-    if comp.stale:  # what the component said, not what the scenario did
-        out.flags.add("stale")
 
 
 # --- judging --------------------------------------------------------------------------------
