@@ -131,7 +131,7 @@ def stage(stage_dir: Path, setup, scenario: Scenario) -> Path:
     """Copy the config, component, driver, decoder, firmware and feed; returns the INI."""
     (stage_dir / "cnc" / "config").mkdir(parents=True)
     for f in ("thermalcomp.py", "compconfig.py", "compensator.py", "serialport.py",
-              "keptstate.py", "driver.py"):
+              "keptstate.py", "driver.py", "machine.py", "tap.py"):
         shutil.copy2(ROOT / "cnc" / f, stage_dir / "cnc" / f)
     for f in CONFIG_DIR.iterdir():
         if f.is_file():

@@ -44,7 +44,9 @@ BELOW = {
     "cnc.compconfig": {"contract"},
     "cnc.serialport": set(),
     "cnc.keptstate": {"contract"},
-    "cnc.driver": {"contract"},
+    "cnc.driver": {"contract", "cnc.machine", "cnc.tap"},
+    "cnc.machine": {"cnc.tap"},
+    "cnc.tap": {"contract"},
     "cnc": {"contract", "codegen", "hil", "host.io", "host.fitting", "host.sim",
             "host.progress", "cnc.thermalcomp"},
 }
