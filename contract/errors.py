@@ -12,6 +12,19 @@ from __future__ import annotations
 class InputError(ValueError):
     """Input the project cannot use; the message names the file, line, column, key or limit."""
 
+    def __reduce__(self):
+        # Picklable whatever a subclass's __init__ takes (RunFormatError: path, message, line,
+        # column): an error raised in a worker process reaches the parent as itself, not as
+        # "BrokenProcessPool" after the unpickling failed. Rebuilt from its message and fields.
+        return (_restore, (type(self), self.args, dict(self.__dict__)))
+
+
+def _restore(cls: type, args: tuple, state: dict) -> InputError:
+    err = cls.__new__(cls)
+    err.args = args
+    err.__dict__.update(state)
+    return err
+
 
 class MissingColumnError(InputError, KeyError):
     """A column (sensor, target, aux input) the caller asked for is not in the data."""

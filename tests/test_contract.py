@@ -115,3 +115,26 @@ def test_contract_is_stdlib_only(mod):
             top = name.split(".")[0]
             allowed = top in ("__future__", "contract") or top in sys.stdlib_module_names
             assert allowed, f"{mod.__name__} imports {name}"
+
+
+def test_an_input_error_crosses_a_process_boundary_as_itself():
+    """A malformed run found in a worker process (the benches, the forked folds) reaches the
+    parent with its file, line and column, not as BrokenProcessPool."""
+    import pickle
+    from concurrent.futures import ProcessPoolExecutor
+
+    from host.io import RunFormatError
+
+    err = RunFormatError("runs/a.csv", "not a number", line=7, column="T01")
+    back = pickle.loads(pickle.dumps(err))
+    assert type(back) is RunFormatError and str(back) == str(err)
+    assert (back.path, back.line, back.column) == ("runs/a.csv", 7, "T01")
+    with ProcessPoolExecutor(max_workers=1) as pool:
+        with pytest.raises(RunFormatError, match=r"runs/a\.csv, line 7, column 'T01'"):
+            pool.submit(_raise_run_error).result()
+
+
+def _raise_run_error():
+    from host.io import RunFormatError
+
+    raise RunFormatError("runs/a.csv", "not a number", line=7, column="T01")
