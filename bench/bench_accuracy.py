@@ -95,7 +95,7 @@ LAG_TAUS_S = (600.0, 1800.0, 5400.0)  # first-order lags of every sensor for the
 EXHAUSTIVE_LIMIT = 60_000  # subsets; C(25,5) = 53,130 runs, C(65,4) = 677,040 is skipped
 SIM_SEEDS = (0, 1, 2)
 # not used to choose the defaults (bench_selection compares selections on 0-4; 3-8 were
-# consulted for variants not taken, docs/next-day.md sections 14 and 16)
+# consulted for variants not taken, docs/lab/next-day.md)
 OTHER_SIM_SEEDS = (3, 4, 5, 6, 7, 8)
 SIM_EFFECTS = ("lag", "ambient", "speed")
 FL_PROBES = [f"ch{i}_um" for i in range(1, 6)]

@@ -134,7 +134,7 @@ def _measured_rows(tmp: Path) -> list[dict]:
     cut = int(np.searchsorted(run.time_s, 24 * 3600.0))
     train, test = run.slice(0, cut), run.slice(cut, run.n_samples)
     t0 = time.perf_counter()
-    # one continuous recording with one datum (docs/next-day.md section 1)
+    # one continuous recording with one datum (docs/training.md)
     model = train_model([train], targets, aux=["spindle_rpm"], reference="none")
     seconds = time.perf_counter() - t0
     rows = [{"name": "FL_THERMAL: train 5 probes with effects", "value": seconds, "unit": "s",

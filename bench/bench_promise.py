@@ -47,7 +47,7 @@ from bench.goal import goal
 from host.train.next_day import PROMISE_COVERAGE, PROMISE_TAIL
 
 RESULTS = acc.ROOT / "bench" / "results" / "promise.json"
-# the cases docs/next-day.md section 2 was calibrated on (tracked; --quick reads them)
+# the cases the promise (docs/training.md) was calibrated on (tracked; --quick reads them)
 SAVED = acc.ROOT / "bench" / "data" / "promise_cases.json"
 SOURCES = acc.SOURCES
 # machines of the project's simulator no calibration (nor any earlier bench) saw: the test's

@@ -17,8 +17,8 @@ every case, from the commit it names, so a fresh clone needs no 15-minute bench 
 without nested validation: a few minutes on 2 cores); where it is missing, it is computed
 first, and the run says so.
 
-docs/next-day.md sections 15-21 measured their variants this way (each rebuilt by hand
-before section 21).
+The variants in docs/lab/next-day.md were measured this way (at first each with a
+prototype rebuilt by hand).
 
     python -m bench.quick_accuracy                 # against the shipped baseline
     # ... change host/ ...
