@@ -24,7 +24,7 @@ matplotlib.use("Agg")
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from bench.bench_accuracy import CALIBRATION_FACTOR, RESULTS, CaseResult  # noqa: E402
+from bench.accuracy_cases import CALIBRATION_FACTOR, RESULTS, CaseResult  # noqa: E402
 
 SOURCES = {"sim": "project simulator", "sim_dev": "sim_dev", "fl": "FL_THERMAL",
            "fl_next": "FL, next cycle", "sim_other": "simulator, other machines"}

@@ -75,11 +75,12 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from bench.accuracy_cases import CALIBRATION_FACTOR, PEERS, RESULTS, CaseResult
 from bench.goal import INFO, goal
 from contract.box import BOX_CHANNELS
 
@@ -87,7 +88,6 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("THERMAL_SHARED_DATA", ROOT.parent / "shared" / "data"))
 SIM_DEV = SHARED / "sim_dev"
 FL_STEPS = SHARED / "fl_thermal" / "steps.csv"
-RESULTS = ROOT / "bench" / "results" / "accuracy.json"
 LATEST_TXT = Path("/tmp/accuracy_latest.txt")
 
 REF_WINDOW_S = 300.0  # the start reference before the project had one: the first 5 min
@@ -118,8 +118,6 @@ def declared_bending(source: str) -> tuple[str, ...]:
 # prefilter" is the default with its ridge fitted to the raw rows (host.fitting.prefilter)
 OURS = {"default": {}, "no effects": {"effects": False}, "paper": {"selection": "paper"},
         "undeclared": {}, "no prefilter": {"prefilter_s": 0.0}}
-PEERS = ("OLS all", "top-4 |r|", "SFS-4", "SFS-5", "LassoCV", "best-4", "best-5",
-         "ridge+lags", "lasso+lags", "HGB")
 HGB_MAX_ROWS = 2000  # gradient boosting fits on every k-th training row beyond this
 SOURCES = ("sim", "sim_dev", "fl", "fl_next", "sim_other")
 TARGET_SOURCES = ("sim_dev", "fl")  # issue 13's <= 0.8 (FL: its cycles held out in turn)
@@ -127,7 +125,6 @@ LOOP_TOLERANCE = 1.05
 INTERVAL = 0.90  # the geometric means' intervals: 5th to 95th percentile
 BOOTSTRAP_DRAWS = 4000
 MIN_TRAINING_SETS = 3  # fewer and a resampled interval says nothing: none is given
-CALIBRATION_FACTOR = 2.0
 
 
 # --------------------------------------------------------------------------- reference
@@ -212,75 +209,6 @@ class Job:
 
     def ours_variants(self) -> tuple[tuple[str, bool], ...]:
         return self.variants or ((self.group, False),)
-
-
-@dataclass
-class CaseResult:
-    source: str
-    group: str
-    test: str
-    target: str
-    reference: str
-    # the job's training data (Job.group): every case of one job shares its models, so the
-    # intervals resample whole training sets (clustered_interval)
-    training_set: str = ""
-    rmse_um: dict[str, float] = field(default_factory=dict)  # column -> test RMSE
-    promised_um: dict[str, float] = field(default_factory=dict)  # ours -> promised RMSE
-    # ours -> the highest nested fold, the top of the promise's spread (highest_fold)
-    highest_fold_um: dict[str, float] = field(default_factory=dict)
-    validation_um: dict[str, float] = field(default_factory=dict)  # ours -> validation RMSE
-    n_terms: dict[str, int] = field(default_factory=dict)  # ours -> terms on this axis
-    raw_um: float = math.nan  # scored error of predicting zero change
-    # sim_dev only: its manifest's scores of the test run ("oracle": least squares on the true
-    # node temperatures and effect term, the floor a model could reach; "oracle without
-    # hidden": on the measurable nodes and the air only; "noise floor")
-    floor_um: dict[str, float] = field(default_factory=dict)
-    peer_sensors: dict[str, int] = field(default_factory=dict)  # peer -> sensors it reads
-    # peer -> its out-of-fold RMSE on the training file (peer_validation)
-    peer_validation_um: dict[str, float] = field(default_factory=dict)
-    notes: dict[str, str] = field(default_factory=dict)
-    effects: dict[str, list[str]] = field(default_factory=dict)  # ours -> effects it kept
-
-    @property
-    def cluster(self) -> str:
-        """The unit the intervals resample: the training set (a JSON written before the
-        bench recorded it falls back to the case's group, one per variant)."""
-        return self.training_set or self.group
-
-    @property
-    def best_peer(self) -> tuple[str, float]:
-        scored = [(p, self.rmse_um[p]) for p in PEERS
-                  if p in self.rmse_um and not math.isnan(self.rmse_um[p])]
-        return min(scored, key=lambda kv: kv[1]) if scored else ("", math.nan)
-
-    @property
-    def best_box_peer(self) -> tuple[str, float]:
-        """The best peer the box could run: at most BOX_CHANNELS thermocouples."""
-        scored = [(p, self.rmse_um[p]) for p in PEERS
-                  if p in self.rmse_um and not math.isnan(self.rmse_um[p])
-                  and self.peer_sensors.get(p, BOX_CHANNELS + 1) <= BOX_CHANNELS]
-        return min(scored, key=lambda kv: kv[1]) if scored else ("", math.nan)
-
-    @property
-    def validated_peer(self) -> tuple[str, float]:
-        """The peer with the lowest out-of-fold error on the training file, and its test
-        RMSE: the one a user would pick without seeing the test run."""
-        scored = [(p, self.peer_validation_um[p]) for p in PEERS
-                  if math.isfinite(self.peer_validation_um.get(p, math.nan))
-                  and math.isfinite(self.rmse_um.get(p, math.nan))]
-        if not scored:
-            return ("", math.nan)
-        name = min(scored, key=lambda kv: kv[1])[0]
-        return name, self.rmse_um[name]
-
-    def ratio(self, column: str = "default") -> float:
-        return self.rmse_um.get(column, math.nan) / self.best_peer[1]
-
-    def validated_ratio(self, column: str = "default") -> float:
-        return self.rmse_um.get(column, math.nan) / self.validated_peer[1]
-
-    def box_ratio(self, column: str = "default") -> float:
-        return self.rmse_um.get(column, math.nan) / self.best_box_peer[1]
 
 
 def sim_jobs(tmp: Path, seeds: Sequence[int] = SIM_SEEDS, source: str = "sim") -> list[Job]:

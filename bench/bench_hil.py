@@ -48,12 +48,7 @@ def synthesise(path: Path, n: int = N_SAMPLES, seed: int = 24) -> Path:
 
 
 def simulated_run(path: Path) -> tuple[Path, str]:
-    """A 24 h 1 s run: ``host simulate`` (16 h running + 8 h cooling) if available, else
-    synthesised."""
-    try:
-        import host.commands.simulate  # noqa: F401
-    except ImportError:
-        return synthesise(path), "synthesised"
+    """A 24 h 1 s run: ``host simulate`` (16 h running + 8 h cooling), else synthesised."""
     proc = subprocess.run([sys.executable, "-m", "host", "simulate", "--protocol", "random",
                            "--hours", "16", "--cool-hours", "8", "--dt", "1", "--sensors", "5",
                            "--seed", "24", "-o", str(path)], capture_output=True, text=True)

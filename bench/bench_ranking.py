@@ -18,7 +18,7 @@ from itertools import combinations
 
 import numpy as np
 
-from bench.bench_selection import LOCO, PROBES, _cases_fl
+from bench.bench_selection import LOCO, PROBES, cases_fl
 from bench.goal import INFO
 from host.fitting import common_period, fold_groups
 from host.selection import select_sensors
@@ -97,7 +97,7 @@ def _case_rows(train, test) -> list[dict]:
 
 
 def run() -> list[dict]:
-    cases = _cases_fl()
+    cases = cases_fl()
     rows: list[dict] = []
     for train, test, _ in cases[SPLIT]:
         for r in _case_rows(train, test):

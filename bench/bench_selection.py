@@ -40,7 +40,7 @@ SIM_SEEDS = range(5)
 LOCO = "FL, one cycle held out (20)"
 
 
-def _cases_fl() -> dict[str, list[tuple[list[Run], list[Run], list[str]]]]:
+def cases_fl() -> dict[str, list[tuple[list[Run], list[Run], list[str]]]]:
     full = load_run(ROOT / "examples" / "fl_thermal_steps.csv", PROBES, min_samples=4)
     cuts = [None, 8 * 3600.0, 16 * 3600.0, 24 * 3600.0, None]
     cycles = [window(full, cuts[i], cuts[i + 1]) for i in range(4)]
@@ -117,7 +117,7 @@ def _per_cycle_rows(errors: dict[str, list[float]]) -> list[dict]:
 def run() -> list[dict]:
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
-        case_sets = {**_cases_fl(), **_cases_sim(Path(tmp))}
+        case_sets = {**cases_fl(), **_cases_sim(Path(tmp))}
         for label, cases in case_sets.items():
             errors = _score(cases)
             rows += _rows(label, errors)
