@@ -222,10 +222,10 @@ _PLAIN_DIGITS = 15  # up to 15 digits a decimal's integer is exact, and so is it
 _CHUNK_BYTES = 1 << 18  # rows parsed together: their per-character arrays stay in cache
 
 
-def _plain_numbers(text: str, start: int, sep: str, n_rows: int, n_cols: int
+def _plain_numbers(text: str, start: int, sep: str, n_cols: int, n_rows: int | None = None
                    ) -> np.ndarray | None:
-    """The rows of ``text`` from character ``start`` on (one a line) as numbers, vectorised:
-    what np.loadtxt reads from them,
+    """The rows of ``text`` from character ``start`` on (one a line; ``n_rows`` of them if
+    given) as numbers, vectorised: what np.loadtxt reads from them,
     bit for bit, or None (then np.loadtxt, whose C parser converts every cell on its own,
     ~4x this). Each cell of at most 15 digits, a sign and a point is its digits' integer
     (exact below 2**53) divided by a power of ten (exact): one correctly rounded division,
@@ -238,8 +238,12 @@ def _plain_numbers(text: str, start: int, sep: str, n_rows: int, n_cols: int
         return None
     if not raw.endswith(b"\n"):
         raw += b"\n"
+    if start >= len(raw):
+        return None
     ends = np.flatnonzero(np.frombuffer(raw, dtype=np.uint8, offset=start) == 10) + start
-    if ends.size != n_rows or len(sep) != 1 or n_cols < 1:
+    if n_rows is None:
+        n_rows = ends.size
+    if ends.size != n_rows or not n_rows or len(sep) != 1 or n_cols < 1:
         return None
     out = np.empty((n_rows, n_cols))
     flat = out.reshape(-1)
@@ -319,34 +323,55 @@ def _read_plain_table(src: _Source) -> tuple[list[str], np.ndarray, np.ndarray] 
     text = src.text
     if '"' in text or src.time_col is not None:
         return None
+    nl = text.find("\n")
+    head = text[:nl]
+    if src.decimal == "." and nl > 0 and head.splitlines() == [head]:
+        # the rows straight from the text, no list of lines (200 MB at 346k rows): a file
+        # the vectorised reader takes has no other line break, no blank line, and every row
+        # the header's length, so its rows are the lines the path below would split
+        header = [h.strip() for h in head.split(src.sep)]
+        if not _plain_header(header):
+            return None
+        data = _plain_numbers(text, nl + 1, src.sep, len(header))
+        if data is not None:
+            return _plain_result(src, header, data)
     lines = text.splitlines()
     if len(lines) < 2:
         return None
     header = [h.strip() for h in lines[0].split(src.sep)]
     body = lines[1:]
-    if (any(not h for h in header) or len(set(header)) != len(header)
-            or TIME_COLUMN not in header or any(not line.strip() for line in body)):
+    if not _plain_header(header) or any(not line.strip() for line in body):
         return None
+    data = None
     if src.decimal == ",":
         if any("." in line and "," in line for line in body):
             return None  # a thousands separator or a mix: the careful reader says where
         body = [line.replace(",", ".") for line in body]
-        rows, start = "\n".join(body), 0
-    elif text[len(lines[0]):len(lines[0]) + 1] == "\n":  # the rows as the file has them
-        rows, start = text, len(lines[0]) + 1
-    else:
-        rows, start = "\n".join(body), 0
-    data = _plain_numbers(rows, start, src.sep, len(body), len(header))
+        data = _plain_numbers("\n".join(body), 0, src.sep, len(header), len(body))
     if data is None:
         try:
             data = np.loadtxt(body, delimiter=src.sep, comments=None, ndmin=2, dtype=float)
         except ValueError:
             return None
-    if data.shape != (len(body), len(header)) or np.isinf(data).any():
+    if data.shape != (len(body), len(header)):
+        return None
+    return _plain_result(src, header, data)
+
+
+def _plain_header(header: list[str]) -> bool:
+    """Column names the fast path takes: none empty, none twice, a time column."""
+    return (all(header) and len(set(header)) == len(header) and TIME_COLUMN in header)
+
+
+def _plain_result(src: _Source, header: list[str], data: np.ndarray
+                  ) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+    """The fast path's table (time in seconds, the file lines 2, 3, ...), None if a cell is
+    infinite (the careful reader says where)."""
+    if np.isinf(data).any():
         return None
     if src.time_unit is not None:
         data[:, header.index(TIME_COLUMN)] *= TIME_UNITS[src.time_unit]
-    return header, data, np.arange(2, 2 + len(body))
+    return header, data, np.arange(2, 2 + data.shape[0])
 
 
 def _number(src: _Source, text: str, line: int, column: str) -> float:
