@@ -70,13 +70,14 @@ class FixedParams:
 
     @staticmethod
     def of(q_um2_per_h: float, probe_noise_um: float, gate_sigma: float, gate_floor_um: float,
-           p_max_um2: float, period_s: float, start: bool = True) -> FixedParams:
+           p_max_um2: float, period_s: float, start: bool = True,
+           residual_noise_um: float = 0.0) -> FixedParams:
         """Quantise float parameters (each within contract.service.SERVICE_FIELDS, the
         period within 0 .. MAX_PERIOD_S), exactly: the float's binary value, rounded half away
         from zero. CodegenError names a parameter out of its proven range."""
         given = {"q_um2_per_h": q_um2_per_h, "probe_noise_um": probe_noise_um,
                  "gate_sigma": gate_sigma, "gate_floor_um": gate_floor_um,
-                 "p_max_um2": p_max_um2}
+                 "p_max_um2": p_max_um2, "residual_noise_um": residual_noise_um}
         for k, v in given.items():
             lo, hi, unit = SERVICE_FIELDS[k]
             if not lo <= v <= hi:
@@ -90,7 +91,10 @@ class FixedParams:
         pmax = _q(p_max_um2, nm2 * q8)
         return FixedParams(
             q_q8=_q(q_um2_per_h, nm2 * q8 * Fraction(period_s) / 3600),
-            r_q8=max(1, _q(probe_noise_um * probe_noise_um, nm2 * q8)),
+            # R: the probe's variance and the model's non-persistent residual's, each squared
+            # as a float and quantised together (host.service.ServiceParams.r_um2 adds the same)
+            r_q8=max(1, _q(probe_noise_um * probe_noise_um + residual_noise_um * residual_noise_um,
+                           nm2 * q8)),
             g2_q8=_q(gate_sigma * gate_sigma, Fraction(1 << GATE_FRAC_BITS)),
             floor2_nm2=_q(gate_floor_um * gate_floor_um, nm2),
             pmax_q8=pmax, p0_q8=0 if start else pmax)
@@ -102,8 +106,8 @@ class FixedParams:
         host.service.service_params)."""
         block = dict(SERVICE_FALLBACKS) | dict(model["axes"][axis].get("service") or {})
         start = (model.get("reference") or {}).get("kind", "none") == "start"
-        return FixedParams.of(*(float(block[k]) for k in SERVICE_FIELDS),
-                              float(model["sample_period_s"]), start)
+        return FixedParams.of(**{k: float(block[k]) for k in SERVICE_FIELDS},
+                              period_s=float(model["sample_period_s"]), start=start)
 
 
 @dataclass

@@ -48,7 +48,7 @@ from contract.fixed_point import (
     round_half_away,
 )
 from contract.model_file import NAME_RE, SCHEMA, ModelFormatError, check_model
-from contract.service import SERVICE_FIELDS
+from contract.service import SERVICE_FIELDS, SERVICE_OPTIONAL
 from contract.terms import AUX_KINDS, FILTER_KINDS, KIND_CODES, TC_TYPES, TEMPERATURE_KINDS
 from contract.tilt import AXIS_UNITS
 
@@ -594,7 +594,9 @@ def _with_service(ax: QAxis, raw: Mapping, period_s: float, start: bool) -> QAxi
     if block is None:
         return ax
     try:
-        params = FixedParams.of(*(float(block[k]) for k in SERVICE_FIELDS), period_s, start)
+        block = dict(SERVICE_OPTIONAL) | dict(block)
+        params = FixedParams.of(**{k: float(block[k]) for k in SERVICE_FIELDS},
+                                period_s=period_s, start=start)
     except CodegenError as exc:
         raise CodegenError(f"axis '{ax.name}': {exc}") from None
     return QAxis(**{**ax.__dict__, "service": params})

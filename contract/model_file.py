@@ -51,7 +51,7 @@ from contract.box import (
 )
 from contract.errors import InputError
 from contract.fixed_point import INT32_MAX
-from contract.service import SERVICE_FIELDS
+from contract.service import SERVICE_FIELDS, SERVICE_OPTIONAL
 from contract.terms import (
     AUX_KINDS,
     FILTER_KINDS,
@@ -592,6 +592,8 @@ def _check_service(c: _Checker, axis: str, block: object) -> None:
     if not isinstance(block, Mapping):
         c.fail(f"{where}: expected an object of {', '.join(SERVICE_FIELDS)}, got {block!r}")
     for key, (lo, hi, unit) in SERVICE_FIELDS.items():
+        if key not in block and key in SERVICE_OPTIONAL:
+            continue
         if key not in block:
             c.fail(f"{where}.{key}: missing (one of {', '.join(SERVICE_FIELDS)})")
         v = c.number(block[key], f"{where}.{key}")

@@ -15,10 +15,15 @@ SERVICE_FIELDS: dict[str, tuple[float, float, str]] = {
     "gate_sigma": (1.0, 16.0, "standard deviations"),  # refuse |innovation| > this sqrt(P+R)
     "gate_floor_um": (0.0, 1000.0, "um"),  # ... and above this floor
     "p_max_um2": (0.01, 1000.0, "um^2"),  # the bias variance's cap (and its value at reset)
+    # what the model misses that does not persist from one reading to the next (its white
+    # part): a reading differs from the bias by it as by the probe's noise, R = probe^2 + it^2
+    "residual_noise_um": (0.0, 10.0, "um"),
 }
+# fields a service block may leave out (written by host train since the field came): their value
+SERVICE_OPTIONAL = {"residual_noise_um": 0.0}
 SERVICE_DEFAULTS = {"probe_noise_um": 0.5, "gate_sigma": 4.0, "gate_floor_um": 3.0}
 # a model trained before the service block: the estimator runs with these (docs/service.md)
-SERVICE_FALLBACKS = SERVICE_DEFAULTS | {"q_um2_per_h": 0.5, "p_max_um2": 25.0}
+SERVICE_FALLBACKS = SERVICE_DEFAULTS | SERVICE_OPTIONAL | {"q_um2_per_h": 0.5, "p_max_um2": 25.0}
 MAX_PERIOD_S = 3600.0  # sample periods the estimator's q per sample is proven for
 
 # ---- fixed point (docs/service.md, "Fixed point") -----------------------------------------
@@ -34,7 +39,7 @@ NM_PER_UM = 1000
 # largest values SERVICE_FIELDS and MAX_PERIOD_S allow, in the header's units.
 _NM2 = NM_PER_UM * NM_PER_UM
 Q_Q8_MAX = 100 * _NM2 << P_FRAC_BITS  # q 100 um^2/h over a period of at most 3600 s
-R_Q8_MAX = 100 * _NM2 << P_FRAC_BITS  # probe noise 10 um
+R_Q8_MAX = 200 * _NM2 << P_FRAC_BITS  # probe noise 10 um and residual noise 10 um
 G2_Q8_MIN, G2_Q8_MAX = 1 << GATE_FRAC_BITS, 256 << GATE_FRAC_BITS  # gate_sigma 1..16
 FLOOR2_NM2_MAX = (1000 * NM_PER_UM) ** 2  # gate_floor 1000 um
 PMAX_Q8_MIN, PMAX_Q8_MAX = 1, 1000 * _NM2 << P_FRAC_BITS  # p_max 0.01..1000 um^2

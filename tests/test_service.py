@@ -152,3 +152,35 @@ def test_a_service_field_out_of_range_is_named():
     bad["axes"][axis]["service"]["gate_sigma"] = 40.0
     with pytest.raises(ModelFormatError, match=r"service\.gate_sigma: 40.0 .* 1\.\.16"):
         check_model(bad)
+
+
+def test_the_wander_splits_into_a_random_walk_and_white_noise():
+    """A residual made of a random walk (q um^2/h) and white noise (s um), generated here: the
+    line through D(dt) gives both back; the white part joins R, the walk stays q."""
+    from host.service.parameters import random_walk_and_noise, wander
+
+    rng = np.random.default_rng(7)
+    period_s, q, s = 15.0, 2.0, 0.4
+    n = 40 * 4 * 240  # 40 folds of 4 h
+    walk = np.cumsum(rng.normal(0.0, np.sqrt(q * period_s / 3600.0), n))
+    residual = walk + rng.normal(0.0, s, n)
+    folds = np.repeat(np.arange(40), n // 40)
+    q_fit, white = random_walk_and_noise(wander(residual, folds, period_s))
+    assert q_fit == pytest.approx(q, rel=0.15)
+    assert np.sqrt(white / 2) == pytest.approx(s, rel=0.15)
+    # a pure random walk has no white part to speak of, pure noise no walk
+    _, white0 = random_walk_and_noise(wander(walk, folds, period_s))
+    q0, _ = random_walk_and_noise(wander(rng.normal(0.0, s, n), folds, period_s))
+    assert white0 < 0.05 and q0 < 0.05
+
+
+def test_the_residual_noise_joins_the_probe_noise_in_r():
+    """R = probe^2 + residual^2 on the host and, quantised, on the box; 0 leaves R as before
+    (a model trained before the field)."""
+    p = ServiceParams(probe_noise_um=0.5, residual_noise_um=0.3)
+    assert p.r_um2 == pytest.approx(0.34)
+    old = FixedParams.of(0.5, 0.5, 4.0, 3.0, 25.0, 60.0)
+    new = FixedParams.of(0.5, 0.5, 4.0, 3.0, 25.0, 60.0, residual_noise_um=0.3)
+    assert old.r_q8 == 250_000 * 256  # 0.25 um^2 in 1/256 nm^2
+    assert new.r_q8 == 340_000 * 256
+    assert FixedParams.of(0.5, 0.5, 4.0, 3.0, 25.0, 60.0, residual_noise_um=0.0) == old

@@ -126,7 +126,7 @@ typedef struct {
 } tcm_service_t;
 
 #define TCM_SVC_Q_Q8_MAX INT64_C(25600000000)     /* 100 um^2/h over <= 3600 s, < 2^35 */
-#define TCM_SVC_R_Q8_MAX INT64_C(25600000000)     /* probe noise 10 um, < 2^35 */
+#define TCM_SVC_R_Q8_MAX INT64_C(51200000000)     /* probe and residual noise 10 um each, < 2^36 */
 #define TCM_SVC_FLOOR2_MAX INT64_C(1000000000000) /* gate floor 1000 um, < 2^40 */
 #define TCM_SVC_PMAX_Q8_MAX INT64_C(256000000000) /* p_max 1000 um^2, < 2^38 */
 /* The header's check of one axis's parameters (a service-less axis: all zero). */

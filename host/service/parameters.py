@@ -4,11 +4,14 @@
 final terms refitted without each fold, that fold predicted) is what the model misses on a
 day it did not see, and how it wanders with time is what the estimator tracks. For lags
 dt of ``WANDER_LAGS_H`` the mean squared change of the residual over dt, D(dt), is measured
-within each fold (never across a fold's edge); a random walk has D(dt) = q dt, so
+within each fold (never across a fold's edge). A random walk plus white noise of variance s^2
+has D(dt) = 2 s^2 + q dt, so a line through the D(dt) (least squares, both parts >= 0) gives
 
-    q_um2_per_h = median over the lags of D(dt) / dt
+    q_um2_per_h = its slope,   residual_noise_um = sqrt(its intercept / 2)
 
-(the median keeps a short lag's noise and a long lag's drift from deciding alone). The
+The white part does not persist from one reading to the next: a reading differs from the
+bias by it as by the probe's noise, so the estimator's R is probe_noise^2 + residual_noise^2
+(chasing it moved the correction by noise: measured in docs/service.md). The
 variance cap ``p_max_um2`` = (``P_MAX_FACTOR`` x out-of-fold RMSE)^2, clipped to
 ``P_MAX_CLIP_UM2``: the first reading is taken almost as it is, and the gate
 (``gate_sigma`` sqrt(p_max + R)) stays below a chip's +50 um even after a week unprobed.
@@ -30,7 +33,7 @@ from host.fitting import Reference, out_of_fold_predictions, stack
 from host.fitting.reference import segment_bounds
 from host.io import Run
 
-WANDER_LAGS_H = (0.5, 1.0, 2.0)
+WANDER_LAGS_H = (0.25, 0.5, 1.0, 2.0)
 P_MAX_FACTOR = 4.0
 P_MAX_CLIP_UM2 = (4.0, 100.0)
 FALLBACK_Q_UM2_PER_H = SERVICE_FALLBACKS["q_um2_per_h"]  # a model without a service block
@@ -47,10 +50,13 @@ class ServiceParams:
     # the bias's variance at power-up or ZERO: 0 for a ``start`` model (its output and the
     # probe are both zero there by definition), p_max_um2 for ``none`` (an unknown offset)
     p0_um2: float = 0.0
+    residual_noise_um: float = 0.0  # the model's non-persistent residual (module docstring)
 
     @property
     def r_um2(self) -> float:
-        return self.probe_noise_um ** 2
+        """R: the probe's variance and the residual's white part's (as codegen quantises it)."""
+        return (self.probe_noise_um * self.probe_noise_um
+                + self.residual_noise_um * self.residual_noise_um)
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -89,6 +95,20 @@ def wander(residual: np.ndarray, segments: np.ndarray, period_s: float,
     return out
 
 
+def random_walk_and_noise(d: Mapping[float, float]) -> tuple[float, float]:
+    """(q, white) with D(dt) ~ white + q dt by least squares, both >= 0 (two unknowns: the
+    unconstrained line, else the best with one of them at 0)."""
+    lags = np.array(list(d), dtype=float)
+    vals = np.array(list(d.values()), dtype=float)
+    fits = [(0.0, float(vals.mean())),
+            (max(float(np.dot(lags, vals) / np.dot(lags, lags)), 0.0), 0.0)]
+    if lags.size >= 2 and np.ptp(lags) > 0:
+        q, white = np.polyfit(lags, vals, 1)
+        if q >= 0 and white >= 0:
+            fits.append((float(q), float(white)))
+    return min(fits, key=lambda f: float(np.sum((f[1] + f[0] * lags - vals) ** 2)))
+
+
 def _clip(value: float, field: str) -> float:
     lo, hi, _ = SERVICE_FIELDS[field]
     return float(min(max(value, lo), hi))
@@ -118,20 +138,22 @@ def derive_service(runs: list[Run], terms: list[Term], target: str, period_s: fl
         how += f", scaled to the model's validation RMSE {validation_rmse_um:.3g} um"
         oof = validation_rmse_um
     d = wander(residual, st.groups, period_s)
-    rates = [v / lag for lag, v in d.items()]
-    q = float(np.median(rates)) if rates else FALLBACK_Q_UM2_PER_H
+    q, white = random_walk_and_noise(d) if d else (FALLBACK_Q_UM2_PER_H, 0.0)
+    noise = _clip(math.sqrt(white / 2.0), "residual_noise_um")
     lo, hi = P_MAX_CLIP_UM2
     p_max = min(max((P_MAX_FACTOR * oof) ** 2, lo), hi)
     q = _clip(q, "q_um2_per_h") if math.isfinite(q) else FALLBACK_Q_UM2_PER_H
     sigma = SERVICE_DEFAULTS["gate_sigma"]
     r = probe_noise_um ** 2
     lags = ", ".join(f"{v:.3g} um^2 over {lag:g} h" for lag, v in d.items()) or "no lag fits"
-    why = (f"q: median of D(dt)/dt of {how}, D = mean squared change over dt ({lags}); "
+    why = (f"q and residual noise: the line D(dt) = 2 s^2 + q dt through {how}'s mean "
+           f"squared change D over dt ({lags}): s = {noise:.3g} um joins the probe's noise "
+           f"in R; "
            f"p_max = ({P_MAX_FACTOR:g} x its RMSE {oof:.3g} um)^2 clipped to {lo:g}..{hi:g} "
            f"um^2, so the gate refuses above {sigma * math.sqrt(p_max + r):.3g} um at most")
     return {"q_um2_per_h": round(q, 6), "probe_noise_um": float(probe_noise_um),
             "gate_sigma": sigma, "gate_floor_um": SERVICE_DEFAULTS["gate_floor_um"],
-            "p_max_um2": round(p_max, 6), "why": why}
+            "p_max_um2": round(p_max, 6), "residual_noise_um": round(noise, 6), "why": why}
 
 
 def add_service(model: dict, runs: list[Run], n_blocks: int, reference: Reference,
