@@ -48,9 +48,9 @@ test-python: $(STAMP)
 # and a quick subset that touches each of them: scikit-learn's estimator API, jinja2 (codegen),
 # matplotlib (report), numpy/scipy (selection, fitting), pyserial (the protocol decoder).
 FLOORS_VENV := .venv-floors
-FLOORS_TESTS := tests/test_sklearn_checks.py tests/test_selection.py tests/test_codegen.py \
-                tests/test_report.py tests/test_protocol.py tests/test_monitor.py \
-                tests/test_model_estimator.py tests/test_free_channels.py
+FLOORS_TESTS := tests/host/train/test_sklearn_checks.py tests/host/selection/test_selection.py tests/codegen/test_codegen.py \
+                tests/host/analysis/test_report.py tests/contract/test_protocol.py tests/host/box/test_monitor.py \
+                tests/host/train/test_model_estimator.py tests/host/selection/test_free_channels.py
 $(FLOORS_VENV)/.installed: pyproject.toml scripts/floors.py
 	rm -rf $(FLOORS_VENV)
 	python3 -m venv $(FLOORS_VENV)

@@ -51,7 +51,7 @@ RESULTS = acc.ROOT / "bench" / "results" / "promise.json"
 SAVED = acc.ROOT / "bench" / "data" / "promise_cases.json"
 SOURCES = acc.SOURCES
 # machines of the project's simulator no calibration (nor any earlier bench) saw: the test's
-# held-out set (tests/test_promise.py; python -m bench.bench_promise --heldout)
+# held-out set (tests/host/train/test_promise.py; python -m bench.bench_promise --heldout)
 HELDOUT_SEEDS = (15, 16, 17)
 HELDOUT = acc.ROOT / "tests" / "data" / "promise_heldout.json"
 RUNNER_FLAGS = ("--quick",)  # what ``python -m bench promise`` passes on to run()

@@ -18,7 +18,7 @@ from contract.tilt import unit_of
 
 UNITS_MM = {"mm": 1.0, "inch": 25.4}
 # The box's clamp, BOX_MAX_CORRECTION_NM in firmware/include/box_config.h (checked by
-# tests/test_thermalcomp.py): the default of [box] max_abs_um.
+# tests/cnc/test_thermalcomp.py): the default of [box] max_abs_um.
 DEFAULT_MAX_ABS_UM = 200.0
 
 

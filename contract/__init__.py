@@ -7,7 +7,7 @@ LinuxCNC component on Debian's /usr/bin/python3 can use it too.
 - ``contract.box``: capacities of the box and of its model runtime;
 - ``contract.model_file``: the one reader/validator/writer of model.json (docs/model-json.md);
 - ``contract.protocol``: the serial wire protocol and the status word (docs/protocol.md).
-tests/test_contract.py parses the firmware headers and checks them against these modules.
+tests/contract/test_contract.py parses the firmware headers and checks them against these modules.
 """
 
 from __future__ import annotations

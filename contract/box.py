@@ -4,7 +4,7 @@ Two different limits, often confused: the box has ``BOX_CHANNELS`` thermocouple 
 MAX31856 chip select each, ``BOX_MAX_CHANNELS`` in firmware/include/box_config.h), while the
 model runtime's tables could describe up to ``RUNTIME_MAX_CHANNELS`` (``TCM_MAX_CHANNELS`` in
 firmware/include/model_eval.h, a uint32_t mask). Training and codegen refuse a model that
-needs more than the box has. tests/test_contract.py checks both headers against this file.
+needs more than the box has. tests/contract/test_contract.py checks both headers against this file.
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 
 The box, the codegen twin (``codegen.fixed``) and the float reference of the host all follow
 these widths and this rounding. ``firmware/include/model_eval.h`` states the same constants as
-``TCM_*`` macros; tests/test_contract.py parses that header and fails when the two disagree.
+``TCM_*`` macros; tests/contract/test_contract.py parses that header and fails when the two
+disagree.
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 Every kind exists three times and must mean the same thing in each: the float reference of the
 host (host.fitting.features), the integer twin ``codegen.fixed`` and the C runtime
-``firmware/src/model_eval.c`` (``TCM_KIND_*`` in model_eval.h; tests/test_contract.py checks the
-codes). Parameters the box stores in fixed point are quantised when a term is created
+``firmware/src/model_eval.c`` (``TCM_KIND_*`` in model_eval.h; tests/contract/test_contract.py
+checks the codes). Parameters the box stores in fixed point are quantised when a term is created
 (``make_lag`` rounds alpha to Q30, ``make_square`` rounds the reference to 1/128 degC), so the
 float model and the fixed-point model are the same function of their inputs.
 

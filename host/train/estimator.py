@@ -25,7 +25,8 @@ Units: the box feeds the model °C from its thermocouples. A model fitted on sca
 statistics those leave) would run on the box without its scaler: ``to_model_json`` refuses it,
 and so does ``codegen.export_to_c`` for a Pipeline with any step before the model, naming the
 step (it is neither dropped nor guessed at). ``EXPECTED_FAILED_CHECKS`` names the scikit-learn
-estimator checks this regressor fails, each with its reason (tests/test_sklearn_checks.py).
+estimator checks this regressor fails, each with its reason
+(tests/host/train/test_sklearn_checks.py).
 """
 
 from __future__ import annotations
