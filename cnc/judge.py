@@ -233,21 +233,32 @@ def clean_reference(setup, scenario: Scenario) -> dict:
                          zero_at_powerup=setup.build.zero_at_powerup)
     cfg = thermalcomp.load_config(CONFIG_DIR / "thermalcomp.conf")
     names = list(model["axes"])
-    period_s = float(model["sample_period_s"])
-    slew_nm = cfg.slew_nm_per_s * round(period_s * 1000.0) / 1000.0
-    max_abs_nm = cfg.max_abs_um * 1000.0
     steps = {a.letter: float(thermalcomp.axis_step_nm(CONFIG_DIR, f"axis.{a.letter}",
                                                         a.box_axis, model, None, True))
              for a in cfg.axes}
+    offset = _component_offsets(cfg, names, exp, zeros, steps, float(model["sample_period_s"]))
+    return {"corr_nm": [[int(v) for v in row] for row in exp.out_nm],
+            "status": [int(v) for v in exp.status], "offset_nm": offset, "step_nm": steps,
+            "nm_per_count": {a.letter: a.nm_per_count for a in cfg.axes},
+            "box_axes": {a.letter: names.index(a.box_axis) for a in cfg.axes}}
+
+
+def _component_offsets(cfg, names: list[str], exp, zeros: list[int], steps: dict[str, float],
+                       period_s: float) -> dict[str, list[float]]:
+    """The component's documented rules on the twin's lines: hold on a hold bit, else move
+    towards sign x correction by at most min(step limit, slew) per line, within max_abs_um;
+    the first line after a ZERO is taken at once."""
+    from cnc import thermalcomp
+
+    slew_nm = cfg.slew_nm_per_s * round(period_s * 1000.0) / 1000.0
+    max_abs_nm = cfg.max_abs_um * 1000.0
     offset: dict[str, list[float]] = {a.letter: [] for a in cfg.axes}
     want = {a.letter: 0 for a in cfg.axes}
     datum = False
-    for k in range(n):
+    for k in range(len(exp.status)):
         datum = datum or k in zeros
-        if exp.status[k] & thermalcomp.HOLD_BITS:
-            pass  # every axis keeps its offset (a datum change waits for the next line)
-        else:
-            for a in cfg.axes:
+        if not exp.status[k] & thermalcomp.HOLD_BITS:  # on a hold bit every axis keeps its
+            for a in cfg.axes:                         # offset (a datum waits for the next line)
                 bound = math.floor(max_abs_nm / a.nm_per_count + 1e-9)
                 corr = int(exp.out_nm[k, names.index(a.box_axis)])
                 target = max(-bound, min(bound, round(a.sign * corr / a.nm_per_count)))
@@ -262,10 +273,7 @@ def clean_reference(setup, scenario: Scenario) -> dict:
             datum = False
         for a in cfg.axes:
             offset[a.letter].append(want[a.letter] * a.nm_per_count)
-    return {"corr_nm": [[int(v) for v in row] for row in exp.out_nm],
-            "status": [int(v) for v in exp.status], "offset_nm": offset, "step_nm": steps,
-            "nm_per_count": {a.letter: a.nm_per_count for a in cfg.axes},
-            "box_axes": {a.letter: names.index(a.box_axis) for a in cfg.axes}}
+    return offset
 
 
 FLAG_SAMPLES = 10  # the flags reported for an event: those seen in its first samples
