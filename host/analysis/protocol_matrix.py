@@ -107,7 +107,7 @@ class Comparison:
             "train": self.train, "test": self.test, "targets": self.targets,
             "rmse_um": {a: _nan_to_none(v) for a, v in self.rmse_um.items()},
             "mean_rmse_um": _nan_to_none(self.mean_rmse_um()),
-            # the shape host.analysis.report.load_protocols reads: one matrix and its metric
+            # the shape host.analysis.report_data.load_protocols reads: one matrix and its metric
             "metric": "test RMSE, mean of axes (um)", "matrix": _nan_to_none(self.mean_rmse_um()),
             "in_sample": self.in_sample.tolist(),
             "ranking": [{"train": n, "mean_cross_rmse_um": _none(v)} for n, v in self.ranking()],

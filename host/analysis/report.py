@@ -9,9 +9,7 @@ cooling paths and the fixed-point error bound. Figures are drawn in ``host.analy
 
 from __future__ import annotations
 
-import base64
 import csv
-import dataclasses
 import html
 import io
 import json
@@ -23,284 +21,58 @@ from pathlib import Path
 
 import numpy as np
 
-from contract.errors import InputError
-from contract.model_file import channel_ranges, read_model
-from contract.terms import TEMPERATURE_KINDS, Term
-from contract.tilt import available_axes, model_tilts, unit_text
+from contract.model_file import read_model
+from contract.tilt import unit_text
 from host.analysis import plots
 from host.analysis.evaluate import model_reference
 from host.analysis.metrology import (
-    VIF_NOT_IDENTIFIABLE,
     coefficient_table,
     iso230_drift,
     wiring_rows,
 )
+from host.analysis.report_data import (
+    Figure,
+    ProtocolMatrix,
+    Report,
+    box_sensors,
+    dropped_sensors,
+    effect_label,
+    in_training,
+    load_hil,
+    load_locations,
+    load_protocols,
+    load_report_runs,
+    most_important_sensor,
+    predict,
+    referenced,
+    training_runs,
+)
+from host.analysis.report_html import render_html
+from host.analysis.report_story import (
+    count_rule,
+    delay_limit_s,
+    effect_stages,
+    effects_caption,
+    fold_stages,
+    peer_predictions,
+    selection_figure,
+    selection_groups,
+)
 from host.analysis.service import readings_for, service_day
-from host.fitting import NO_REFERENCE, Reference, design_matrix, fit_linear
-from host.io import CsvFormat, Run, load_run, read_header
-from host.io.runs import missing_sensors
+from host.fitting import Reference
+from host.io import CsvFormat, Run
 from host.progress import progress
-from host.selection import default_max_lag
 from host.service import ProbePlan
 from host.train import (
     TOLERANCE_SHARE,
     box_effects_evidence,
-    box_model_note,
     dropped_reason,
     input_units,
     outside_training,
-    ridge_lags_note,
     training_ranges,
 )
 
-
-class ReportError(InputError):
-    """Input the report cannot use (the message names the file and what is wrong)."""
-
-
-# ---------------------------------------------------------------- model and predictions
-
-def axis_terms(axis: dict) -> tuple[list[Term], np.ndarray]:
-    terms = [Term.from_json(t) for t in axis["terms"]]
-    coefs = np.array([float(t["coef"]) for t in axis["terms"]], dtype=float)
-    return terms, coefs
-
-
-def predict(intercept: float, term_dicts: list[dict], run: Run, period_s: float,
-            reference: Reference = NO_REFERENCE) -> np.ndarray:
-    """Float prediction of one axis on a whole run (filters start at the run's first sample),
-    referenced as the box outputs it (``start``: the change since the run's start)."""
-    terms = [Term.from_json(t) for t in term_dicts]
-    coefs = np.array([float(t["coef"]) for t in term_dicts], dtype=float)
-    X = design_matrix(terms, run.columns(), period_s)
-    return reference.apply(float(intercept) + (X @ coefs if coefs.size else np.zeros(len(X))))
-
-
-def sensor_contributions(axis: dict, run: Run, period_s: float) -> dict[str, np.ndarray]:
-    """Each sensor's summed contribution (µm) over the run, from all its terms."""
-    terms, coefs = axis_terms(axis)
-    out: dict[str, np.ndarray] = {}
-    columns = run.columns()
-    for term, coef in zip(terms, coefs, strict=True):
-        if term.source is None or term.source not in run.sensor_names:
-            continue
-        value = coef * design_matrix([term], columns, period_s)[:, 0]
-        out[term.source] = out.get(term.source, 0.0) + value
-    return out
-
-
-def box_sensors(axis: dict) -> list[str]:
-    """Temperature sources of the axis's final terms, in term order: what the box reads."""
-    out: list[str] = []
-    for t in axis["terms"]:
-        if t["kind"] in TEMPERATURE_KINDS and t.get("source") and t["source"] not in out:
-            out.append(t["source"])
-    return out
-
-
-def dropped_sensors(axis: dict) -> list[str]:
-    """Sensors the channel budget took away from this axis after selection and effects."""
-    after = axis.get("channel_budget_after_effects") or {}
-    return list(after.get("dropped_sensors") or [])
-
-
-def effect_label(effect: dict) -> str:
-    """An effect's name, marked when it is not in the box's model (dropped_reason) or when the
-    box's ridge models it with its own lags (ridge_lags_note)."""
-    name = str(effect.get("name", effect.get("kind", "?")))
-    why = dropped_reason(effect)
-    if why:
-        return f"{name} (dropped: {why})"
-    lags = ridge_lags_note(effect)
-    return f"{name} ({lags})" if lags else name
-
-
-def most_important_sensor(axis: dict, run: Run, period_s: float) -> str | None:
-    """The sensor whose contribution varies most over the run: the temperature that drives it."""
-    contrib = sensor_contributions(axis, run, period_s)
-    if not contrib:
-        return None
-    return max(contrib, key=lambda s: float(np.std(contrib[s])))
-
-
-# ---------------------------------------------------------------- inputs
-
-def _header(path: Path, fmt: CsvFormat | None = None) -> list[str]:
-    if not path.is_file():
-        raise ReportError(f"{path}: run file not found")
-    return read_header(path, fmt)
-
-
-def referenced(run: Run, reference: Reference) -> Run:
-    """The run with its measured displacements referenced like the model's output."""
-    if reference.kind == "none" or run.displacements is None:
-        return run
-    disp = np.column_stack([reference.apply(run.displacements[:, i])
-                            for i in range(run.displacements.shape[1])])
-    return dataclasses.replace(run, displacements=disp)
-
-
-def load_report_runs(model: dict, paths: list[str | Path], fill_gaps: int = 0,
-                     fmt: CsvFormat | None = None) -> list[Run]:
-    """Load each run with the model's axes it has, every temperature and the model's aux."""
-    training = model.get("training", {})
-    sensors = training.get("sensors", "T*")
-    aux_names = [a["name"] for a in model.get("aux", [])]
-    needed = {c["sensor"] for c in model["channels"]}
-    tilts = model_tilts(model)
-    runs = []
-    for p in paths:
-        path = Path(p)
-        header = _header(path, fmt)
-        targets = available_axes(header, list(model["axes"]), tilts)
-        if not targets:
-            raise ReportError(f"{path}: none of the model's axes "
-                              f"({', '.join(model['axes'])}) is a column of this run")
-        missing = sorted(needed - set(header))
-        if missing:
-            raise ReportError(f"{path}, line 1: " + missing_sensors(
-                missing, [h for h in header if h not in ("time_s", *targets)],
-                "the model reads them"))
-        ranges = channel_ranges(model)
-        run = load_run(path, targets, sensors, aux_names, fill_gaps=fill_gaps, fmt=fmt,
-                       temperature_ranges=ranges, tilts=tilts)
-        absent = sorted(needed - set(run.sensor_names))
-        if absent:  # the model's sensors may lie outside the training glob: add them
-            run = load_run(path, targets, sorted(set(run.sensor_names) | needed), aux_names,
-                           fill_gaps=fill_gaps, fmt=fmt, temperature_ranges=ranges, tilts=tilts)
-        runs.append(run)
-    return runs
-
-
-@dataclass
-class ProtocolMatrix:
-    train: list[str]
-    test: list[str]
-    values: np.ndarray
-    metric: str
-    spread: np.ndarray | None = None  # standard deviation over repeats, same shape
-    verdict: dict | None = None  # `host compare-protocols`' winner (or none) and why
-
-
-def load_protocols(path: str | Path) -> ProtocolMatrix:
-    """A train × test error matrix from `host compare-protocols` (JSON or CSV).
-
-    JSON: ``{"metric": ..., "train": [...], "test": [...], "matrix": [[...]]}`` or a list of
-    rows ``{"train": .., "test": .., <metric>: ..}``; CSV: rows with train, test and a value.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise ReportError(f"{path}: protocol comparison file not found")
-    if path.suffix.lower() == ".csv":
-        with path.open(newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        return _matrix_from_rows(path, rows, None)
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ReportError(f"{path}: not valid JSON (line {exc.lineno}): {exc.msg}") from None
-    if isinstance(data, dict) and "matrix" in data:
-        train = [str(x) for x in data.get("train") or data.get("rows") or []]
-        test = [str(x) for x in data.get("test") or data.get("columns") or []]
-        values = np.array([[math.nan if v is None else float(v) for v in row]
-                           for row in data["matrix"]], dtype=float)
-        if values.shape != (len(train), len(test)):
-            raise ReportError(f"{path}: matrix is {values.shape[0]}×{values.shape[1]} but there "
-                              f"are {len(train)} train and {len(test)} test labels")
-        sd = (data.get("settings") or {}).get("mean_rmse_sd_over_repeats_um")
-        spread = None
-        if sd is not None:
-            spread = np.array([[math.nan if v is None else float(v) for v in row] for row in sd],
-                              dtype=float)
-            if spread.shape != values.shape:
-                spread = None
-        return ProtocolMatrix(train, test, values, str(data.get("metric", "RMSE (µm)")), spread,
-                              data.get("verdict"))
-    rows = data.get("results", data.get("rows")) if isinstance(data, dict) else data
-    if not isinstance(rows, list):
-        raise ReportError(f"{path}: expected a 'matrix' or a list of result rows")
-    metric = data.get("metric") if isinstance(data, dict) else None
-    return _matrix_from_rows(path, rows, metric)
-
-
-def _matrix_from_rows(path: Path, rows: list, metric: str | None) -> ProtocolMatrix:
-    if not rows:
-        raise ReportError(f"{path}: no rows")
-    keys = list(rows[0])
-    train_key = next((k for k in keys if k.lower() in ("train", "trained_on", "train_protocol")),
-                     None)
-    test_key = next((k for k in keys if k.lower() in ("test", "judged_on", "test_protocol")),
-                    None)
-    if train_key is None or test_key is None:
-        raise ReportError(f"{path}: rows need 'train' and 'test' fields (have: {', '.join(keys)})")
-    if metric is None or metric not in keys:
-        candidates = [k for k in keys if "rmse" in k.lower()] or \
-                     [k for k in keys if k not in (train_key, test_key)]
-        metric = candidates[0]
-    train = list(dict.fromkeys(str(r[train_key]) for r in rows))
-    test = list(dict.fromkeys(str(r[test_key]) for r in rows))
-    values = np.full((len(train), len(test)), math.nan)
-    for n, r in enumerate(rows, start=2):
-        try:
-            v = float(r[metric])
-        except (TypeError, ValueError):
-            raise ReportError(f"{path}: row {n}: '{metric}' is not a number: "
-                              f"{r.get(metric)!r}") from None
-        values[train.index(str(r[train_key])), test.index(str(r[test_key]))] = v
-    unit = " (µm)" if metric.endswith("_um") else ""
-    return ProtocolMatrix(train, test, values, metric + unit)
-
-
-def load_hil(path: str | Path) -> dict:
-    """A `python -m hil replay --json` result: the box's own output on a replayed run."""
-    path = Path(path)
-    if not path.is_file():
-        raise ReportError(f"{path}: HIL result file not found")
-    try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ReportError(f"{path}: not valid JSON (line {exc.lineno}): {exc.msg}") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("axes"), dict):
-        raise ReportError(f"{path}: not a HIL replay result (no 'axes')")
-    return {"file": str(path), **doc}
-
-
 # ---------------------------------------------------------------- report
-
-@dataclass
-class Figure:
-    key: str
-    section: str
-    title: str
-    caption: str
-    file: str
-    groups: list[dict] | None = None  # selection figures: paper 000's Table 1 beside it
-    clipped: list[str] = field(default_factory=list)  # legends/labels cut off at the edge
-
-
-@dataclass
-class Report:
-    out_dir: Path
-    figures: list[Figure] = field(default_factory=list)
-    summary: dict = field(default_factory=dict)
-
-    @property
-    def index(self) -> Path:
-        return self.out_dir / "index.html"
-
-
-SECTIONS = [
-    ("selection", "1. Sensor selection (paper 000, Fig. 7)"),
-    ("ec", "2. How many sensors (paper 000, Fig. 8)"),
-    ("runs", "3. Prediction on each run"),
-    ("effects", "4. Effects added to close the loop"),
-    ("folds", "4b. The effects' gains against the fold-to-fold spread"),
-    ("hysteresis", "5. Heating and cooling paths (pseudo-hysteresis)"),
-    ("protocols", "6. Which test protocol to run"),
-    ("window", "7. Inside or beyond the training range"),
-    ("service", "8. A day in service: the touch probe updates the model (issue 42)"),
-]
-
 
 def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "x"
@@ -309,12 +81,6 @@ def _slug(text: str) -> str:
 def _save(fig, path: Path) -> list[str]:
     """Write the PNG; what of it is cut off at the image's edge (plots.clipped_artists)."""
     return plots.save_png(fig, path)
-
-
-def _fmt(value, digits: int = 2, unit: str = "") -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "—"
-    return f"{value:.{digits}f}{unit}"
 
 
 def summary_rows(model: dict) -> list[dict]:
@@ -412,7 +178,7 @@ def _figure_jobs(inp: _Inputs) -> list[tuple[str, str | None, Run | None]]:
 
 
 def _fig_selection(inp: _Inputs, axis_name: str, axis: dict, run: Run | None) -> Drawn:
-    fig_obj, title, caption = _selection_figure(axis_name, axis, inp.limit,
+    fig_obj, title, caption = selection_figure(axis_name, axis, inp.limit,
                                                 inp.model.get("training", {}).get("groups"))
     return fig_obj, title, caption, f"selection_{_slug(axis_name)}.png"
 
@@ -471,7 +237,7 @@ def _fig_run(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
     entry[axis_name] = {
         "raw_rms_um": plots.rms(measured),
         "residual_rms_um": {k: plots.rms(measured - v) for k, v in preds.items()},
-        "in_training": _in_training(inp.model, run),
+        "in_training": in_training(inp.model, run),
         "drift": drift,
     }
     baseline = axis.get("baseline")
@@ -502,7 +268,7 @@ def _fig_window(inp: _Inputs, axis_name: str | None, axis: dict | None, run: Run
                "highest value it had in training. Inside the green band the model "
                "interpolates; beyond the dashed lines (5 % of the range further) it "
                "extrapolates (for a thermocouple the box raises EXTRAP there)."
-               + (" The model never saw this run." if not _in_training(inp.model, run)
+               + (" The model never saw this run." if not in_training(inp.model, run)
                   else " This run was used for training, so it stays inside."))
     return (fig_obj, f"{run.name}: inputs against their training range", caption,
             f"window_{_slug(run.name)}.png")
@@ -700,26 +466,6 @@ def _summary(model_path: str | Path, inp: _Inputs, report: Report, hil_results: 
     return summary
 
 
-def load_locations(path: str | Path) -> dict[str, str]:
-    """sensor -> where it sits on the machine, from a CSV with columns sensor, location."""
-    path = Path(path)
-    if not path.is_file():
-        raise ReportError(f"{path}: locations file not found")
-    with path.open(newline="", encoding="utf-8-sig") as fh:
-        reader = csv.DictReader(fh)
-        fields = [f.strip().lower() for f in reader.fieldnames or []]
-        if "sensor" not in fields or "location" not in fields:
-            raise ReportError(f"{path}: needs the columns 'sensor' and 'location' (has: "
-                              f"{', '.join(reader.fieldnames or [])})")
-        out = {}
-        for n, row in enumerate(reader, start=2):
-            row = {k.strip().lower(): (v or "").strip() for k, v in row.items() if k}
-            if not row["sensor"]:
-                raise ReportError(f"{path}: line {n}: empty sensor name")
-            out[row["sensor"]] = row["location"]
-    return out
-
-
 def _write_wiring_csv(path: Path, rows: list[dict]) -> None:
     buf = io.StringIO()
     w = csv.writer(buf)
@@ -730,22 +476,6 @@ def _write_wiring_csv(path: Path, rows: list[dict]) -> None:
                     " ".join(r["axes"]), r["trained_min_c"] if r["trained_min_c"] is not None
                     else "", r["trained_max_c"] if r["trained_max_c"] is not None else ""])
     _write_atomic(path, buf.getvalue())
-
-
-def training_runs(model: dict) -> list[Run]:
-    """The model's training runs with its axes and sensors, when readable here (else [])."""
-    training = model.get("training", {})
-    paths = [Path(p) for p in training.get("runs", [])]
-    if not paths or not all(p.is_file() for p in paths):
-        return []
-    needed = sorted({c["sensor"] for c in model["channels"]})
-    aux = [a["name"] for a in model.get("aux", [])]
-    try:
-        tilts = model_tilts(model)
-        return [load_run(p, available_axes(_header(p), list(model["axes"]), tilts), needed, aux,
-                         tilts=tilts) for p in paths]
-    except (ValueError, InputError):
-        return []
 
 
 def _json_num(value):
@@ -766,417 +496,3 @@ def _model_hash(model: dict) -> str | None:
     except ImportError:
         return None
     return model_hash(model)
-
-
-def _in_training(model: dict, run: Run) -> bool:
-    names = {Path(p).stem for p in model.get("training", {}).get("runs", [])}
-    return run.name in names
-
-
-def count_rule(sel: dict, model: dict) -> str:
-    """Which rule fixed the selection's sensor count: "ec" (smallest EC_i, paper 000), "min"
-    (smallest out-of-fold error S_i) or "cap" (the smallest S_i lies beyond --max-sensors, so
-    the cap decided)."""
-    if sel.get("count_rule", "smallest EC_i") == "smallest EC_i":
-        return "ec"
-    errors = [float(e) for e in sel.get("ec_errors_um") or []]
-    chosen = int(sel.get("chosen_count", 0))
-    cap = int(model.get("training", {}).get("max_sensors") or 0)
-    if errors and cap and chosen == cap and int(np.argmin(errors)) + 1 > cap:
-        return "cap"
-    return "min"
-
-
-def delay_limit_s(model: dict) -> float | None:
-    """The limit of the delay search training used (s): ``--max-delay-h`` when given, else a
-    quarter of the shortest training run (host.selection's default), read from the runs;
-    None when the runs are not readable here."""
-    training = model.get("training", {})
-    period = float(model["sample_period_s"])
-    if training.get("max_delay_s") is not None:
-        return float(training["max_delay_s"])
-    lengths = []
-    for p in training.get("runs", []):
-        path = Path(p)
-        if not path.is_file():
-            return None
-        with path.open(encoding="utf-8-sig") as fh:
-            lengths.append(sum(1 for line in fh if line.strip()) - 1)
-    if not lengths:
-        return None
-    n = min(lengths)
-    return min(default_max_lag(n), n - 1) * period
-
-
-def selection_groups(axis: dict) -> list[dict]:
-    """Paper 000's Table 1 for this axis: each c-means group, its members, its centre
-    (mean delay and correlation of the members) and which member the box reads."""
-    sel = axis["selection"]
-    box = set(box_sensors(axis))
-    rows = []
-    for g, members in enumerate(sel.get("groups") or []):
-        if not members:
-            continue
-        delays = [float(sel.get("delays_s", {}).get(m, math.nan)) for m in members]
-        corr = [float(sel.get("correlations", {}).get(m, math.nan)) for m in members]
-        rows.append({"group": g, "members": list(members),
-                     "centre_delay_s": float(np.mean(delays)),
-                     "centre_r": float(np.mean(corr)),
-                     "chosen": [m for m in members if m in sel.get("sensors", [])],
-                     "read_by_box": [m for m in members if m in box]})
-    return rows
-
-
-def one_per_group(axis: dict) -> bool:
-    """Whether c-means left every candidate sensor in a group of its own."""
-    groups = [g for g in (axis.get("selection") or {}).get("groups") or [] if g]
-    return len(groups) > 1 and all(len(g) == 1 for g in groups)
-
-
-def effect_sensors(axis: dict) -> set[str]:
-    """Sensors whose terms the effects the box runs added."""
-    return {str(t["source"]) for eff in axis.get("effects") or [] if not dropped_reason(eff)
-            for t in eff.get("added") or [] if t.get("source")}
-
-
-def _grouping_note(axis_name: str, axis: dict, requested: int | None = None) -> str:
-    """Why every sensor is a group of its own, when it is (paper 000's grouping did nothing):
-    c-means is capped at the number of candidates, and ``--groups`` (default 10) was not
-    below it; the channel budget's shared pool is often what set that number."""
-    if not one_per_group(axis):
-        return ""
-    sel = axis["selection"]
-    n = sum(1 for g in sel.get("groups") or [] if g)
-    pool = (sel.get("channel_budget") or {}).get("pool")
-    outside = ((sel.get("channel_budget") or {}).get("outside_pool") or {}).get(axis_name, {})
-    n_out = len(outside.get("correlations") or {})
-    text = (f" Each of the {n} candidate sensors is a group of its own: c-means makes at most "
-            "as many groups as there are candidates, and "
-            + (f"--groups {requested}" if requested is not None else "--groups (default 10)")
-            + f" is not below {n}")
-    if pool and n_out:
-        text += (f" (the {n} are the channel budget's shared pool: {n_out} more sensors had "
-                 "no box channel left)")
-    return (text + ". So the grouping of paper 000 narrowed nothing here: every candidate was "
-            "tried as its own representative, and sensors that sit together in the plane "
-            f"were judged one by one. Train with --groups below {n} to group them.")
-
-
-def _selection_figure(axis_name: str, axis: dict, limit_s: float | None = None,
-                      groups_requested: int | None = None):
-    sel = axis["selection"]
-    names = list(sel.get("correlations", {}))
-    delays = [float(sel.get("delays_s", {}).get(n, math.nan)) for n in names]
-    corr = [float(sel["correlations"][n]) for n in names]
-    labels = [int(sel.get("labels", {}).get(n, 0)) for n in names]
-    box = box_sensors(axis)
-    selected = list(sel.get("sensors", []))
-    dropped = [n for n in selected if n not in box]
-    # sensors the box's channel budget left out of the shared pool: drawn as group -1
-    outside = sel.get("channel_budget", {}).get("outside_pool", {}).get(axis_name, {})
-    for n, r in outside.get("correlations", {}).items():
-        names.append(n)
-        corr.append(float(r))
-        delays.append(float(outside.get("delays_s", {}).get(n, math.nan)))
-        labels.append(-1)
-    shown = [n for n in box if n in names]
-    fig = plots.selection_plane(axis_name, names, delays, corr, labels, shown, dropped,
-                                limit_s)
-    e = html.escape
-    title = f"{axis_name}: sensors by delay and correlation"
-    caption = (f"Each dot is a thermocouple: how strongly it correlates with {axis_name} and how "
-               "far it lags behind it. "
-               + ("" if one_per_group(axis) else
-                  "Colours are the c-means groups (◇: each group's centre; the table below "
-                  "lists the members); one representative per group is tried. ")
-               + f"Circled and named: the sensors the box reads for {axis_name} "
-               f"({e(', '.join(box)) or 'none'}).")
-    budget = set(dropped_sensors(axis)) | set((sel.get("channel_budget") or {}).get("dropped")
-                                              or [])
-    by_budget = [n for n in dropped if n in budget]
-    other = [n for n in dropped if n not in budget]
-    if by_budget:
-        caption += (f" Dashed: chosen by the selection but dropped by the box's channel "
-                    f"budget ({e(', '.join(by_budget))}); the box does not read "
-                    f"{'it' if len(by_budget) == 1 else 'them'} for this axis.")
-    if other:
-        caption += (f" Dashed: chosen by the selection but not in the box's model "
-                    f"({e(', '.join(other))}).")
-    added = [n for n in box if n not in selected]
-    free = [n for n in added if n in set((axis.get("fit") or {}).get("free_channels_read")
-                                         or [])]
-    by_effects = [n for n in added if n not in free and n in effect_sensors(axis)]
-    other = [n for n in added if n not in free and n not in by_effects]
-    if free:
-        caption += (" Read by the box's ridge on channels the selection left free, not chosen "
-                    "by the selection (fit.free_channels_read: the best of the other sensors "
-                    f"by an L1 ranking over all axes): {e(', '.join(free))}.")
-    if by_effects:
-        caption += (f" Brought in by the effects rather than the selection: "
-                    f"{e(', '.join(by_effects))}.")
-    if other:
-        caption += (f" Read by the box's model though neither selected nor brought in by an "
-                    f"effect it runs: {e(', '.join(other))}.")
-    caption += _grouping_note(axis_name, axis, groups_requested)
-    if limit_s:
-        at_edge = [n for n, d in zip(names, delays, strict=True)
-                   if math.isfinite(d) and abs(d) >= limit_s - 1e-6]
-        caption += (f" Triangles: delay at the limit of the search (±{limit_s / 3600:.3g} h): "
-                    + (e(", ".join(at_edge)) if at_edge else "none")
-                    + (", whose true delay may be longer." if at_edge else "."))
-    caption += f" Method: {e(str(sel.get('method', '?')))}."
-    return fig, title, caption
-
-
-def fold_stages(axis: dict) -> list[dict]:
-    """Validation RMSE of each stage with its per-fold values, from the effects' evidence:
-    the baseline (the first effect's folds before) and after each effect; [] when the model
-    does not carry them."""
-    effects = axis.get("effects") or []
-    first = (effects[0].get("evidence") or {}) if effects else {}
-    if not effects or not first.get("fold_rmse_before_um"):
-        return []
-    rows = [{"stage": "baseline", "rmse_um": effects[0].get("rmse_before_um"),
-             "folds_um": list(first["fold_rmse_before_um"]), "dropped": False}]
-    for e in effects:
-        ev = e.get("evidence") or {}
-        if not ev.get("fold_rmse_after_um") or e.get("rmse_after_um") is None:
-            return []
-        rows.append({"stage": "+ " + str(e.get("name", e.get("kind", "?"))),
-                     "rmse_um": e["rmse_after_um"], "folds_um": list(ev["fold_rmse_after_um"]),
-                     "dropped": dropped_reason(e) is not None, "why": dropped_reason(e)})
-    if any(r["rmse_um"] is None for r in rows):
-        return []
-    return rows
-
-
-def effect_evidence(effect: dict, unit: str = "µm") -> str:
-    """The numbers that justified an effect, in one phrase (errors in ``unit``)."""
-    parts = []
-    before, after = effect.get("rmse_before_um"), effect.get("rmse_after_um")
-    if before is not None and after is not None:
-        parts.append(f"validation RMSE {before:.2f} → {after:.2f} {unit}")
-    ev = effect.get("evidence") or {}
-    if ev.get("improvement_pct") is not None:
-        parts.append(f"{ev['improvement_pct']:.0f} % better")
-    if ev.get("folds_improved"):
-        parts.append(f"better in {ev['folds_improved']} folds")
-    if ev.get("residual_corr") is not None:
-        parts.append(f"residual correlation {ev['residual_corr']:+.2f}")
-    return ", ".join(parts)
-
-
-def effects_caption(stages: list[dict]) -> str:
-    """What the effects figure's caption says of its stages (HTML): why each effect the box
-    runs was added, and each one it does not run with the reason from its flags
-    (dropped_reason: the channel budget, nested validation, the box's ridge), grouped by it."""
-    e = html.escape
-    kept = [s for s in stages if not s["dropped"] and s.get("name") is not None]
-    gone = [s for s in stages if s["dropped"]]
-    parts = []
-    if kept:
-        parts.append("Why each effect in the box's model was added: " + "; ".join(
-            f"<b>{e(s['name'])}</b>: {e(s['evidence']) or 'no evidence recorded'}"
-            + (f" ({e(s['note'])})" if s.get("note") else "") for s in kept) + ".")
-    else:
-        parts.append("The box's model runs none of the effects the search added.")
-    reasons: dict[str, list[dict]] = {}
-    for s in gone:
-        reasons.setdefault(str(s["why"]), []).append(s)
-    for why, group in reasons.items():
-        parts.append("Dashed grey, added by the search on this evidence but dropped because "
-                     + e(why) + ": " + "; ".join(
-                         f"<b>{e(s['name'])}</b> ({e(s['evidence']) or 'no evidence recorded'})"
-                         for s in group) + ".")
-    box = next((s for s in stages if s["box"]), None)
-    if gone and box is not None:
-        parts.append("The last curve is what the box runs"
-                     + (f": {e(box['note'])}." if box.get("note") else "."))
-    return " ".join(parts)
-
-
-def effect_stages(axis: dict, axis_name: str, run: Run, period: float,
-                  reference: Reference = NO_REFERENCE) -> list[dict]:
-    """Residual of the baseline model and after each effect, in the order they were added,
-    then (when the channel budget changed it afterwards) the model the box runs.
-
-    Each effect records the model it produced (``intercept`` and ``terms``) and the axis keeps
-    the ``baseline`` it started from (host/effects/), so every stage is re-evaluated here on
-    this run, seen or unseen. An effect the channel budget took out is kept as a stage marked
-    ``dropped`` (what it would have done), and the last stage is always the box's model, so the
-    figure's final error is the box's.
-    """
-    measured = run.target(axis_name)
-    stages = []
-    baseline = axis.get("baseline")
-    if baseline and "terms" in baseline:
-        stages.append({"label": "baseline (temperatures only)",
-                       "legend": "baseline (temperatures only)", "evidence": "",
-                       "dropped": False, "box": False,
-                       "residual": measured - predict(baseline["intercept"], baseline["terms"],
-                                                      run, period, reference)})
-    for effect in axis.get("effects", []):
-        if "terms" in effect and "intercept" in effect:
-            why = dropped_reason(effect)
-            dropped = why is not None
-            name = effect.get("name", effect.get("kind", "?"))
-            stages.append({"label": f"+ {name}" + (f" (dropped: {why})" if dropped else ""),
-                           "legend": f"+ {name}" + (" (dropped)" if dropped else ""),
-                           "name": name, "evidence": effect_evidence(effect, unit_text(axis_name)),
-                           "why": why, "note": ridge_lags_note(effect),
-                           "dropped": dropped, "box": False,
-                           "residual": measured - predict(effect["intercept"], effect["terms"],
-                                                          run, period, reference)})
-    note = box_model_note(axis)
-    if stages and note:
-        stages.append({"label": f"the box's model ({note})", "legend": "the box's model",
-                       "note": note, "evidence": "", "dropped": False, "box": True,
-                       "residual": measured - predict(axis["intercept"], axis["terms"], run,
-                                                      period, reference)})
-    elif stages:
-        stages[-1]["box"] = True
-    return stages
-
-
-K_CORRELATED = 4  # paper 002's four most correlated sensors
-
-
-def _abs_correlation(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    Xc, yc = X - X.mean(axis=0), y - y.mean()
-    den = np.sqrt((Xc ** 2).sum(axis=0) * (yc ** 2).sum())
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r = np.where(den > 0, (Xc.T @ yc) / den, 0.0)
-    return np.abs(r)
-
-
-def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, str], np.ndarray]]:
-    """Predictions of the static peers `host compare` also fits (OLS on all sensors, OLS on the
-    k most correlated), trained on the model's own training runs so the comparison is fair.
-
-    Empty when the training runs are not readable here (the report then shows our model only).
-    """
-    training = model.get("training", {})
-    ref = Reference.of_model(model)
-    paths = [Path(p) for p in training.get("runs", [])]
-    axes = [a for a in model["axes"] if any(a in r.target_names for r in runs)]
-    if not paths or not all(p.is_file() for p in paths) or not axes:
-        return {}
-    try:
-        tilts = model_tilts(model)
-        train_runs = [load_run(p, available_axes(_header(p), axes, tilts),
-                               training.get("sensors", "T*"), tilts=tilts) for p in paths]
-    except ValueError:
-        return {}
-    names = train_runs[0].sensor_names
-    if any(r.sensor_names != names for r in train_runs) or \
-            not all(set(names) <= set(r.sensor_names) for r in runs):
-        return {}
-    k = min(K_CORRELATED, len(names))
-    labels = ("OLS, all sensors", f"{k} most correlated (paper 002)")
-    out: dict[str, dict[tuple[str, str], np.ndarray]] = {label: {} for label in labels}
-    for axis in axes:
-        have = [r for r in train_runs if axis in r.target_names]
-        if not have:
-            continue
-        X = np.vstack([ref.apply(r.temperatures) for r in have])
-        y = np.concatenate([ref.apply(r.target(axis)) for r in have])
-        top = np.argsort(-_abs_correlation(X, y), kind="stable")[:k]
-        for label, idx in zip(labels, (np.arange(len(names)), top), strict=True):
-            fit = fit_linear(X[:, idx], y)
-            cols = [names[i] for i in idx]
-            for run in runs:
-                if axis in run.target_names:
-                    Xr = np.column_stack([run.column(c) for c in cols])
-                    out[label][(run.path, axis)] = ref.apply(fit.predict(Xr))
-    return out
-
-
-# ---------------------------------------------------------------- HTML
-
-TEMPLATES = Path(__file__).with_name("templates")
-
-
-def _status_counts_text(counts: dict | None) -> str:
-    if not counts:
-        return ""
-    text = " Status bits the box raised: " + ", ".join(
-        f"{name} on {n} sample{'s' if n != 1 else ''}" for name, n in counts.items()) + "."
-    if "EXTRAP" in counts:
-        text += (" EXTRAP: a reading beyond its training window, so the correction is an "
-                 "extrapolation (still applied).")
-    return text
-
-
-def _beyond_text(rows: list[dict] | None) -> str:
-    if rows is None:
-        return "not stored in this model"
-    if not rows:
-        return "none"
-    return ", ".join(
-        f"{r['input']} {'+' if r['run_max'] > r['train_max'] else '−'}"
-        + (f"{100 * r['beyond_share']:.0f} %" if r["beyond_share"] is not None
-           else f"{r['beyond']:.3g}")
-        + f" ({r['samples_outside_pct']:.0f} % of the run)" for r in rows)
-
-
-def _span_text(values: list[float] | None) -> str:
-    """A gain across the folds: ``lowest … highest (n folds)``, or — without folds."""
-    if not values:
-        return "—"
-    if len(values) == 1:
-        return f"{values[0]:.3f} (1 fold)"
-    return f"{min(values):.3f} … {max(values):.3f} ({len(values)} folds)"
-
-
-def _duration_text(seconds: float) -> str:
-    """A time constant as a reader thinks of it: 900 s, 1 h, 4 h."""
-    if seconds >= 3600 and seconds % 1800 == 0:
-        return f"{seconds / 3600:g} h"
-    return f"{seconds:g} s"
-
-
-def _environment():
-    import jinja2
-
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(TEMPLATES)),
-                             autoescape=jinja2.select_autoescape(["html", "j2"]),
-                             trim_blocks=False)
-    env.filters["num"] = lambda v, digits=2: _fmt(v, digits)
-    env.filters["nm"] = lambda v: _fmt(None if v is None else v * 1000, 3)
-    env.filters["span"] = _span_text
-    env.filters["duration"] = _duration_text
-    env.filters["mode"] = lambda gain, tau: next(
-        (m["amplitude_um_per_k"] for m in gain["modes"] if m["tau_s"] == tau), None)
-    env.globals["vif_limit"] = VIF_NOT_IDENTIFIABLE
-    env.globals["status_counts"] = _status_counts_text
-    env.globals["hil_checks"] = lambda hil: ", ".join(
-        f"{k} {'passed' if v else 'FAILED'}" for k, v in (hil.get("checks") or {}).items()) \
-        or "—"
-    return env
-
-
-def render_html(model: dict, report: Report) -> str:
-    """The page, from ``templates/report.html.j2`` (jinja2, autoescaped; captions are built
-    escaped and marked safe)."""
-    summary = report.summary
-    models = list(dict.fromkeys(m for per in summary["runs"].values() for a in per.values()
-                                for m in a["residual_rms_um"]))
-    sections = []
-    for key, heading in SECTIONS:
-        figs = [f for f in report.figures if f.section == key]
-        if figs:
-            sections.append({"heading": heading, "figures": [{
-                "stem": Path(f.file).stem, "file": f.file, "title": f.title,
-                "caption": f.caption, "groups": f.groups,
-                "data": base64.b64encode((report.out_dir / f.file).read_bytes()).decode("ascii"),
-            } for f in figs]})
-    context = {
-        "model": model, "summary": summary, "models": models, "sections": sections,
-        "validations": sorted({r["validation"] for r in summary["axes"] if r.get("validation")}),
-        "beyond": {name: _beyond_text(rows)
-                   for name, rows in summary.get("outside_training", {}).items()},
-        "coefficients": summary.get("coefficients") or [],
-        "wiring": summary.get("wiring") or [],
-        "locations_given": summary.get("locations_given", False),
-    }
-    return _environment().get_template("report.html.j2").render(**context)

@@ -163,7 +163,7 @@ def test_figures_and_the_equation_speak_in_the_tilt_unit():
 
 
 def test_the_report_states_an_effects_evidence_in_the_axis_unit():
-    from host.analysis.report import effect_stages
+    from host.analysis.report_story import effect_stages
     from host.io import Run
 
     t = np.arange(40) * 60.0

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from direct_fits import direct_lag
 
-from host.analysis.report import ReportError, build_report, load_protocols
+from host.analysis.report import build_report
+from host.analysis.report_data import ReportError, load_protocols
 from host.cli import main as host_main
 from host.io import load_run, write_run
 
@@ -375,7 +376,7 @@ def test_report_describes_the_model_the_box_runs(example, budget_model):
 
 
 def test_ec_caption_says_the_cap_decided(budget_model):
-    from host.analysis.report import count_rule
+    from host.analysis.report_story import count_rule
 
     model, report = budget_model
     # S_i is smallest at 5 sensors, the cap is 2: the cap decided, not the minimum
@@ -388,7 +389,7 @@ def test_ec_caption_says_the_cap_decided(budget_model):
 
 def test_fold_stages_come_from_the_effects_evidence_and_are_drawn(tmp_path):
     from host.analysis import plots
-    from host.analysis.report import fold_stages
+    from host.analysis.report_story import fold_stages
 
     axis = {"effects": [
         {"name": "lag(T05)", "rmse_before_um": 3.0, "rmse_after_um": 2.0,
