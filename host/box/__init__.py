@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
-from host.box.monitor import Monitor, MonitorError, render
+from host.box.monitor import Monitor
+from host.box.state import MonitorError
+from host.box.views import render
 
 __all__ = [
     "Monitor",

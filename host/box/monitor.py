@@ -27,451 +27,38 @@ measured − correction), so the offset a CNC applies is −correction.
 
 from __future__ import annotations
 
-import csv
 import json
-import os
 import sys
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol, TextIO
+from typing import TextIO
 
 import serial
 
 from contract import protocol
-from contract.errors import InputError
-from contract.tilt import unit_of, unit_text
-from host.box.history import LINK, SAMPLE, FaultEntry, FaultHistory, clock, sample_fault_labels
-from host.box.screen import GREY, RED, RESET, Screen
+from host.box.csvlog import CsvLog
+from host.box.history import LINK, SAMPLE, FaultEntry, clock, sample_fault_labels
+from host.box.link import LineView, device_identity, open_port
+from host.box.screen import Screen
+from host.box.state import (
+    FAULT_FLAGS,
+    SIGN_NOTE,
+    STALE_PERIODS,
+    MonitorError,
+    MonitorState,
+    flag_labels,
+    hash_line,
+    status_names,
+)
+from host.box.views import json_sample, plain_sample_line, render
 
 RETRY_S = 1.0
 INFO_TIMEOUT_S = 1.0
 INFO_ATTEMPTS = 3
 REDRAW_S = 0.1
 STATUS_EVERY_S = 1.0  # while a fault flag is up, the per-channel fault words are re-read this often
-STALE_PERIODS = 2.0  # no line for more than this many expected intervals: STALE
-
-SIGN_NOTE = ("sign: a correction is the box's prediction of the thermal displacement, in the "
-             "sign of the displacement measured in the thermal test (compensated = measured − "
-             "correction): the offset to apply is −correction")
-
-# flags that mean some channel is faulted: ask STATUS which one
-_FAULT_FLAGS = {"HOLD", "RANGE", "OPEN", "TC_FAULT", "AUX_FAULT", "NO_DATA", "IMPLAUSIBLE",
-                "BEYOND"}
-# the flags a channel's fault word explains, and the fault word's bits each one stands for
-_CHANNEL_FLAGS = {"TC_FAULT": {"OVUV", "TCLOW", "TCHIGH", "CJLOW", "CJHIGH", "TCRANGE",
-                               "CJRANGE"}, "OPEN": {"OPEN"}, "RANGE": {"RANGE"},
-                  "IMPLAUSIBLE": {"IMPLAUSIBLE"}, "BEYOND": {"BEYOND"}}
-
-
-class MonitorError(InputError):
-    """Bad monitor input (unreadable model, a log file with another layout, a port that
-    cannot be opened at start)."""
-
-
-def status_names(status: int) -> list[str]:
-    """Names of the bits set in a status word; a bit newer than this contract (a newer box)
-    shows as ``bit<n>``, never as an error."""
-    named = len(protocol.STATUS_BITS)
-    return protocol.status_names(status) + [f"bit{b}" for b in range(named, 16)
-                                             if status >> b & 1]
-
-
-def channel_fault_names(word: int) -> list[str]:
-    """Names of a STATUS per-channel fault word's bits (MAX31856 SR, then the box's own)."""
-    return [f.name for f in protocol.ChannelFault if word & f.value and f.name]
-
-
-@dataclass
-class MonitorState:
-    """Everything the display shows; updated by the reader, rendered by ``render``."""
-
-    port: str
-    info: protocol.Info | None = None
-    expected_hash: str | None = None
-    sample: protocol.Sample | None = None
-    status_report: protocol.StatusReport | None = None
-    samples: int = 0
-    bad_lines: int = 0
-    last_bad: str = ""
-    seq_gaps: int = 0
-    reconnects: int = 0
-    withheld: int = 0  # samples not shown because the device had not identified itself
-    connected: bool = False
-    last_rx: float | None = None  # any valid line
-    last_sample_rx: float | None = None
-    seq_step: int = 1  # seq advance between the last two samples (RATE n: n)
-    stale: bool = False
-    messages: list[str] = field(default_factory=list)
-    # sensor -> (window_lo, window_hi) codes from model.json (codegen's EXTRAP windows); used
-    # only while the box reports that model's hash, to name the channels behind EXTRAP
-    windows: dict[str, tuple[int, int]] = field(default_factory=dict)
-    # axis -> thermocouples its terms read (from --model): names the axes a fault holds
-    axis_inputs: dict[str, list[str]] = field(default_factory=dict)
-    history: FaultHistory = field(default_factory=FaultHistory)
-    # axis -> the model's promise (model.json metrics.promise, the wording host train and the
-    # report use): shown while the box runs that model
-    promises: dict[str, str] = field(default_factory=dict)
-    period_hint_s: float | None = None  # the last INFO's period: kept while INFO is re-asked
-    disconnected_at: float | None = None  # monotonic time the port was lost
-
-    @property
-    def hash_ok(self) -> bool | None:
-        if self.expected_hash is None or self.info is None:
-            return None
-        return self.info.model_hash == self.expected_hash
-
-    def axis_names(self, n: int) -> list[str]:
-        names = list(self.info.axes) if self.info else []
-        return names[:n] + [f"axis{i}" for i in range(len(names), n)]
-
-    def channel_names(self, n: int) -> list[str]:
-        names = [c.sensor for c in self.info.channels] if self.info else []
-        return names[:n] + [f"ch{i}" for i in range(len(names), n)]
-
-    @property
-    def flags(self) -> list[str]:
-        return status_names(self.sample.status) if self.sample is not None else []
-
-    def period_s(self) -> float | None:
-        """The box's sample period (INFO), or the last one known while INFO is asked again
-        (after a reconnect): the age and STALE keep counting when the box has gone away."""
-        if self.info and self.info.period_ms:
-            return self.info.period_ms / 1000.0
-        return self.period_hint_s
-
-    def faulted_channels(self) -> dict[str, list[str]]:
-        """Channel name -> fault names, from the latest STATUS reply, while the current
-        sample still raises a fault flag (a cleared fault clears the map)."""
-        rep, s = self.status_report, self.sample
-        if rep is None or s is None or not (set(self.flags) & _FAULT_FLAGS):
-            return {}
-        names = self.channel_names(max(len(rep.channel_faults), len(s.temp_codes)))
-        return {names[i]: channel_fault_names(w) or [f"0x{w:04X}"]
-                for i, w in enumerate(rep.channel_faults) if w}
-
-    def unnamed_channel_faults(self) -> list[str]:
-        """Channel-fault flags of the current sample whose channel no STATUS reply has named
-        yet (the reply is on its way): every channel is then suspect."""
-        named = {f for faults in self.faulted_channels().values() for f in faults}
-        return [n for n in self.flags if n in _CHANNEL_FLAGS and not _CHANNEL_FLAGS[n] & named]
-
-    def invalid_channels(self) -> dict[str, str]:
-        """Channel name -> why its reading is not a temperature: its faults from STATUS, or,
-        while a channel-fault flag is up and STATUS has not named the channel yet, every
-        channel ("OPEN?": one of them is open, which one is not known yet)."""
-        s = self.sample
-        if s is None:
-            return {}
-        out = {n: "/".join(f) for n, f in self.faulted_channels().items()}
-        unnamed = self.unnamed_channel_faults()
-        if unnamed:
-            for n in self.channel_names(len(s.temp_codes)):
-                out.setdefault(n, "/".join(f"{u}?" for u in unnamed))
-        return out
-
-    def held_axes(self) -> list[str] | None:
-        """Axes that read a faulted channel (so hold), when --model says which axes read
-        what and the box runs that model; None when it cannot be told."""
-        if "HOLD" not in self.flags:
-            return []
-        faulted = set(self.faulted_channels())
-        if not faulted or not self.axis_inputs or self.hash_ok is not True:
-            return None
-        return [a for a, inputs in self.axis_inputs.items() if faulted & set(inputs)]
-
-    def zero_seq(self) -> int | None:
-        rep = self.status_report
-        return getattr(rep, "zero_seq", None) if rep is not None else None
-
-    def beyond_training(self) -> list[str]:
-        """Channels of the current sample outside their training window (named only when the
-        box runs the model.json the windows came from)."""
-        s = self.sample
-        if s is None or not self.windows or self.hash_ok is not True:
-            return []
-        names = self.channel_names(len(s.temp_codes))
-        return [n for n, code in zip(names, s.temp_codes, strict=True)
-                if n in self.windows and not self.windows[n][0] <= code <= self.windows[n][1]]
-
-    def silence_s(self, now: float) -> float | None:
-        return None if self.last_sample_rx is None else now - self.last_sample_rx
-
-    def stale_after_s(self) -> float | None:
-        period = self.period_s()
-        return None if period is None else STALE_PERIODS * period * max(1, self.seq_step)
-
-
-def flag_labels(state: MonitorState) -> list[str]:
-    """The status flags of the current sample, each named with what it concerns: EXTRAP and
-    the channel faults with their channels, HOLD with its axes, REFERENCED with its ZERO (in
-    the order of ``state.flags``)."""
-    assert state.sample is not None
-    names = state.flags
-    faulted = state.faulted_channels()
-    out: list[str] = []
-    for n in names:
-        if n == "EXTRAP":
-            beyond = state.beyond_training()
-            out.append(f"EXTRAP({'+'.join(beyond)})" if beyond else n)
-        elif n == "HOLD":
-            held = state.held_axes()
-            chans = "+".join(faulted)
-            out.append(f"HOLD({'+'.join(held)})" if held else
-                       f"HOLD(axes reading {chans})" if chans else n)
-        elif n in _CHANNEL_FLAGS:
-            chans = [c for c, f in faulted.items() if _CHANNEL_FLAGS[n] & set(f)]
-            out.append(f"{n}({'+'.join(chans)})" if chans else n)
-        elif n == "REFERENCED" and state.zero_seq() is not None:
-            out.append(f"REFERENCED(since #{state.zero_seq()})")
-        else:
-            out.append(n)
-    return out
-
-
-def _flags(state: MonitorState, sep: str) -> str:
-    return sep.join(flag_labels(state)) or "ok"
-
-
-def _hash_line(state: MonitorState) -> str:
-    if state.info is None:
-        return "model: (no INFO reply yet)"
-    info = state.info
-    # what matters first: on a narrow terminal the end of the line is what is cut
-    text = f"model {info.model_hash}"
-    if state.hash_ok is True:
-        text += " matches model.json"
-    elif state.hash_ok is False:
-        text += f", MISMATCH: model.json is {state.expected_hash}"
-    return text + (f" (CRC {'OK' if info.crc_ok else 'BAD'}), firmware {info.fw_version}, "
-                   f"period {info.period_ms} ms")
-
-
-def _reference_line(state: MonitorState) -> str:
-    if "REFERENCED" in state.flags:
-        z = state.zero_seq()
-        return ("corrections are the change since ZERO"
-                + (f" (reference from sample #{z})" if z is not None else ""))
-    return "corrections are absolute (no ZERO reference in force)"
-
-
-# ---- in service (issue 42): the estimator per axis, from the STATUS line -----------------
-REFUSALS_WARN = 2  # readings the gate refused in a row that the view calls out
-
-
-def service_lines(state: MonitorState, colour: bool = False) -> list[str]:
-    """Per axis the box's in-service estimate (the bias MEAS taught it) and the last
-    reading's residual (innovation); repeated refusals in red: the model misses by more than
-    the gate lets through (or the artifact is dirty), and the estimate stays where it was."""
-    svc = getattr(state.status_report, "service", None)
-    if not svc:
-        return []
-    red, reset = (RED, RESET) if colour else ("", "")
-    out = []
-    for name, a in zip(state.axis_names(len(svc)), svc, strict=True):
-        if a is None:
-            out.append(f"  estimate   {name:>10}: off (no service block: MEAS refused)")
-            continue
-        unit = unit_text(name)
-        res = "-" if a.innovation_nm is None else f"{a.innovation_nm / 1000.0:+.3f} {unit}"
-        line = f"  estimate   {name:>10}: {a.bias_nm / 1000.0:+10.3f} {unit}, last residual {res}"
-        if a.refusals >= REFUSALS_WARN:
-            line = (f"{red}{line}, {a.refusals} readings REFUSED in a row (beyond the gate: "
-                    f"check the artifact, or ZERO){reset}")
-        elif a.refusals:
-            line += f", {a.refusals} refused"
-        out.append(line)
-    return out
-
-
-def render(state: MonitorState, now: float, colour: bool = False) -> list[str]:
-    """The live state as lines (the terminal view shows these above the fault history)."""
-    grey, red, reset = (GREY, RED, RESET) if colour else ("", "", "")
-    if state.connected:
-        link = "connected"
-    else:
-        gone = ("" if state.disconnected_at is None
-                else f" for {now - state.disconnected_at:.1f} s")
-        link = f"{red}DISCONNECTED{gone}, retrying{reset}"
-    lines = [f"host monitor on {state.port}: {link}", _hash_line(state)]
-    silence, limit = state.silence_s(now), state.stale_after_s()
-    if silence is not None and limit is not None and silence > limit:
-        lines.append(f"{red}STALE: no sample for {silence:.1f} s (expected every "
-                     f"{limit / STALE_PERIODS:g} s): the values below are old{reset}")
-    s = state.sample
-    if s is None:
-        lines.append("no sample yet")
-    else:
-        age = "" if silence is None else f", {silence:.1f} s ago"
-        lines.append(f"sample #{s.seq}{age}   status {s.status:04X}: {_flags(state, ', ')}")
-        lines.append(f"  offset to apply = −correction; {_reference_line(state)}")
-        held = set(state.held_axes() or [])
-        for name, nm in zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
-                            strict=True):
-            mark = "  (HOLD: last good value)" if name in held else ""
-            lines.append(f"  correction {name:>10}: {nm / 1000.0:+10.3f} "
-                         f"{unit_text(name)}{mark}")
-        lines += service_lines(state, colour)
-        if state.hash_ok is True:
-            for name in state.axis_names(len(s.corrections_nm)):
-                if state.promises.get(name):
-                    lines.append(f"  promised   {name:>10}: {state.promises[name]}")
-        invalid = state.invalid_channels()
-        temps = []
-        for name, code in zip(state.channel_names(len(s.temp_codes)), s.temp_codes,
-                              strict=True):
-            if name in invalid:
-                temps.append(f"{grey}{name} {invalid[name]:>9}{reset}")
-            else:
-                temps.append(f"{name} {code / 128.0:7.2f} °C")
-        for i in range(0, len(temps), 4):
-            lines.append("  " + "   ".join(temps[i:i + 4]))
-    lines.append(f"samples {state.samples}   bad lines {state.bad_lines}   "
-                 f"seq gaps {state.seq_gaps}   reconnects {state.reconnects}"
-                 + (f"   withheld {state.withheld}" if state.withheld else ""))
-    if state.last_bad:
-        lines.append(f"  last bad line: {state.last_bad}")
-    return lines
-
-
-def plain_sample_line(state: MonitorState) -> str:
-    """One line per sample when the output is not a terminal (logs, pipes, scripts)."""
-    s = state.sample
-    assert s is not None
-    corr = " ".join(f"{n}={nm / 1000.0:+.3f}{unit_of(n)}" for n, nm in
-                    zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm, strict=True))
-    invalid = state.invalid_channels()
-    temps = " ".join(f"{n}=FAULT({invalid[n]})" if n in invalid else
-                     f"{n}={c / 128.0:.2f}C" for n, c in
-                     zip(state.channel_names(len(s.temp_codes)), s.temp_codes, strict=True))
-    flags = _flags(state, ",")
-    return (f"seq={s.seq} status={s.status:04X}[{flags}] {corr} {temps} "
-            f"bad={state.bad_lines}".replace("  ", " "))
-
-
-def json_sample(state: MonitorState, received: float) -> dict:
-    """One sample as the ``--json`` object: corrections per axis (µm; µrad for a tilt axis,
-    named in ``units``), temperatures (°C, null for a faulted channel) per sensor, flags,
-    faulted channels and held axes."""
-    s = state.sample
-    assert s is not None
-    faulted = state.faulted_channels()
-    invalid = state.invalid_channels()
-    names = state.channel_names(len(s.temp_codes))
-    return {
-        "type": "sample", "seq": s.seq, "status": f"{s.status:04X}", "flags": state.flags,
-        "corrections_um": {n: nm / 1000.0 for n, nm in
-                           zip(state.axis_names(len(s.corrections_nm)), s.corrections_nm,
-                               strict=True)},
-        "units": {n: unit_of(n) for n in state.axis_names(len(s.corrections_nm))},
-        "temperatures_c": {n: (None if n in invalid else c / 128.0)
-                           for n, c in zip(names, s.temp_codes, strict=True)},
-        "faulted_channels": faulted, "held_axes": state.held_axes(),
-        "beyond_training": state.beyond_training(),
-        "referenced": "REFERENCED" in state.flags, "zero_seq": state.zero_seq(),
-        "model_hash_ok": state.hash_ok, "host_unix_s": round(received, 3),
-    }
-
-
-class CsvLog:
-    """Appends samples as CSV; the header is fixed by the first sample's layout and checked
-    against an existing file so two layouts never mix in one log.
-
-    A faulted channel's reading is not a temperature: its cell is left empty (what a run file
-    calls a missing value) and the ``faults`` column says why (``T12=OPEN``; ``T05=OPEN?`` for
-    every channel while the box has raised OPEN and STATUS has not yet said which one)."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self._fh: TextIO | None = None
-        self._writer = None
-        self.header: list[str] | None = None
-
-    def write(self, state: MonitorState, received: float) -> None:
-        s = state.sample
-        assert s is not None
-        period_s = state.info.period_ms / 1000.0 if state.info else 1.0
-        header = (["time_s", "seq", "status"]
-                  + [f"corr_{n}" for n in state.axis_names(len(s.corrections_nm))]
-                  + state.channel_names(len(s.temp_codes)) + ["faults", "host_unix_s"])
-        if self._fh is None:
-            self._open(header)
-        elif header != self.header:
-            raise MonitorError(f"{self.path}: the box's layout changed ({', '.join(header)}); "
-                               "start a new --log file")
-        assert self._writer is not None and self._fh is not None
-        invalid = state.invalid_channels()
-        names = state.channel_names(len(s.temp_codes))
-        self._writer.writerow([f"{s.seq * period_s:.6g}", s.seq, f"{s.status:04X}"]
-                              + [f"{nm / 1000.0:.3f}" for nm in s.corrections_nm]
-                              + ["" if n in invalid else f"{c / 128.0:.4f}"
-                                 for n, c in zip(names, s.temp_codes, strict=True)]
-                              + [";".join(f"{n}={why}" for n, why in invalid.items()),
-                                 f"{received:.3f}"])
-        self._fh.flush()
-
-    def _open(self, header: list[str]) -> None:
-        existing = None
-        if self.path.is_file() and self.path.stat().st_size > 0:
-            with self.path.open(newline="") as fh:
-                existing = next(csv.reader(fh), None)
-            if existing != header:
-                raise MonitorError(f"{self.path}: existing log has columns "
-                                   f"{', '.join(existing or [])}, the box sends "
-                                   f"{', '.join(header)}; use another --log file")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = self.path.open("a", newline="")
-        self._writer = csv.writer(self._fh)
-        if existing is None:
-            self._writer.writerow(header)
-        self.header = header
-
-    def close(self) -> None:
-        if self._fh is not None:
-            self._fh.close()
-
-
-def open_port(port: str, baud: int) -> serial.SerialBase:
-    """A pyserial port (device path, pty, or a pyserial URL such as socket://host:port)."""
-    if "://" in port:
-        return serial.serial_for_url(port, baudrate=baud, timeout=0.05)
-    return serial.Serial(port, baudrate=baud, timeout=0.05)
-
-
-def device_identity(port: str) -> str | None:
-    """What the device at ``port`` says it is without being asked: a USB adapter's serial
-    number (vendor:product:serial). None for a pty, a URL or an adapter without a serial
-    number: such a device can only be known by its INFO answer."""
-    if "://" in port:
-        return None
-    try:
-        from serial.tools import list_ports
-
-        real = os.path.realpath(port)
-        for p in list_ports.comports():
-            if os.path.realpath(p.device) == real and p.serial_number:
-                return f"{p.vid or 0:04x}:{p.pid or 0:04x}:{p.serial_number}"
-    except (OSError, ImportError):
-        return None
-    return None
-
-
-class LineView(Protocol):
-    """A view fed the box's lines as received (every one, good or bad) and the serial link's
-    coming and going, with wall-clock times; ``start`` before the first, ``stop`` at the end.
-    host.fleet.gateway.BoxRelay is one (the MQTT publisher of ``host monitor --mqtt``)."""
-
-    def start(self) -> None: ...
-
-    def line(self, raw: bytes, now: float) -> object: ...
-
-    def connected(self, port: str, now: float) -> None: ...
-
-    def lost(self, why: str, now: float) -> None: ...
-
-    def stop(self) -> None: ...
 
 
 class Monitor:
@@ -739,7 +326,7 @@ class Monitor:
         if info.period_ms:
             st.period_hint_s = info.period_ms / 1000.0
         self._info_sent_at = None
-        self._event(_hash_line(st), kind="info")
+        self._event(hash_line(st), kind="info")
         if self._previous_hash is not None and info.model_hash != self._previous_hash:
             self._event(f"the device now at this path runs model {info.model_hash}, not "
                         f"{self._previous_hash} as before the connection was lost",
@@ -757,13 +344,13 @@ class Monitor:
     def _want_status(self, sample: protocol.Sample, now: float) -> None:
         """Ask STATUS (the per-channel fault words, the ZERO reference) when the fault or
         reference flags change, and again every STATUS_EVERY_S while a fault flag is up."""
-        flags = frozenset(status_names(sample.status)) & (_FAULT_FLAGS | {"REFERENCED"})
+        flags = frozenset(status_names(sample.status)) & (FAULT_FLAGS | {"REFERENCED"})
         if not flags:
             self._status_for = flags
             return
         changed = flags != self._status_for
         due = self._status_sent_at is None or now - self._status_sent_at >= STATUS_EVERY_S
-        if changed or (due and flags & _FAULT_FLAGS):
+        if changed or (due and flags & FAULT_FLAGS):
             self._status_for = flags
             self._ask_status(now)
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from contract import protocol
-from host.box.monitor import MonitorState, service_lines
+from host.box.state import MonitorState
+from host.box.views import service_lines
 
 
 def test_estimate_residual_and_repeated_refusals_are_shown():
