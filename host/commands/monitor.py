@@ -1,9 +1,9 @@
 """`host monitor PORT [--model build/model.json] [--log run.csv]`: watch a box live.
 
 The reading lives in host.box.monitor, the state in host.box.state; what is shown is chosen
-here: the full-screen terminal view (curses) on a terminal or with --screen, one line per sample with
---plain or when stdout is not a terminal (a pipe, a file), one JSON object per line with
---json. With --mqtt URL --machine NAME the box's lines also go to the fleet's broker, through
+here: the full-screen terminal view (curses) on a terminal or with --screen, one line per
+sample with --plain or when stdout is not a terminal (a pipe, a file), one JSON object per line
+with --json. With --mqtt URL --machine NAME the box's lines also go to the fleet's broker, through
 the same relay as ``host gateway`` (host.fleet.gateway.BoxRelay: the same messages, the same
 spool), while the screen shows them (docs/fleet.md)."""
 
