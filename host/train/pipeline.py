@@ -492,18 +492,10 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
                        max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
                        max_channels=max_channels, reference=reference,
                        fill_first=fill_first)  # a fold of one axis fills as this model did
-        def next_day(searched: dict[str, dict], nested: bool) -> dict[str, dict]:
-            return _axes_for_the_next_day(data, searched, options, fit=fit, nested=nested,
-                                          fill_channels=fill_channels,
-                                          max_channels=max_channels, rankings=rankings,
-                                          bending=bending, prefilter_s=prefilter_s, jobs=jobs,
-                                          quiet=quiet)
-
-        refill = fit == "ridge" and fill_channels
-        searched = copy.deepcopy(axes) if refill else axes  # the judge updates what it drops
-        axes = next_day(axes, nested)
-        if refill:
-            axes = _refilled_without_dropped_effects(data, searched, axes, next_day)
+        axes = _for_the_next_day(data, axes, options, fit=fit, nested=nested,
+                                 fill_channels=fill_channels, max_channels=max_channels,
+                                 rankings=rankings, bending=bending, prefilter_s=prefilter_s,
+                                 jobs=jobs, quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
@@ -513,7 +505,45 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     wired = _channels(axes, data.names, dict(channels or {}), tc_type)
     aux_inputs = _aux(axes, data.runs)
     add_training_ranges(wired, aux_inputs, data.runs)
-    model = {
+    model = _model_json(data, axes, wired, aux_inputs, tilts, dict(
+        targets=targets, sensors=sensors if isinstance(sensors, str) else list(sensors),
+        aux=aux, selection=selection, max_sensors=int(max_sensors), groups=int(groups),
+        max_delay_s=max_delay_s, validation=data.scheme, seed=int(seed), effects=bool(effects),
+        reference=data.ref.kind, fit=fit, nested=bool(nested),
+        fill_channels=bool(fill_channels), ambient=ambient, max_channels=int(max_channels),
+        bending=bending, prefilter_s=float(prefilter_s)))
+    # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
+    add_step_limits(model, data.runs)
+    # the in-service estimator's parameters from the out-of-fold residual (issue 42)
+    add_service(model, data.runs, data.n_blocks, data.ref)
+    return model
+
+
+def _for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, *, fit: str,
+                      nested: bool, fill_channels: bool, max_channels: int, rankings,
+                      bending: list[str], prefilter_s: float, jobs: int | None,
+                      quiet: bool) -> dict[str, dict]:
+    """The box's model per axis (the next-day families, nested validation), and with the ridge
+    the free channels filled again without the effects it dropped."""
+    def next_day(searched: dict[str, dict], nested: bool) -> dict[str, dict]:
+        return _axes_for_the_next_day(data, searched, options, fit=fit, nested=nested,
+                                      fill_channels=fill_channels,
+                                      max_channels=max_channels, rankings=rankings,
+                                      bending=bending, prefilter_s=prefilter_s, jobs=jobs,
+                                      quiet=quiet)
+
+    refill = fit == "ridge" and fill_channels
+    searched = copy.deepcopy(axes) if refill else axes  # the judge updates what it drops
+    axes = next_day(axes, nested)
+    if refill:
+        axes = _refilled_without_dropped_effects(data, searched, axes, next_day)
+    return axes
+
+
+def _model_json(data: TrainingData, axes: dict[str, dict], wired: list, aux_inputs: list,
+                tilts: Sequence[Tilt], training: dict) -> dict:
+    """The model.json dict: the box's inputs and axes, and how it was trained."""
+    return {
         "schema": SCHEMA,
         "tool_version": __version__,
         "sample_period_s": float(data.period_s),
@@ -523,33 +553,8 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
         "time_max_s": TIME_MAX_S,
         "axes": axes,
         **({"tilts": [t.to_json() for t in tilts]} if tilts else {}),
-        "training": {
-            "runs": [r.path for r in data.runs],
-            "targets": targets,
-            "sensors": sensors if isinstance(sensors, str) else list(sensors),
-            "aux": aux,
-            "selection": selection,
-            "max_sensors": int(max_sensors),
-            "groups": int(groups),
-            "max_delay_s": max_delay_s,
-            "validation": data.scheme,
-            "seed": int(seed),
-            "effects": bool(effects),
-            "reference": data.ref.kind,
-            "fit": fit,
-            "nested": bool(nested),
-            "fill_channels": bool(fill_channels),
-            "ambient": ambient,
-            "max_channels": int(max_channels),
-            "bending": bending,
-            "prefilter_s": float(prefilter_s),
-        },
+        "training": {"runs": [r.path for r in data.runs], **training},
     }
-    # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
-    add_step_limits(model, data.runs)
-    # the in-service estimator's parameters from the out-of-fold residual (issue 42)
-    add_service(model, data.runs, data.n_blocks, data.ref)
-    return model
 
 
 def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
