@@ -19,9 +19,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from contract import __version__
 from contract.box import BOX_CHANNELS, CHANNEL_MAX_C, CHANNEL_MIN_C
-from contract.model_file import SCHEMA
 from contract.terms import AUX_KINDS, TEMPERATURE_KINDS, Term, term_sensors
 from contract.tilt import Tilt, unit_of
 from host.effects import search_effects, sensor_reference
@@ -71,6 +69,7 @@ from host.train.next_day import (
     shared_lag_budget,
 )
 from host.train.ranges import add_training_ranges
+from host.train.record import model_json
 from host.train.summary import dropped_reason
 from host.train.training_data import TrainingData, TrainingError
 
@@ -78,7 +77,6 @@ DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a d
 # the promise's keys in an axis's metrics (fit_for_the_next_day)
 PROMISE_KEYS = ("promised_rmse_um", "promised_fold_rmse_um", "promised_coverage", "promise")
 AUX_HEADROOM = 2.0  # valid aux range: twice the training extremes (see _aux)
-TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
 DEFAULT_TC_TYPE = "K"
 # BLAS on one thread while training: its matrices have tens of columns, and OpenBLAS's threads
 # spin between calls. `host train` on 64 sensors x 86,400 rows used 10.9-14.6 s of CPU with two
@@ -505,7 +503,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     wired = _channels(axes, data.names, dict(channels or {}), tc_type)
     aux_inputs = _aux(axes, data.runs)
     add_training_ranges(wired, aux_inputs, data.runs)
-    model = _model_json(data, axes, wired, aux_inputs, tilts, dict(
+    model = model_json(data, axes, wired, aux_inputs, tilts, dict(
         targets=targets, sensors=sensors if isinstance(sensors, str) else list(sensors),
         aux=aux, selection=selection, max_sensors=int(max_sensors), groups=int(groups),
         max_delay_s=max_delay_s, validation=data.scheme, seed=int(seed), effects=bool(effects),
@@ -538,23 +536,6 @@ def _for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, 
     if refill:
         axes = _refilled_without_dropped_effects(data, searched, axes, next_day)
     return axes
-
-
-def _model_json(data: TrainingData, axes: dict[str, dict], wired: list, aux_inputs: list,
-                tilts: Sequence[Tilt], training: dict) -> dict:
-    """The model.json dict: the box's inputs and axes, and how it was trained."""
-    return {
-        "schema": SCHEMA,
-        "tool_version": __version__,
-        "sample_period_s": float(data.period_s),
-        "reference": data.ref.to_json(),
-        "channels": wired,
-        "aux": aux_inputs,
-        "time_max_s": TIME_MAX_S,
-        "axes": axes,
-        **({"tilts": [t.to_json() for t in tilts]} if tilts else {}),
-        "training": {"runs": [r.path for r in data.runs], **training},
-    }
 
 
 def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
