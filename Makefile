@@ -37,7 +37,7 @@ $(STAMP): pyproject.toml scripts/install-system-deps.sh
 	touch $(STAMP)
 
 lint: $(STAMP)
-	$(PY) -m ruff check contract host codegen hil tests bench cnc firmware/test
+	$(PY) -m ruff check thermal_comp tests bench scripts firmware/test
 
 test: $(STAMP) lint test-firmware test-python test-floors faults
 
@@ -67,7 +67,7 @@ test-firmware: $(STAMP)
 	$(MAKE) -C firmware test
 
 examples: $(STAMP)
-	$(PY) -m host.sim.examples $(EXAMPLES)
+	$(PY) -m thermal_comp.host.sim.examples $(EXAMPLES)
 
 train: $(STAMP)
 	$(HOST) train $(DEMO_TRAIN) $(DEMO_TARGETS) --out $(BUILD)
@@ -82,7 +82,7 @@ firmware: firmware-stm32 firmware-native
 
 hil: $(STAMP)
 	@test -f $(MODEL_JSON) || $(MAKE) train
-	$(PY) -m hil replay --model $(MODEL_JSON) --data $(DEMO_TEST)
+	$(PY) -m thermal_comp.hil replay --model $(MODEL_JSON) --data $(DEMO_TEST)
 
 flash: $(STAMP)
 	@test -f $(MODEL_H) || { echo "No $(MODEL_H): run 'host train ...' (or 'make train') first."; exit 2; }
@@ -93,24 +93,24 @@ report: $(STAMP)
 
 # The box's corrections through a headless LinuxCNC on external offsets (docs/linuxcnc.md).
 cnc: $(STAMP)
-	$(PY) -m cnc
+	$(PY) -m thermal_comp.cnc
 
 # Probing in service (issue 42) on the same headless LinuxCNC: a probe on a reference artifact
 # every hour of the replayed run, MEAS to the box, the residual at each probe, static against
 # updated (build/cnc-probe/summary.json).
 probe: $(STAMP)
-	$(PY) -m cnc --probe
+	$(PY) -m thermal_comp.cnc --probe
 
 # The fault campaign of issue 41: native box + the component's logic, and the controller's
 # events through a real headless LinuxCNC; a table and build/faults/summary.json.
 faults: $(STAMP)
-	$(PY) -m cnc.faults --quiet
+	$(PY) -m thermal_comp.cnc.faults --quiet
 
 bench: $(STAMP)
 	$(PY) -m bench
 
 demo: $(STAMP)
-	$(PY) -m host.demo
+	$(PY) -m thermal_comp.host.demo
 
 clean:
 	rm -rf $(BUILD) report bench/results $(FLOORS_VENV)

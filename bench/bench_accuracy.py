@@ -82,7 +82,7 @@ import numpy as np
 
 from bench.accuracy_cases import CALIBRATION_FACTOR, PEERS, RESULTS, CaseResult
 from bench.goal import INFO, goal
-from contract.box import BOX_CHANNELS
+from thermal_comp.contract.box import BOX_CHANNELS
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("THERMAL_SHARED_DATA", ROOT.parent / "shared" / "data"))
@@ -130,7 +130,7 @@ MIN_TRAINING_SETS = 3  # fewer and a resampled interval says nothing: none is gi
 # --------------------------------------------------------------------------- reference
 
 try:  # the project's start reference (issue 13); the same definition stands in before it
-    from host.fitting.reference import Reference, causal_reference
+    from thermal_comp.host.fitting.reference import Reference, causal_reference
 except ImportError:  # pragma: no cover - main before the reference landed
     Reference = None  # type: ignore[assignment,misc]
 
@@ -214,7 +214,7 @@ class Job:
 def sim_jobs(tmp: Path, seeds: Sequence[int] = SIM_SEEDS, source: str = "sim") -> list[Job]:
     """The project's simulator: write the runs of machines ``seeds`` into ``tmp`` (seconds),
     one job per machine, under ``source``."""
-    from host.sim import SimConfig, build_program, simulate, write_simulation
+    from thermal_comp.host.sim import SimConfig, build_program, simulate, write_simulation
 
     jobs = []
     days = (("constant", 0, 8.0, 20.0), ("step", 1, 8.0, 20.0),
@@ -307,7 +307,7 @@ def fl_jobs() -> list[Job]:
 # --------------------------------------------------------------------------- worker
 
 def _load(spec: RunSpec, targets: Sequence[str]):
-    from host.io import load_run, window
+    from thermal_comp.host.io import load_run, window
 
     run = load_run(spec.path, list(targets), "T*", AUX, min_samples=4)
     if spec.start_s is not None or spec.stop_s is not None:
@@ -319,7 +319,7 @@ def train_kwargs(reference: str, bending: Sequence[str] = (),
                  targets: Sequence[str] = ()) -> dict:
     """``reference=`` for train_model when it takes it (issue 13), ``bending=`` (those of
     ``targets`` that bend) and ``jobs=`` (_worker_init) when it takes those; nothing before."""
-    from host.train import train_model
+    from thermal_comp.host.train import train_model
 
     params = inspect.signature(train_model).parameters
     out: dict = {"reference": reference} if "reference" in params else {}
@@ -352,7 +352,7 @@ def raw_prediction(model: dict, run) -> dict[str, np.ndarray]:
     asked for ``none`` it returns the plain output, and referencing that is the same thing
     (the reference is linear). A predict without ``reference=`` returns the plain output.
     """
-    from host.analysis.evaluate import predict
+    from thermal_comp.host.analysis.evaluate import predict
 
     if "reference" in inspect.signature(predict).parameters:
         return predict(model, run, reference="none")
@@ -361,7 +361,7 @@ def raw_prediction(model: dict, run) -> dict[str, np.ndarray]:
 
 def peer_features(run, reference: str, lags: bool) -> np.ndarray:
     """Temperatures (plus their first-order lags) of one run, referenced at its start."""
-    from host.fitting import first_order_lag
+    from thermal_comp.host.fitting import first_order_lag
 
     X = run.temperatures
     parts = [X]
@@ -403,8 +403,8 @@ def fit_peers(X: np.ndarray, XL: np.ndarray, y: np.ndarray, folds: np.ndarray,
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from host.analysis.compare import best_subset
-    from host.selection import pearson_r
+    from thermal_comp.host.analysis.compare import best_subset
+    from thermal_comp.host.selection import pearson_r
 
     cv = PredefinedSplit(folds)
     n = X.shape[1]
@@ -505,7 +505,7 @@ def ours_models(job: Job, train: list, variant: str, column: str, nested: bool =
     """Each model of our ``column`` (OURS) for one way of training on ``job``'s runs
     (``variant``, Job.ours_variants): (its targets, the model.json dict, seconds to train).
     ``nested=False`` skips nested validation, which gives the promise, not the model."""
-    from host.train import train_model
+    from thermal_comp.host.train import train_model
 
     per_target = dict(job.ours_variants())[variant]
     targets = list(job.targets)
@@ -519,7 +519,7 @@ def ours_models(job: Job, train: list, variant: str, column: str, nested: bool =
 
 def run_job(job: Job) -> tuple[list[dict], dict]:
     """Train every column of one job and score each (variant, test run, target)."""
-    from host.train import dropped_reason
+    from thermal_comp.host.train import dropped_reason
 
     t_job = time.perf_counter()
     targets = list(job.targets)
@@ -574,7 +574,7 @@ def score_peers(job: Job, train: list, test: list, cases: dict) -> None:
     """Fit every peer on ``job``'s training runs and score it on each test run, into
     ``cases`` ((variant, test name, target) -> CaseResult; bench.quick_accuracy's baseline
     uses it too)."""
-    from host.fitting import fold_groups
+    from thermal_comp.host.fitting import fold_groups
 
     period = train[0].period_s
     folds, _ = fold_groups(train)
@@ -873,13 +873,14 @@ def train_timing_row() -> dict:
     """`host train` with defaults on 64 sensors x 86,400 rows in a fresh process (issue 2's
     target, measured the way bench_train does; repeated here so the table carries it)."""
     from bench.bench_train import synthetic_run, timed_process
-    from host.io import write_run
+    from thermal_comp.host.io import write_run
 
     with tempfile.TemporaryDirectory() as tmp:
         t, cols = synthetic_run(86_400, 64)
         csv = Path(tmp) / "run_86400.csv"
         write_run(csv, t, cols)
-        timing = timed_process([sys.executable, "-m", "host", "train", str(csv), "--target",
+        timing = timed_process([sys.executable, "-m", "thermal_comp.host", "train", str(csv),
+                                "--target",
                                 "dz_um", "--out", str(Path(tmp) / "out"), "--json"])
     return {"name": "host train (defaults) 64 x 86,400 rows", "value": timing.fastest,
             "unit": "s", "target": "< 10 s on 2 cores", "goal": goal("<", 10),

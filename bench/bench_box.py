@@ -51,7 +51,7 @@ def representative_cases():
 
 def train_default(job) -> dict:
     from bench import bench_accuracy as acc
-    from host.train import train_model
+    from thermal_comp.host.train import train_model
 
     runs = [acc._load(s, job.targets) for s in job.train]
     return train_model(runs, list(job.targets), aux=acc.AUX,
@@ -119,10 +119,10 @@ def sizes(elf: Path) -> tuple[int, int]:
 def instructions_per_step(header: Path, model: dict, csv: Path, build: Path,
                           cflags: str) -> tuple[float, int, list[str]]:
     """(instructions per tcm_step call, calls seen, functions counted) under QEMU."""
-    from hil.build import build_firmware
-    from hil.feed import build_feed
-    from hil.qemu import QemuBox
-    from hil.runner import replay
+    from thermal_comp.hil.build import build_firmware
+    from thermal_comp.hil.feed import build_feed
+    from thermal_comp.hil.qemu import QemuBox
+    from thermal_comp.hil.runner import replay
 
     elf = build_firmware(header, build, "qemu_uartfeed", cflags)
     syms = symbols(elf)
@@ -164,8 +164,8 @@ def instructions_per_step(header: Path, model: dict, csv: Path, build: Path,
 
 
 def measure(label: str, model: dict, test_csv: str, start_s: float | None, tmp: Path) -> list[dict]:
-    import codegen
-    from hil.build import build_firmware
+    from thermal_comp import codegen
+    from thermal_comp.hil.build import build_firmware
 
     work = tmp / re.sub(r"[^A-Za-z0-9]+", "_", label)  # the linker's -Map= takes no comma
     work.mkdir()

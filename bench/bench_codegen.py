@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-import codegen
 from bench.goal import INFO, goal
-from codegen.fixed import FixedModel
-from contract.terms import make_lag, make_rate, make_speed, make_temp
+from thermal_comp import codegen
+from thermal_comp.codegen.fixed import FixedModel
+from thermal_comp.contract.terms import make_lag, make_rate, make_speed, make_temp
 
 ROOT = Path(__file__).resolve().parents[1]
 N_SAMPLES = 86_400

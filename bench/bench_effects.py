@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from bench.goal import INFO, goal
-from contract.terms import Term
-from host.analysis import diagnose
-from host.fitting import NO_REFERENCE, Reference, design_matrix
-from host.io import load_run
-from host.sim import SimConfig, build_program, simulate, write_simulation
-from host.train import train_model
+from thermal_comp.contract.terms import Term
+from thermal_comp.host.analysis import diagnose
+from thermal_comp.host.fitting import NO_REFERENCE, Reference, design_matrix
+from thermal_comp.host.io import load_run
+from thermal_comp.host.sim import SimConfig, build_program, simulate, write_simulation
+from thermal_comp.host.train import train_model
 
 ROOT = Path(__file__).resolve().parents[1]
 SEEDS = (0, 1, 2, 3, 4)

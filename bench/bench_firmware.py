@@ -87,7 +87,7 @@ def _replay_seconds(binary: Path) -> float:
 
 
 def run() -> list[dict]:
-    import codegen
+    from thermal_comp import codegen
 
     gen = load_generator()
     with tempfile.TemporaryDirectory() as d:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from bench.goal import INFO as INFO_ROW
 from bench.goal import goal
-from contract import protocol
+from thermal_comp.contract import protocol
 
 RESULTS = Path(__file__).parent / "results" / "fleet.json"
 INFO = protocol.Info("1.4.0", "a1b2c3d4", True, 1000, ("dx_um", "dy_um", "dz_um"),
@@ -42,11 +42,11 @@ def _pct(values: list[float], q: float) -> float:
 
 def bench(boxes: int = 200, seconds: float = 600.0, db: str = "sqlite",
           restart_down_s: float = 3.0, workdir: str | None = None) -> dict:
-    from host.fleet.collector import Collector
-    from host.fleet.gateway import Publisher, Translator
-    from host.fleet.localrun import Mosquitto, Postgres
-    from host.fleet.store import Store
-    from host.fleet.web import make_server
+    from thermal_comp.host.fleet.collector import Collector
+    from thermal_comp.host.fleet.gateway import Publisher, Translator
+    from thermal_comp.host.fleet.localrun import Mosquitto, Postgres
+    from thermal_comp.host.fleet.store import Store
+    from thermal_comp.host.fleet.web import make_server
 
     logging.basicConfig(level=logging.ERROR)
     work = Path(workdir or tempfile.mkdtemp(prefix="bench-fleet-"))

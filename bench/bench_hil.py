@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.goal import INFO, goal
-from hil import replay as hil_replay
-from hil.example_model import default_terms, fit_example_model, write_model
-from host.io import write_run
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.example_model import default_terms, fit_example_model, write_model
+from thermal_comp.host.io import write_run
 
 N_SAMPLES = 86_400
 SENSORS = [f"T{i:02d}" for i in range(1, 6)]
@@ -49,7 +49,8 @@ def synthesise(path: Path, n: int = N_SAMPLES, seed: int = 24) -> Path:
 
 def simulated_run(path: Path) -> tuple[Path, str]:
     """A 24 h 1 s run: ``host simulate`` (16 h running + 8 h cooling), else synthesised."""
-    proc = subprocess.run([sys.executable, "-m", "host", "simulate", "--protocol", "random",
+    proc = subprocess.run([sys.executable, "-m", "thermal_comp.host", "simulate", "--protocol",
+                           "random",
                            "--hours", "16", "--cool-hours", "8", "--dt", "1", "--sensors", "5",
                            "--seed", "24", "-o", str(path)], capture_output=True, text=True)
     if proc.returncode != 0 or not path.is_file():

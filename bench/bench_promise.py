@@ -44,7 +44,7 @@ import numpy as np
 
 from bench import bench_accuracy as acc
 from bench.goal import goal
-from host.train.next_day import PROMISE_COVERAGE, PROMISE_TAIL
+from thermal_comp.host.train.next_day import PROMISE_COVERAGE, PROMISE_TAIL
 
 RESULTS = acc.ROOT / "bench" / "results" / "promise.json"
 # the cases the promise (docs/training.md) was calibrated on (tracked; --quick reads them)
@@ -235,7 +235,7 @@ def calibrate(cases: Sequence[PromiseCase]) -> dict:
 
 def held_out_text(cases: Sequence[PromiseCase]) -> str:
     """How host train's promise (next_day.promise_from_folds) held on ``cases``."""
-    from host.train.next_day import promise_from_folds
+    from thermal_comp.host.train.next_day import promise_from_folds
 
     cs = usable(cases)
     cov = coverage(cs, [promise_from_folds(c.folds_um) for c in cs])
@@ -285,7 +285,7 @@ def table(cal: dict) -> str:
 
 def shipped_coverage(cases: Sequence[PromiseCase]) -> dict[str, dict]:
     """Per source, how host train's promise (next_day.promise_from_folds) held."""
-    from host.train.next_day import promise_from_folds
+    from thermal_comp.host.train.next_day import promise_from_folds
 
     cs = usable(cases)
     out = {}
@@ -297,7 +297,7 @@ def shipped_coverage(cases: Sequence[PromiseCase]) -> dict[str, dict]:
 
 def report(cases: Sequence[PromiseCase], out: Path) -> dict:
     """Calibrate, print the table and write ``out``; the calibration back."""
-    from host.train import next_day
+    from thermal_comp.host.train import next_day
 
     cal = calibrate(cases)
     cal["shipped"] = {"stat": "geometric mean", "factor": next_day.PROMISE_FACTOR,

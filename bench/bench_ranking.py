@@ -20,8 +20,8 @@ import numpy as np
 
 from bench.bench_selection import LOCO, PROBES, cases_fl
 from bench.goal import INFO
-from host.fitting import common_period, fold_groups
-from host.selection import select_sensors
+from thermal_comp.host.fitting import common_period, fold_groups
+from thermal_comp.host.selection import select_sensors
 
 SIZES = (3, 4, 5)
 SPLIT = "FL, 0-24 h -> 24-32 h (5)"

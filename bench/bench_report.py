@@ -36,7 +36,8 @@ RATIO_TARGET = 1.2
 
 
 def _train(out: Path) -> Path:
-    cmd = [sys.executable, "-m", "host", "-q", "train", *map(str, TRAIN), "--out", str(out)]
+    cmd = [sys.executable, "-m", "thermal_comp.host", "-q", "train", *map(str, TRAIN), "--out",
+           str(out)]
     for t in TARGETS:
         cmd += ["--target", t]
     subprocess.run(cmd, check=True, capture_output=True, cwd=ROOT)
@@ -47,7 +48,7 @@ def paired(model: Path, out: Path) -> dict:
     """build_report with each figure's PNG step timed against savefig of a fresh copy."""
     from matplotlib import image
 
-    import host.analysis.report as rep
+    import thermal_comp.host.analysis.report as rep
 
     last: dict = {}
     totals = {"report": 0.0, "savefig": 0.0, "layout": 0.0, "copies": 0.0, "figures": 0,
@@ -120,7 +121,8 @@ def run() -> list[dict]:
         tmpdir = Path(tmp)
         model = _train(tmpdir / "build")
         t = paired(model, tmpdir / "paired")
-        cli = timed_process([sys.executable, "-m", "host", "-q", "report", str(model), "--runs",
+        cli = timed_process([sys.executable, "-m", "thermal_comp.host", "-q", "report",
+                             str(model), "--runs",
                              *map(str, [*TRAIN, TEST]), "-o", str(tmpdir / "report")],
                             repeat=2)
     n = t["figures"]

@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.goal import INFO
-from host.analysis import compare_methods
-from host.io import Run, load_run, window
-from host.sim import SimConfig, build_program, simulate, write_simulation
+from thermal_comp.host.analysis import compare_methods
+from thermal_comp.host.io import Run, load_run, window
+from thermal_comp.host.sim import SimConfig, build_program, simulate, write_simulation
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBES = [f"ch{i}_um" for i in range(1, 6)]

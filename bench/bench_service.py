@@ -95,7 +95,7 @@ def simple_peers(train: list, target: str, reference: str) -> dict:
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from host.selection import pearson_r
+    from thermal_comp.host.selection import pearson_r
 
     X = np.vstack([acc.peer_features(r, reference, False) for r in train])
     XL = np.vstack([acc.peer_features(r, reference, True) for r in train])
@@ -116,9 +116,9 @@ def _mean_rmse(rows: list[dict[str, float]]) -> dict[str, float]:
 def case_rows(model: dict, run, target: str, peer_pred: np.ndarray, seeds: Sequence[int],
               salt: int) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
     """Every (scheme, noise)'s columns and the estimator choice for one test run and axis."""
-    from host.analysis.evaluate import model_reference
-    from host.service import ProbePlan, service_params, synthesise_probes
-    from host.service.evaluation import service_axis
+    from thermal_comp.host.analysis.evaluate import model_reference
+    from thermal_comp.host.service import ProbePlan, service_params, synthesise_probes
+    from thermal_comp.host.service.evaluation import service_axis
 
     ref = model_reference(model)
     meas = ref.apply(run.target(target))
@@ -155,7 +155,7 @@ def case_rows(model: dict, run, target: str, peer_pred: np.ndarray, seeds: Seque
 
 
 def run_job(job: acc.Job, seeds: Sequence[int]) -> list[ServiceCase]:
-    from host.analysis.evaluate import model_reference
+    from thermal_comp.host.analysis.evaluate import model_reference
 
     targets = list(job.targets)
     train = [acc._load(s, targets) for s in job.train]

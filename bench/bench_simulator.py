@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from bench.goal import goal
-from host.sim import EFFECTS, SimConfig, build_program, simulate, write_simulation
+from thermal_comp.host.sim import EFFECTS, SimConfig, build_program, simulate, write_simulation
 
 
 def run() -> list[dict]:

@@ -38,9 +38,9 @@ import numpy as np
 from scipy.signal import lfilter
 
 from bench.goal import INFO, goal
-from host.io import Run, write_run
-from host.selection import GramCache, ec_reduction, fold_labels
-from host.train import train_model
+from thermal_comp.host.io import Run, write_run
+from thermal_comp.host.selection import GramCache, ec_reduction, fold_labels
+from thermal_comp.host.train import train_model
 
 SOURCES_TAU_S = (300.0, 1200.0, 4000.0, 9000.0)
 
@@ -216,7 +216,8 @@ NO_EFFECTS_WHAT = "host train --no-effects --no-codegen: CSV parse + selection +
 def _train_cmd(csv: Path, out: Path, *extra: str) -> list[str]:
     # --time-unit s: the 600-row run warms by degrees in 10 min, which host train would take
     # for a run logged in minutes (and refuse without the unit)
-    return [sys.executable, "-m", "host", "train", str(csv), "--target", "dz_um", "--json",
+    return [sys.executable, "-m", "thermal_comp.host", "train", str(csv), "--target", "dz_um",
+            "--json",
             "--time-unit", "s", "--out", str(out), *extra]
 
 

@@ -71,10 +71,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench import bench_accuracy as acc  # noqa: E402
-from contract.fixed_point import EXTRAPOLATION_MARGIN  # noqa: E402
-from contract.terms import TEMPERATURE_KINDS, Term  # noqa: E402
-from host.fitting import Reference, first_order_lag  # noqa: E402
-from host.fitting.features import term_values  # noqa: E402
+from thermal_comp.contract.fixed_point import EXTRAPOLATION_MARGIN  # noqa: E402
+from thermal_comp.contract.terms import TEMPERATURE_KINDS, Term  # noqa: E402
+from thermal_comp.host.fitting import Reference, first_order_lag  # noqa: E402
+from thermal_comp.host.fitting.features import term_values  # noqa: E402
 
 DEFAULT_OUT = ROOT / "build" / "extrapolation_bound.json"
 MARGINS_PCT = (25, 50, 100)
@@ -90,7 +90,7 @@ TABLE_RULES = ("in25", "in50", "in100", "inref50", "out25", "out50", "out100", "
 
 def sim_jobs(tmp: Path, seeds: Sequence[int]) -> list[acc.Job]:
     """bench_accuracy's sim jobs plus the same test programs in a shop +8 degC warmer."""
-    from host.sim import SimConfig, build_program, simulate, write_simulation
+    from thermal_comp.host.sim import SimConfig, build_program, simulate, write_simulation
 
     jobs = []
     days = (("constant", 0, 8.0, 20.0, ""), ("step", 1, 8.0, 20.0, ""),
@@ -275,7 +275,7 @@ class Case:
 
 
 def run_job(job: acc.Job) -> list[Case]:
-    from host.train import train_model
+    from thermal_comp.host.train import train_model
 
     targets = list(job.targets)
     train = [acc._load(s, targets) for s in job.train]

@@ -38,7 +38,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from contract import protocol  # noqa: E402
+from thermal_comp.contract import protocol  # noqa: E402
 
 ALPHABET = np.frombuffer(b"0123456789,-ABCDEF", dtype=np.uint8)
 KINDS = ("insert", "insert_any", "delete", "substitute", "substitute_any", "burst", "bitflip")

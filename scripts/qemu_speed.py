@@ -17,7 +17,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from firmware_support import prepare_fl_head  # noqa: E402
 
-from hil import qemu  # noqa: E402
+from thermal_comp.hil import qemu  # noqa: E402
 
 
 def main() -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from host.fitting import fit_linear, rmse
+from thermal_comp.host.fitting import fit_linear, rmse
 
 
 def direct_out_of_fold_residual(X: np.ndarray, y: np.ndarray, groups: np.ndarray

@@ -185,9 +185,9 @@ def box_defaults() -> dict[str, int]:
 def prepare_fl_head(d: Path, n: int, cflags: str = ""):
     """The first ``n`` samples of the real FL run and the HIL's FL model, ready to replay
     (hil.replay.prepare) from the build directory ``d/hil``."""
-    from hil import replay as hil_replay
-    from hil.example_model import fl_thermal_model, write_model
-    from host.io import load_run, write_run
+    from thermal_comp.hil import replay as hil_replay
+    from thermal_comp.hil.example_model import fl_thermal_model, write_model
+    from thermal_comp.host.io import load_run, write_run
 
     fl = ROOT / "examples" / "fl_thermal_steps.csv"
     run = load_run(fl, targets=["ch1_um", "ch3_um"], sensors="T*", aux=["spindle_rpm"])
@@ -203,9 +203,9 @@ def prepare_start_referenced(d: Path, judging=None):
     fitted on examples/sim_step.csv, ready to replay sim_random (which it never saw)."""
     from dataclasses import replace
 
-    from hil import replay as hil_replay
-    from hil.example_model import default_terms, fit_example_model, write_model
-    from host.io import load_run
+    from thermal_comp.hil import replay as hil_replay
+    from thermal_comp.hil.example_model import default_terms, fit_example_model, write_model
+    from thermal_comp.host.io import load_run
 
     step = ROOT / "examples" / "sim_step.csv"
     terms = {"dx_um": default_terms(["T03", "T04", "T01"], 60.0, "spindle_rpm"),

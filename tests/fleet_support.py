@@ -8,7 +8,7 @@ import time
 import tty
 from collections.abc import Callable
 
-from contract import protocol
+from thermal_comp.contract import protocol
 
 INFO = protocol.Info("1.4.0", "a1b2c3d4", True, 1000, ("dx_um", "dz_um"),
                      (protocol.Channel(0, "T01", "K"), protocol.Channel(1, "T02", "K")))

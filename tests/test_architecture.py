@@ -12,6 +12,7 @@ from collections import defaultdict
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = "thermal_comp"  # the one installed package; its parts are named without it below
 PACKAGES = ("contract", "codegen", "hil", "host", "cnc", "bench")
 
 # unit -> the units it may import (besides itself). Mirrors the table in docs/architecture.md.
@@ -60,8 +61,19 @@ UNITS = sorted(BELOW, key=len, reverse=True)
 
 
 def module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    """The module's name within the project: ``host.io.runs`` for host/io/runs.py."""
+    base = ROOT / PACKAGE if path.is_relative_to(ROOT / PACKAGE) else ROOT
+    parts = list(path.relative_to(base).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def part_name(module: str) -> str:
+    """``thermal_comp.host.io`` -> ``host.io``; other modules as they are."""
+    return module.removeprefix(PACKAGE + ".")
+
+
+def source_dir(pkg: str) -> Path:
+    return ROOT / pkg if pkg == "bench" else ROOT / PACKAGE / pkg
 
 
 def unit_of(module: str) -> str | None:
@@ -75,13 +87,15 @@ def imports() -> dict[str, set[tuple[str, str | None]]]:
     """module -> {(imported module, imported name or None)} over every import statement."""
     out: dict[str, set[tuple[str, str | None]]] = defaultdict(set)
     for pkg in PACKAGES:
-        for path in sorted((ROOT / pkg).rglob("*.py")):
+        for path in sorted(source_dir(pkg).rglob("*.py")):
             me = module_name(path)
             for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
                 if isinstance(node, ast.Import):
-                    out[me] |= {(a.name, None) for a in node.names}
+                    out[me] |= {(part_name(a.name), None) for a in node.names}
+                elif isinstance(node, ast.ImportFrom) and node.module == PACKAGE:
+                    out[me] |= {(a.name, None) for a in node.names}  # from thermal_comp import x
                 elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
-                    out[me] |= {(node.module, a.name) for a in node.names}
+                    out[me] |= {(part_name(node.module), a.name) for a in node.names}
     return out
 
 
@@ -145,6 +159,32 @@ def test_no_import_circles_between_modules():
 
     for module in sorted(graph):
         visit(module, [])
+
+
+def bare_part_imports(root: Path = ROOT) -> list[str]:
+    """Imports of a part by its bare name (``import host``, ``from cnc.x import y``): the parts
+    live only inside the one installed package, so such an import finds nothing in a wheel, or
+    another project's module of that name."""
+    bad = []
+    for folder in (PACKAGE, "bench", "tests", "scripts", "firmware"):
+        for path in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                         [node.module] if isinstance(node, ast.ImportFrom) and node.module
+                         and not node.level else [])
+                bad += [f"{path.relative_to(root)}: {n}" for n in names
+                        if n.split(".")[0] in PACKAGES and n.split(".")[0] != "bench"]
+    return bad
+
+
+def test_the_parts_are_imported_through_the_one_package():
+    assert bare_part_imports() == []
+
+
+def test_a_bare_part_import_is_found(tmp_path):
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "t.py").write_text("import os\nfrom host.io import load_run\n")
+    assert bare_part_imports(tmp_path) == ["tests/t.py: host.io"]
 
 
 def test_the_rule_can_fail():

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("contract", "codegen", "hil", "host", "cnc", "bench")
+PACKAGES = ("thermal_comp", "bench")
 FILE_LINES = 500
 FUNCTION_LINES = 60
 LIST = ROOT / "tests" / "data" / "rooms_over.json"
@@ -66,15 +66,15 @@ def test_no_room_grows_and_none_is_added():
 
 
 def test_the_rule_can_fail(tmp_path):
-    pkg = tmp_path / "host"
-    pkg.mkdir()
+    pkg = tmp_path / "thermal_comp" / "host"
+    pkg.mkdir(parents=True)
     body = "\n".join(f"        x{i} = {i}" for i in range(FUNCTION_LINES))
     (pkg / "big.py").write_text(f"class A:\n    def f(self):\n{body}\n        return 0\n")
     now = {k: v for k, v in measure(tmp_path).items()}
-    assert list(now) == ["host/big.py:A.f"]
-    assert problems(now, {})[0].startswith("host/big.py:A.f: 62 lines, over the limit")
-    assert "grew" in problems(now, {"host/big.py:A.f": 61})[0]
-    assert "within the limit now" in problems({}, {"host/big.py:A.f": 61})[0]
+    assert list(now) == ["thermal_comp/host/big.py:A.f"]
+    assert problems(now, {})[0].startswith("thermal_comp/host/big.py:A.f: 62 lines, over the limit")
+    assert "grew" in problems(now, {"thermal_comp/host/big.py:A.f": 61})[0]
+    assert "within the limit now" in problems({}, {"thermal_comp/host/big.py:A.f": 61})[0]
 
 
 if __name__ == "__main__" and sys.argv[1:] == ["--write"]:

@@ -33,7 +33,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-/* Readings of the runaway check (a constant of the contract: codegen/fixed.py mirrors it). */
+/* Readings of the runaway check (a constant of the contract: thermal_comp/codegen/fixed.py mirrors it). */
 #define GUARD_RUNAWAY_SAMPLES 4u
 
 typedef enum {

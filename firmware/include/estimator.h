@@ -1,6 +1,6 @@
 /* The in-service estimator of one axis (issue 42): a scalar Kalman filter on a bias, the
  * correction a touch probe's readings teach the box on top of the model. Integers only,
- * bit-exact with codegen/estimator.py; docs/service.md ("Fixed point") is the spec and the
+ * bit-exact with thermal_comp/codegen/estimator.py; docs/service.md ("Fixed point") is the spec and the
  * proof of every range. Pure logic, no HAL; the application (app.c) decides which readings
  * reach it (MEAS, docs/protocol.md) and adds the bias to the model's value before the axis
  * output stage, so every change of the output still passes the step limit. */

@@ -4,7 +4,7 @@
  * The model itself is a generated header (`host codegen model.json -o model.h`) holding one
  * `static const tcm_model_t tcm_model`; exactly one firmware file includes it. This runtime
  * evaluates it with integer arithmetic only (no FPU, no allocation). The contract shared with
- * the Python twin `codegen/fixed.py` is docs/fixed-point.md; what it leaves open is in
+ * the Python twin `thermal_comp/codegen/fixed.py` is docs/fixed-point.md; what it leaves open is in
  * docs/codegen.md.
  *
  * Usage:

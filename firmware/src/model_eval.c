@@ -1,7 +1,7 @@
 /*
  * model_eval.c -- integer-only evaluation of a generated thermal model (TCM_RUNTIME_FORMAT below).
  *
- * The Python twin codegen/fixed.py performs exactly the same operations; tests compare the
+ * The Python twin thermal_comp/codegen/fixed.py performs exactly the same operations; tests compare the
  * two bit for bit. Contract: docs/fixed-point.md; proofs of the bounds below: docs/codegen.md.
  *
  * Scaling and Overflow Behavior

@@ -26,9 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
-import codegen
-from codegen.fixed import FixedModel
-from contract.terms import make_lag, make_rate, make_speed, make_square, make_temp, make_time
+from thermal_comp import codegen
+from thermal_comp.codegen.fixed import FixedModel
+from thermal_comp.contract.terms import (
+    make_lag,
+    make_rate,
+    make_speed,
+    make_square,
+    make_temp,
+    make_time,
+)
 
 N_SAMPLES = 400
 N_CHANNELS = 8

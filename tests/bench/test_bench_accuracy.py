@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bench import bench_accuracy as acc
-from host.io import write_run
+from thermal_comp.host.io import write_run
 
 
 def test_reference_is_the_running_mean_of_the_first_k_samples():
@@ -24,7 +24,7 @@ def test_reference_is_the_running_mean_of_the_first_k_samples():
     cols = np.column_stack([x, 2 * x])
     np.testing.assert_allclose(acc.referenced(cols, 2)[:, 1], 2 * acc.referenced(x, 2))
     # the window is the project's (the box's ZERO window), the same at every period
-    from host.fitting.reference import Reference
+    from thermal_comp.host.fitting.reference import Reference
 
     for period in (15.0, 60.0):
         assert acc.reference_window(period) == Reference.of_kind("start").samples
@@ -91,7 +91,7 @@ def test_peer_test_rmse_equals_a_direct_numpy_fit(tmp_path):
 
 def test_undeclared_is_the_default_without_its_bending_axes_no_prefilter_without_the_low_pass(
         tmp_path):
-    from host.train import train_model
+    from thermal_comp.host.train import train_model
 
     for i, off in enumerate((0.0, 1.0, 3.0)):
         _tiny_run(tmp_path / f"r{i}.csv", i, off)
@@ -270,7 +270,7 @@ def test_a_worker_of_a_shared_pool_trains_its_nested_folds_in_its_own_process(mo
 
 def test_other_machines_are_other_simulated_machines_beside_the_target(tmp_path):
     """sim_other: machines the defaults were not chosen on, built as sim's are, no target."""
-    from host.io import load_run
+    from thermal_comp.host.io import load_run
 
     assert not set(acc.OTHER_SIM_SEEDS) & set(acc.SIM_SEEDS)
     assert "sim_other" in acc.SOURCES and "sim_other" not in acc.TARGET_SOURCES

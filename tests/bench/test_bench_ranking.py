@@ -8,7 +8,7 @@ from direct_fits import direct_validation_rmse
 from scipy.stats import spearmanr
 
 from bench.bench_ranking import SIZES, spearman, subset_errors
-from host.fitting import fit_linear, rmse
+from thermal_comp.host.fitting import fit_linear, rmse
 
 
 def test_subset_errors_equal_direct_fits():

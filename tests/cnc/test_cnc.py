@@ -17,7 +17,7 @@ import json
 
 import pytest
 
-from cnc import session
+from thermal_comp.cnc import session
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cnc.faults import KNOWN_GAPS, tool_error_um, verdict
+from thermal_comp.cnc.faults import KNOWN_GAPS, tool_error_um, verdict
 
 
 def test_a_touch_off_absorbs_the_error_and_the_offset_in_force_then():

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from cnc import thermalcomp as tc
-from cnc.thermalcomp import protocol
-from contract import model_file
+from thermal_comp.cnc import thermalcomp as tc
+from thermal_comp.cnc.thermalcomp import protocol
+from thermal_comp.contract import model_file
 
 ROOT = Path(__file__).resolve().parents[2]
 HASH = "0123456789abcdef"
@@ -163,7 +163,7 @@ def test_config_errors_name_the_file_section_and_key(tmp_path, text, needle):
 
 
 def test_the_shipped_config_loads_and_refuses_to_drive_without_a_model():
-    cfg = tc.load_config(ROOT / "cnc" / "config" / "thermalcomp.conf")
+    cfg = tc.load_config(ROOT / "thermal_comp" / "cnc" / "config" / "thermalcomp.conf")
     assert [(a.letter, a.box_axis, a.sign) for a in cfg.axes] == [
         ("x", "dx_um", -1), ("y", "dy_um", -1), ("z", "dz_um", -1)]
     assert cfg.port == "/dev/ttyUSB0" and cfg.period_s is None
@@ -681,7 +681,7 @@ def test_probe_config_errors(tmp_path, change, needle):
 
 
 def test_the_shipped_config_probes_z_and_the_reason_codes_are_distinct():
-    cfg = tc.load_config(ROOT / "cnc" / "config" / "thermalcomp.conf")
+    cfg = tc.load_config(ROOT / "thermal_comp" / "cnc" / "config" / "thermalcomp.conf")
     assert cfg.probe_axis == "z" and cfg.probed_includes_offset
     codes = tc.MEAS_REASON_CODES
     assert len(set(codes.values())) == len(codes) and 0 not in codes.values()

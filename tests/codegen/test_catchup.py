@@ -12,9 +12,9 @@ import math
 import numpy as np
 from test_codegen_models import base, channel, term
 
-import codegen
-from codegen.fixed import FixedModel, temp_to_code
-from contract.terms import make_lag
+from thermal_comp import codegen
+from thermal_comp.codegen.fixed import FixedModel, temp_to_code
+from thermal_comp.contract.terms import make_lag
 
 PERIOD, TAU = 60.0, 900.0
 

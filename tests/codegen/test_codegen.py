@@ -22,12 +22,12 @@ import numpy as np
 import pytest
 from test_codegen_models import MODELS, base, channel, model, term
 
-import codegen
-from codegen.fixed import FixedModel, temp_to_code
-from contract.fixed_point import rdiv
-from contract.model_file import check_model
-from contract.terms import make_lag, make_temp
-from host.cli import main as host_main
+from thermal_comp import codegen
+from thermal_comp.codegen.fixed import FixedModel, temp_to_code
+from thermal_comp.contract.fixed_point import rdiv
+from thermal_comp.contract.model_file import check_model
+from thermal_comp.contract.terms import make_lag, make_temp
+from thermal_comp.host.cli import main as host_main
 
 # ---- the one-term model, by hand ------------------------------------------------------------
 # T01 valid -40..200 degC -> codes -5120..25600 (x128). dz = 0.75 um + 1.5 um/degC * T.
@@ -596,7 +596,7 @@ def test_step_limits_that_are_not_positive_numbers_are_refused(where, value):
 
 
 def test_the_model_file_validator_names_a_bad_step_limit():
-    from contract.model_file import ModelFormatError, check_model
+    from thermal_comp.contract.model_file import ModelFormatError, check_model
 
     m = model("one_term")
     m["channels"][0]["max_step_c"] = -0.5
@@ -626,8 +626,8 @@ def test_zero_at_powerup_is_a_header_option(tmp_path, capsys):
 def test_host_derives_step_limits_from_the_training_runs(tmp_path):
     """4x the fastest change per sample (a gap of k periods counts as k samples), floors
     1/16 degC and 0.5 um; computed here with plain numpy."""
-    from host.fitting.step_limits import add_step_limits, fastest_step
-    from host.io import Run
+    from thermal_comp.host.fitting.step_limits import add_step_limits, fastest_step
+    from thermal_comp.host.io import Run
 
     t = np.array([0.0, 1.0, 2.0, 4.0, 5.0])  # a 2 s gap between samples 2 and 3
     temp = np.array([20.0, 20.5, 20.5, 21.5, 21.5])  # 0.5 per sample, 1.0 over the gap
@@ -651,7 +651,7 @@ def test_host_derives_step_limits_from_the_training_runs(tmp_path):
 
 
 def test_longest_still_counts_gaps_and_ends_at_a_missing_reading():
-    from host.fitting.step_limits import longest_still
+    from thermal_comp.host.fitting.step_limits import longest_still
 
     t = np.arange(7.0)
     assert longest_still(np.array([1.0, 1.0, np.nan, 1.0, 1.0, 1.0, 2.0]), t, 1.0) == 3
@@ -682,7 +682,7 @@ def test_stuck_limit_goes_into_the_header_and_the_crc():
 
 @pytest.mark.parametrize("value", [0, 1, 65536, -3, 12.0, "12", True, None])
 def test_a_stuck_limit_that_is_not_a_whole_number_of_samples_is_refused(value):
-    from contract.model_file import ModelFormatError, check_model
+    from thermal_comp.contract.model_file import ModelFormatError, check_model
 
     m = model("one_term")
     m["channels"][0]["max_still_samples"] = value

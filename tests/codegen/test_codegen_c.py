@@ -24,15 +24,15 @@ import numpy as np
 import pytest
 from test_codegen_models import MODELS, model
 
-import codegen
-from codegen.fixed import FixedModel
-from contract.terms import Term
-from host.fitting import design_matrix
+from thermal_comp import codegen
+from thermal_comp.codegen.fixed import FixedModel
+from thermal_comp.contract.terms import Term
+from thermal_comp.host.fitting import design_matrix
 
 ROOT = Path(__file__).resolve().parents[2]
 INCLUDE = ROOT / "firmware" / "include"
 RUNTIME = ROOT / "firmware" / "src" / "model_eval.c"
-HARNESS = ROOT / "tests" / "codegen" / "test_codegen_harness.c"
+HARNESS = ROOT / "tests" / "thermal_comp" / "codegen" / "test_codegen_harness.c"
 CFLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 GCC = shutil.which("gcc")
 ARM_GCC = shutil.which("arm-none-eabi-gcc")

@@ -13,7 +13,14 @@ from __future__ import annotations
 
 import copy
 
-from contract.terms import make_lag, make_rate, make_speed, make_square, make_temp, make_time
+from thermal_comp.contract.terms import (
+    make_lag,
+    make_rate,
+    make_speed,
+    make_square,
+    make_temp,
+    make_time,
+)
 
 
 def term(t, coef: float) -> dict:

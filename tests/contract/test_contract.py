@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-import contract
-from contract import box, fixed_point, model_file, protocol, terms
+from thermal_comp import contract
+from thermal_comp.contract import box, fixed_point, model_file, protocol, terms
 
 INCLUDE = Path(__file__).resolve().parents[2] / "firmware" / "include"
 DEFINE = re.compile(r"^\s*#\s*define\s+([A-Z0-9_]+)\s+(.+?)\s*(?:/\*.*)?$")
@@ -123,7 +123,7 @@ def test_an_input_error_crosses_a_process_boundary_as_itself():
     import pickle
     from concurrent.futures import ProcessPoolExecutor
 
-    from host.io import RunFormatError
+    from thermal_comp.host.io import RunFormatError
 
     err = RunFormatError("runs/a.csv", "not a number", line=7, column="T01")
     back = pickle.loads(pickle.dumps(err))
@@ -135,6 +135,6 @@ def test_an_input_error_crosses_a_process_boundary_as_itself():
 
 
 def _raise_run_error():
-    from host.io import RunFormatError
+    from thermal_comp.host.io import RunFormatError
 
     raise RunFormatError("runs/a.csv", "not a number", line=7, column="T01")

@@ -9,7 +9,7 @@ import re
 
 import pytest
 
-from contract import protocol as p
+from thermal_comp.contract import protocol as p
 
 
 def framed(payload: str) -> bytes:

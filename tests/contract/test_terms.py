@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 
-from contract.fixed_point import quantise_alpha
-from contract.terms import Term, make_lag, make_square
-from host.fitting import first_order_lag, term_values
+from thermal_comp.contract.fixed_point import quantise_alpha
+from thermal_comp.contract.terms import Term, make_lag, make_square
+from thermal_comp.host.fitting import first_order_lag, term_values
 
 
 def test_lag_matches_explicit_recursion():

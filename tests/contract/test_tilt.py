@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import codegen
-from cnc.thermalcomp import ConfigError, load_config
-from contract.errors import InputError
-from contract.model_file import ModelFormatError, check_model
-from contract.tilt import Tilt, available_axes, unit_of
-from host.io import load_run, write_run
-from host.sim import SimConfig, build_program, simulate, write_simulation
+from thermal_comp import codegen
+from thermal_comp.cnc.thermalcomp import ConfigError, load_config
+from thermal_comp.contract.errors import InputError
+from thermal_comp.contract.model_file import ModelFormatError, check_model
+from thermal_comp.contract.tilt import Tilt, available_axes, unit_of
+from thermal_comp.host.io import load_run, write_run
+from thermal_comp.host.sim import SimConfig, build_program, simulate, write_simulation
 
 REPO = Path(__file__).resolve().parents[2]
 DISTANCE_MM = 150.0
@@ -83,7 +83,8 @@ def test_the_tilt_is_computed_from_the_two_probes_and_a_missing_probe_is_named(r
 
 
 def _host(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "host", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "thermal_comp.host", *args], capture_output=True,
+                           text=True,
                           cwd=cwd)
 
 
@@ -126,7 +127,7 @@ def test_a_tilt_axis_trains_evaluates_and_generates_like_any_axis(runs, trained)
 @pytest.mark.skipif(shutil.which("gcc") is None or shutil.which("make") is None,
                     reason="gcc/make not installed: the native firmware cannot be built")
 def test_the_box_runs_a_tilt_axis_bit_exact_with_the_twin(runs, trained):
-    from hil import replay as hil_replay
+    from thermal_comp.hil import replay as hil_replay
 
     tmp, _, random = runs
     setup = hil_replay.prepare(trained, random, tmp / "hil")
@@ -139,7 +140,7 @@ def test_the_box_runs_a_tilt_axis_bit_exact_with_the_twin(runs, trained):
 
 
 def test_linuxcnc_refuses_to_drive_a_linear_axis_from_a_tilt(tmp_path):
-    conf = (REPO / "cnc" / "config" / "thermalcomp.conf").read_text()
+    conf = (REPO / "thermal_comp" / "cnc" / "config" / "thermalcomp.conf").read_text()
     section = conf[conf.index("[axis."):]
     box_axis = next(line for line in section.splitlines() if line.startswith("box_axis"))
     (tmp_path / "t.conf").write_text(conf.replace(box_axis, "box_axis = tilt_y_urad", 1))
@@ -148,9 +149,9 @@ def test_linuxcnc_refuses_to_drive_a_linear_axis_from_a_tilt(tmp_path):
 
 
 def test_figures_and_the_equation_speak_in_the_tilt_unit():
-    from contract.terms import make_temp
-    from host.analysis import plots
-    from host.analysis.metrology import term_unit
+    from thermal_comp.contract.terms import make_temp
+    from thermal_comp.host.analysis import plots
+    from thermal_comp.host.analysis.metrology import term_unit
 
     t = np.arange(50) * 60.0
     fig = plots.run_fit("day", "tilt_y_urad", t, np.sin(t / 600.0), {"m": np.sin(t / 600.0)},
@@ -163,8 +164,8 @@ def test_figures_and_the_equation_speak_in_the_tilt_unit():
 
 
 def test_the_report_states_an_effects_evidence_in_the_axis_unit():
-    from host.analysis.report_story import effect_stages
-    from host.io import Run
+    from thermal_comp.host.analysis.report_story import effect_stages
+    from thermal_comp.host.io import Run
 
     t = np.arange(40) * 60.0
     temp = 20 + t / 600.0

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from firmware_support import Box, box_defaults, build, load_generator
 
-from contract import protocol as p
+from thermal_comp.contract import protocol as p
 
 gen = load_generator()
 
@@ -19,7 +19,7 @@ gen = load_generator()
 @pytest.fixture(scope="module")
 def fw(tmp_path_factory):
     """(module generator, generated header, native binary, model dict) for the test model."""
-    import codegen
+    from thermal_comp import codegen
 
     tmp = tmp_path_factory.mktemp("fw")
     model = gen.test_model()
@@ -287,7 +287,7 @@ def test_help_names_the_options(fw):
 
 
 def test_info_with_longest_names_fits_one_line(tmp_path):
-    import codegen
+    from thermal_comp import codegen
 
     model = gen.test_model()
     long = {c["sensor"]: f"{c['sensor']}_" + "x" * (31 - len(c["sensor"]))

@@ -11,7 +11,7 @@ import time
 import pytest
 from firmware_support import FIRMWARE, build, load_generator
 
-from contract import protocol as p
+from thermal_comp.contract import protocol as p
 
 gen = load_generator()
 ARM = shutil.which("arm-none-eabi-gcc")
@@ -24,7 +24,7 @@ RAM_BUDGET = 4 * 1024
 
 @pytest.fixture(scope="module")
 def image(tmp_path_factory):
-    import codegen
+    from thermal_comp import codegen
 
     tmp = tmp_path_factory.mktemp("stm32")
     header = codegen.generate(gen.test_model(period=0.25))  # 4 samples/s: a short QEMU run

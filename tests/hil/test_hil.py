@@ -21,15 +21,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.model_file import dumps
-from contract.protocol import decode, encode_sample
-from hil import replay as hil_replay
-from hil.build import build_firmware
-from hil.checks import judge
-from hil.example_model import default_terms, fit_example_model, fl_thermal_model, write_model
-from hil.runner import Capture
-from host.io import split_file
-from host.train import train_model
+from thermal_comp.contract.model_file import dumps
+from thermal_comp.contract.protocol import decode, encode_sample
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.build import build_firmware
+from thermal_comp.hil.checks import judge
+from thermal_comp.hil.example_model import (
+    default_terms,
+    fit_example_model,
+    fl_thermal_model,
+    write_model,
+)
+from thermal_comp.hil.runner import Capture
+from thermal_comp.host.io import split_file
+from thermal_comp.host.train import train_model
 
 REPO = Path(__file__).resolve().parents[2]
 FL = REPO / "examples" / "fl_thermal_steps.csv"
@@ -183,7 +188,8 @@ def test_simulated_example_runs_replay_bit_exact(run, tmp_path):
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "hil", "replay", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "thermal_comp.hil", "replay", *args],
+                           capture_output=True,
                           text=True, cwd=REPO, timeout=120)
 
 
@@ -232,9 +238,9 @@ def test_cli_exit_code_1_when_the_firmware_disagrees(fl_setup, tmp_path):
 
 
 def test_a_model_larger_than_the_firmware_capacity_is_refused_up_front(tmp_path):
-    from contract.terms import make_temp
-    from hil.example_model import fit_example_model as fit
-    from hil.expect import OutputConfig
+    from thermal_comp.contract.terms import make_temp
+    from thermal_comp.hil.example_model import fit_example_model as fit
+    from thermal_comp.hil.expect import OutputConfig
 
     sensors = [f"T{i:02d}" for i in range(1, 10)]  # 9 channels; box_config.h allows 8
     model = tmp_path / "model.json"  # written by hand: write_model refuses it (issue 14)
@@ -246,7 +252,7 @@ def test_a_model_larger_than_the_firmware_capacity_is_refused_up_front(tmp_path)
 
 
 def test_a_box_that_stops_answering_fails_the_replay_and_says_where(fl_setup):
-    from hil.runner import CodeOverride
+    from thermal_comp.hil.runner import CodeOverride
 
     # A code outside the chip's 19-bit range is a feed error: the native board exits (code 2)
     # at sample 500, as a crashed box would stop talking.

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from firmware_support import prepare_start_referenced
 
-from hil import replay as hil_replay
-from hil.checks import Judging
-from hil.expect import BEYOND, HOLD
-from hil.runner import CodeOffset
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.checks import Judging
+from thermal_comp.hil.expect import BEYOND, HOLD
+from thermal_comp.hil.runner import CodeOffset
 
 WARM = 8 * 128  # +8 degC in codes
 

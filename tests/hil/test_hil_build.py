@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import pytest
 
-import hil.build as build
+import thermal_comp.hil.build as build
+from thermal_comp.contract import checkout
 
 
 def test_no_firmware_sources_names_what_is_missing(tmp_path, monkeypatch):
-    monkeypatch.setattr(build, "FIRMWARE_DIR", tmp_path / "firmware")
+    monkeypatch.setenv(checkout.ENV, str(tmp_path))  # a checkout without firmware/, as a wheel
     header = tmp_path / "model.h"
     header.write_text("/* no model */\n")
-    with pytest.raises(build.BuildError, match=r"no firmware/.*checkout.*--firmware"):
+    with pytest.raises(checkout.CheckoutMissing,
+                       match=r"HIL.*missing in .*: firmware/Makefile.*THERMAL_COMP_CHECKOUT"):
         build.build_firmware(header, tmp_path / "build")
 
 
@@ -25,7 +27,7 @@ def _make_native(header, out_dir, cflags: str):
     import subprocess
 
     target = out_dir / "thermal_box"
-    cmd = ["make", "-s", "-C", str(build.FIRMWARE_DIR), "BOARD=native", f"MODEL={header}",
+    cmd = ["make", "-s", "-C", str(build.firmware_dir()), "BOARD=native", f"MODEL={header}",
            f"BUILD={out_dir}", f"BOX_CFLAGS={cflags}", str(target)]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     return proc, target
@@ -35,7 +37,7 @@ def _make_native(header, out_dir, cflags: str):
 def test_paths_and_flags_never_run_through_a_shell(tmp_path, name):
     from pathlib import Path
 
-    header = Path(build.REPO) / "build" / "model.h"
+    header = Path(checkout.root()) / "build" / "model.h"
     if not header.is_file():
         pytest.skip("build/model.h missing: run make train")
     marker = tmp_path / "ran"
@@ -82,8 +84,8 @@ def test_qemu_board_refuses_a_build_dir_the_shell_would_parse(tmp_path):
     import subprocess
 
     out = tmp_path / SHELL_NAME
-    proc = subprocess.run(["make", "-n", "-C", str(build.FIRMWARE_DIR), "BOARD=qemu_uartfeed",
-                           f"MODEL={build.REPO / 'build' / 'model.h'}", f"BUILD={out}"],
+    proc = subprocess.run(["make", "-n", "-C", str(build.firmware_dir()), "BOARD=qemu_uartfeed",
+                           f"MODEL={checkout.root() / 'build' / 'model.h'}", f"BUILD={out}"],
                           capture_output=True, text=True)
     assert proc.returncode != 0
     assert "shell special characters" in proc.stderr

@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 from firmware_support import prepare_fl_head
 
-from contract.protocol import decode
-from hil import replay as hil_replay
-from hil.build import build_firmware
-from hil.checks import Judging
-from hil.expect import (
+from thermal_comp.contract.protocol import decode
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.build import build_firmware
+from thermal_comp.hil.checks import Judging
+from thermal_comp.hil.expect import (
     AUX_FAULT,
     HOLD,
     MODEL_BAD,
@@ -38,7 +38,7 @@ from hil.expect import (
     WDT_RESET,
     output_stage,
 )
-from hil.runner import ChipFault, CodeOverride, Restart, SerialNoise
+from thermal_comp.hil.runner import ChipFault, CodeOverride, Restart, SerialNoise
 
 pytestmark = pytest.mark.skipif(
     shutil.which("gcc") is None or shutil.which("make") is None,

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.model_file import model_hash
-from hil import replay as hil_replay
-from hil.checks import Judging, judge
-from hil.example_model import default_terms, fit_example_model, write_model
-from hil.runner import Zero
+from thermal_comp.contract.model_file import model_hash
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.checks import Judging, judge
+from thermal_comp.hil.example_model import default_terms, fit_example_model, write_model
+from thermal_comp.hil.runner import Zero
 
 REPO = Path(__file__).resolve().parents[2]
 RUN = REPO / "examples" / "sim_random.csv"
@@ -108,13 +108,13 @@ def test_x50_model_fails_clamped_and_worse_than_raw(bad):
 
 def test_x50_model_fails_from_the_command_line(bad):
     path, _ = bad
-    proc = subprocess.run([sys.executable, "-m", "hil", "replay", "--model", str(path),
+    proc = subprocess.run([sys.executable, "-m", "thermal_comp.hil", "replay", "--model", str(path),
                            "--data", str(RUN)], capture_output=True, text=True, cwd=REPO)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     assert "RESULT: FAIL" in proc.stdout
     assert "7. no worse than uncompensated    FAIL" in proc.stdout
     # the clamp's share is a flag: allowing every sample to clamp still fails on the error
-    proc = subprocess.run([sys.executable, "-m", "hil", "replay", "--model", str(path),
+    proc = subprocess.run([sys.executable, "-m", "thermal_comp.hil", "replay", "--model", str(path),
                            "--data", str(RUN), "--max-clamped-fraction", "1", "--json"],
                           capture_output=True, text=True, cwd=REPO)
     doc = json.loads(proc.stdout)
@@ -124,7 +124,7 @@ def test_x50_model_fails_from_the_command_line(bad):
 
 
 def test_clamped_fraction_is_the_share_of_lines_with_clamp(bad):
-    from contract.protocol import Status
+    from thermal_comp.contract.protocol import Status
 
     _, report = bad
     got = report.fw_status[report.fw_status >= 0]

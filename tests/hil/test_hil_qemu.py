@@ -3,7 +3,7 @@ samples fed over USART2 (board variant qemu_uartfeed), judged by the same runner
 
 Its sample lines must equal the native build's byte for byte and the host expectation bit for
 bit. Kept short (the first 800 samples of the real run, with an open thermocouple in the
-middle, about 2 s of emulation); `python -m hil replay --target qemu` does whole runs.
+middle, about 2 s of emulation); `python -m thermal_comp.hil replay --target qemu` does whole runs.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 from firmware_support import prepare_fl_head
 
-from hil import replay as hil_replay
-from hil.checks import capture_differences, sample_lines
-from hil.expect import HOLD, OPEN
-from hil.runner import ChipFault
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.checks import capture_differences, sample_lines
+from thermal_comp.hil.expect import HOLD, OPEN
+from thermal_comp.hil.runner import ChipFault
 
 N = 800
 
@@ -38,7 +38,7 @@ def setup(tmp_path_factory):
 
 
 def test_qemu_image_matches_native_build_and_twin(setup):
-    from hil import qemu
+    from thermal_comp.hil import qemu
 
     events = [ChipFault(300, 2, 0x01), ChipFault(340, 2, 0x00)]  # T04 open for 40 samples
     # this test is about QEMU = native = twin; the accuracy verdict on an 800-sample head of FL
@@ -59,7 +59,7 @@ def test_every_command_is_answered_while_the_box_sleeps(setup):
     lands after the main loop read USART1 but before the core masked interrupts used to leave
     it asleep with the command queued, so the host waited for good (once in CI; within about
     150 back-to-back INFOs before the fix). 2,000 in a row must each be answered."""
-    from hil import qemu
+    from thermal_comp.hil import qemu
 
     box = qemu.box_factory(setup)(False)
     try:

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from firmware_support import prepare_start_referenced
 
-from hil import replay as hil_replay
-from hil.checks import Judging, step_limits_nm
-from hil.expect import NO_REF, REFERENCED, WDT_RESET
-from hil.runner import Restart, Resume
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.checks import Judging, step_limits_nm
+from thermal_comp.hil.expect import NO_REF, REFERENCED, WDT_RESET
+from thermal_comp.hil.runner import Restart, Resume
 
 CUT, OFF = 500, 5
 
@@ -68,7 +68,7 @@ def test_the_controllers_copy_of_the_state_stands_in_for_a_battery(setup):
 def test_a_block_that_is_not_intact_is_not_continued(setup, monkeypatch):
     """One byte of the uploaded block changed: RESUME refuses it (CRC-32) and the box waits for
     a datum, as without any copy."""
-    from contract import protocol
+    from thermal_comp.contract import protocol
 
     real = protocol.encode_load
     monkeypatch.setattr(protocol, "encode_load",

@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.fixed import FixedModel
-from contract.protocol import decode
-from contract.terms import make_lag, make_rate, make_speed, make_temp
-from hil import replay as hil_replay
-from hil.checks import Judging
-from hil.example_model import fit_example_model, write_model
-from hil.expect import (
+from thermal_comp.codegen.fixed import FixedModel
+from thermal_comp.contract.protocol import decode
+from thermal_comp.contract.terms import make_lag, make_rate, make_speed, make_temp
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.checks import Judging
+from thermal_comp.hil.example_model import fit_example_model, write_model
+from thermal_comp.hil.expect import (
     HOLD,
     IMPLAUSIBLE,
     NO_DATA,
@@ -34,8 +34,8 @@ from hil.expect import (
     axis_inputs,
     expect_session,
 )
-from hil.runner import ChannelSwap, CodeOffset, CodeOverride, Zero
-from host.io import load_run, write_run
+from thermal_comp.hil.runner import ChannelSwap, CodeOffset, CodeOverride, Zero
+from thermal_comp.host.io import load_run, write_run
 
 REPO = Path(__file__).resolve().parents[2]
 FL = REPO / "examples" / "fl_thermal_steps.csv"
@@ -168,8 +168,8 @@ def test_a_stuck_sensor_is_a_fault_its_axes_hold_until_it_moves(setup):
 def demo(tmp_path_factory):
     """Issue 41's set-up: host train defaults on sim_constant + sim_step, replayed on
     sim_random (60 s period); channel 3 is T05."""
-    from contract.model_file import write_model as write_model_file
-    from host.train import train_model
+    from thermal_comp.contract.model_file import write_model as write_model_file
+    from thermal_comp.host.train import train_model
 
     d = tmp_path_factory.mktemp("hil_stuck_demo")
     targets = ["dx_um", "dy_um", "dz_um"]
@@ -281,7 +281,7 @@ def test_a_zero_while_an_axis_walks_back_is_refused_and_the_twin_agrees(setup, t
     """Issue 41: after a hold an axis walks back to the model (SLEW); a datum taken then would
     keep the walk's remaining gap for good (the tool ends that far off a healthy box's), so
     the box refuses that ZERO ($E,HOLDING) as it does while an axis holds."""
-    from hil.runner import ChipFault
+    from thermal_comp.hil.runner import ChipFault
 
     t05 = ch(setup, "T05")
     fault = [ChipFault(AT, t05, 1), ChipFault(AT + 200, t05, 0)]
@@ -334,7 +334,8 @@ def test_a_model_in_kelvin_never_corrects_and_fails_with_a_reason(tmp_path):
     assert any("never corrected" in p and "RANGE on 1200" in p for p in report.problems)
     # the command line: FAIL with the reason, exit 1, and BOX.csv with what the box sent
     box_csv = d / "box.csv"
-    proc = subprocess.run([sys.executable, "-m", "hil", "replay", "--model", str(model),
+    proc = subprocess.run([sys.executable, "-m", "thermal_comp.hil", "replay", "--model",
+                           str(model),
                            "--data", str(head), "--build-dir", str(d / "hil"),
                            "--firmware", str(setup.binary), "--out", str(box_csv)],
                           capture_output=True, text=True, cwd=REPO)
@@ -349,7 +350,7 @@ def test_a_model_in_kelvin_never_corrects_and_fails_with_a_reason(tmp_path):
 def test_box_csv_shows_the_glitch_and_the_judging_options(setup, tmp_path):
     model = _model_path(setup, tmp_path)
     out = tmp_path / "box.csv"
-    args = [sys.executable, "-m", "hil", "replay", "--model", str(model),
+    args = [sys.executable, "-m", "thermal_comp.hil", "replay", "--model", str(model),
             "--data", str(setup.feed.run.path), "--build-dir", str(tmp_path / "hil"),
             "--firmware", str(setup.binary), "--out", str(out), "--zero-at", "700"]
     proc = subprocess.run(args, capture_output=True, text=True, cwd=REPO)
@@ -407,7 +408,7 @@ def test_reference_option_judges_the_run_as_asked(setup, tmp_path):
     with pytest.raises(ValueError, match="zeroed at power-up"):
         hil_replay.prepare(model, setup.feed.run.path, tmp_path / "hil", reference="none",
                            zero_at_powerup=True)
-    cli = subprocess.run([sys.executable, "-m", "hil", "replay", "--model", str(model),
+    cli = subprocess.run([sys.executable, "-m", "thermal_comp.hil", "replay", "--model", str(model),
                           "--data", str(setup.feed.run.path), "--build-dir",
                           str(tmp_path / "hil"), "--reference", "sometimes"],
                          capture_output=True, text=True, cwd=REPO)

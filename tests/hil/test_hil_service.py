@@ -11,19 +11,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.estimator import to_nm
-from contract.protocol import decode
-from hil import replay as hil_replay
-from hil.runner import Meas, Restart
-from host.io import load_run
+from thermal_comp.codegen.estimator import to_nm
+from thermal_comp.contract.protocol import decode
+from thermal_comp.hil import replay as hil_replay
+from thermal_comp.hil.runner import Meas, Restart
+from thermal_comp.host.io import load_run
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):
-    from contract.model_file import write_model as write_model_file
-    from host.train import train_model
+    from thermal_comp.contract.model_file import write_model as write_model_file
+    from thermal_comp.host.train import train_model
 
     d = tmp_path_factory.mktemp("hil_service")
     targets = ["dx_um", "dy_um", "dz_um"]

@@ -10,7 +10,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _simulate(tmp_path: Path) -> list[str]:
-    return [sys.executable, "-m", "host", "simulate", "-o", str(tmp_path / "run.csv"),
+    return [sys.executable, "-m", "thermal_comp.host", "simulate", "-o", str(tmp_path / "run.csv"),
             "--hours", "0.5", "--cool-hours", "0.5", "--json"]
 
 

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from host.demo import Demo, DemoFailed, print_error_table
+from thermal_comp.host.demo import Demo, DemoFailed, print_error_table
 
 
 def test_a_failing_command_stops_with_its_output_and_exit_code():
@@ -64,7 +64,7 @@ def test_error_table_shows_raw_baseline_box_reduction_and_effects_kept():
 
 
 def test_outside_a_checkout_the_demo_says_what_it_needs(monkeypatch, tmp_path, capsys):
-    import host.demo as demo
+    import thermal_comp.host.demo as demo
 
     monkeypatch.setattr(demo, "ROOT", tmp_path)  # an installed wheel: no examples, no firmware
     assert demo.main([]) == 2
@@ -73,7 +73,7 @@ def test_outside_a_checkout_the_demo_says_what_it_needs(monkeypatch, tmp_path, c
 
 
 def test_training_line_says_each_reason_once_for_the_effects_the_box_does_not_run():
-    from host.demo import print_training
+    from thermal_comp.host.demo import print_training
 
     out = io.StringIO()
     doc = {"axes": {"dz_um": {"sensors": ["T1", "T2"], "validation_rmse_um": 0.3,

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from host.analysis import MethodResult, best_methods, best_subset, compare_methods
-from host.cli import main
-from host.io import Run, write_run
+from thermal_comp.host.analysis import MethodResult, best_methods, best_subset, compare_methods
+from thermal_comp.host.cli import main
+from thermal_comp.host.io import Run, write_run
 
 
 def _run(path: str, n: int, seed: int, scale: float) -> Run:
@@ -169,9 +169,9 @@ def test_the_box_model_is_compared_and_catches_what_static_fits_miss():
 
 
 def test_compare_fits_the_box_model_of_a_bending_axis_as_host_train_would():
-    from host.analysis.evaluate import predict
-    from host.fitting import Reference
-    from host.train import train_model
+    from thermal_comp.host.analysis.evaluate import predict
+    from thermal_comp.host.fitting import Reference
+    from thermal_comp.host.train import train_model
 
     train = [_lagged_run("a.csv", 11), _lagged_run("b.csv", 12)]
     test = [_lagged_run("c.csv", 13)]

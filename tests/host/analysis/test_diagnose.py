@@ -16,11 +16,17 @@ import math
 import numpy as np
 import pytest
 
-from contract.model_file import write_model
-from host.analysis import DiagnoseError, check_sensor, diagnose, load_for_diagnosis, summary_lines
-from host.cli import main
-from host.io import Run, write_run
-from host.train import train_model
+from thermal_comp.contract.model_file import write_model
+from thermal_comp.host.analysis import (
+    DiagnoseError,
+    check_sensor,
+    diagnose,
+    load_for_diagnosis,
+    summary_lines,
+)
+from thermal_comp.host.cli import main
+from thermal_comp.host.io import Run, write_run
+from thermal_comp.host.train import train_model
 
 DT = 60.0
 

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.model_file import ModelFormatError, read_model
-from host.analysis import diagnose, evaluate_model, summary_lines
-from host.cli import main
-from host.io import load_run, write_run
-from host.train import describe, outside_training
+from thermal_comp.contract.model_file import ModelFormatError, read_model
+from thermal_comp.host.analysis import diagnose, evaluate_model, summary_lines
+from thermal_comp.host.cli import main
+from thermal_comp.host.io import load_run, write_run
+from thermal_comp.host.train import describe, outside_training
 
 ROOT = Path(__file__).resolve().parents[3]
 FL = ROOT / "examples" / "fl_thermal_steps.csv"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from host.analysis.metrology import coefficient_table, iso230_drift, wiring_rows
-from host.io import Run
+from thermal_comp.host.analysis.metrology import coefficient_table, iso230_drift, wiring_rows
+from thermal_comp.host.io import Run
 
 
 def _run(t: np.ndarray, temp: np.ndarray, y: np.ndarray) -> Run:
@@ -76,8 +76,8 @@ def _lagged(x: np.ndarray, alpha: float) -> np.ndarray:
 
 
 def test_sensor_gains_sum_temperature_and_lags_and_a_rate_settles_to_nothing():
-    from contract.terms import Term
-    from host.analysis.metrology import sensor_gains
+    from thermal_comp.contract.terms import Term
+    from thermal_comp.host.analysis.metrology import sensor_gains
 
     terms = [Term.from_json(t) for t in (
         {"kind": "temp", "source": "T01"},
@@ -101,8 +101,8 @@ def test_sensor_gains_sum_temperature_and_lags_and_a_rate_settles_to_nothing():
 
 
 def test_ridge_refit_is_fit_ridge_at_its_alpha_and_its_dof_is_the_hat_trace():
-    from host.analysis.metrology import ridge_refit
-    from host.fitting import fit_ridge
+    from thermal_comp.host.analysis.metrology import ridge_refit
+    from thermal_comp.host.fitting import fit_ridge
 
     rng = np.random.default_rng(7)
     n = 300

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from host.analysis import (
+from thermal_comp.host.analysis import (
     PRODUCTION,
     ProtocolComparisonError,
     combine,
@@ -17,8 +17,8 @@ from host.analysis import (
     simulate_runs,
     write_outputs,
 )
-from host.cli import main
-from host.io import load_run
+from thermal_comp.host.cli import main
+from thermal_comp.host.io import load_run
 
 AXES = ["dx_um", "dz_um"]
 
@@ -50,7 +50,7 @@ def test_each_cell_is_the_rmse_of_that_model_on_that_run(comparison, sim_runs):
     assert comparison.test == ["constant", "step", PRODUCTION]
     assert not comparison.in_sample.any()  # every protocol has a second day to test on
     # recompute one off-diagonal and one diagonal cell by hand from the stored terms
-    from host.train import train_model
+    from thermal_comp.host.train import train_model
 
     model = train_model([sim_runs["constant"][0]], AXES, max_sensors=3, groups=4,
                         effects=False, fit="ols", nested=False)
@@ -118,7 +118,7 @@ def test_bad_runs_are_refused(tmp_path):
 def _two_protocols(a_score: float, b_score: float):
     """A hand-made comparison whose ranking scores are a_score (a) and b_score (b): each
     protocol's score is its RMSE on the other protocol's run, the off-diagonal cell."""
-    from host.analysis.protocol_matrix import Comparison
+    from thermal_comp.host.analysis.protocol_matrix import Comparison
 
     m = np.array([[0.1, a_score], [b_score, 0.1]])
     return Comparison(["a", "b"], ["a", "b"], ["x"], {"x": m}, np.zeros((2, 2), bool),
@@ -144,7 +144,7 @@ def test_a_winner_only_when_the_gap_exceeds_the_spread_over_repeats():
 
 
 def test_cli_repeats_by_default(monkeypatch, capsys):
-    import host.commands.compare_protocols as cmd
+    import thermal_comp.host.commands.compare_protocols as cmd
 
     seen = []
 

@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from direct_fits import direct_lag
 
-from host.analysis.report import build_report
-from host.analysis.report_data import ReportError, load_protocols
-from host.cli import main as host_main
-from host.io import load_run, write_run
+from thermal_comp.host.analysis.report import build_report
+from thermal_comp.host.analysis.report_data import ReportError, load_protocols
+from thermal_comp.host.cli import main as host_main
+from thermal_comp.host.io import load_run, write_run
 
 ROOT = Path(__file__).resolve().parents[3]
 FL = ROOT / "examples" / "fl_thermal_steps.csv"
@@ -376,7 +376,7 @@ def test_report_describes_the_model_the_box_runs(example, budget_model):
 
 
 def test_ec_caption_says_the_cap_decided(budget_model):
-    from host.analysis.report_story import count_rule
+    from thermal_comp.host.analysis.report_story import count_rule
 
     model, report = budget_model
     # S_i is smallest at 5 sensors, the cap is 2: the cap decided, not the minimum
@@ -388,8 +388,8 @@ def test_ec_caption_says_the_cap_decided(budget_model):
 
 
 def test_fold_stages_come_from_the_effects_evidence_and_are_drawn(tmp_path):
-    from host.analysis import plots
-    from host.analysis.report_story import fold_stages
+    from thermal_comp.host.analysis import plots
+    from thermal_comp.host.analysis.report_story import fold_stages
 
     axis = {"effects": [
         {"name": "lag(T05)", "rmse_before_um": 3.0, "rmse_after_um": 2.0,
@@ -412,7 +412,7 @@ def test_fold_stages_come_from_the_effects_evidence_and_are_drawn(tmp_path):
 def test_run_figure_draws_the_promise_as_a_band_and_ec_figure_the_fold_bars():
     from matplotlib.collections import LineCollection
 
-    from host.analysis import plots
+    from thermal_comp.host.analysis import plots
 
     t = np.arange(100) * 60.0
     meas = np.sin(t / 900.0)
@@ -438,7 +438,7 @@ def test_run_figure_draws_the_promise_as_a_band_and_ec_figure_the_fold_bars():
 
 
 def test_the_axis_table_says_which_axes_were_fitted_as_bending():
-    from host.analysis.report import fit_label
+    from thermal_comp.host.analysis.report import fit_label
 
     assert fit_label({"family": "ridge", "even_warming_penalty": 3.0}) == "ridge, bending"
     assert fit_label({"family": "ridge", "even_warming_penalty": 0.0}) == "ridge"
@@ -453,8 +453,8 @@ def ridge_report(example, tmp_path_factory):
     a c-means group of its own; its coefficients a ridge on the training half."""
     import copy
 
-    from contract.terms import Term
-    from host.analysis.metrology import ridge_refit, training_design
+    from thermal_comp.contract.terms import Term
+    from thermal_comp.host.analysis.metrology import ridge_refit, training_design
 
     model = copy.deepcopy(example["model"])
     ch5 = model["axes"]["ch5_um"]
@@ -594,7 +594,7 @@ def test_report_in_headless_chromium_has_no_clipped_legend_or_label_and_no_empty
 def test_the_clip_check_finds_a_legend_wider_than_the_figure(tmp_path):
     from matplotlib.figure import Figure as MplFigure
 
-    from host.analysis import plots
+    from thermal_comp.host.analysis import plots
 
     fig = MplFigure(figsize=plots.WIDE, layout="constrained")
     ax = fig.add_subplot()
@@ -615,9 +615,9 @@ def test_the_clip_check_finds_a_legend_wider_than_the_figure(tmp_path):
 def test_a_service_day_is_drawn_with_host_evaluates_numbers(example, tmp_path, capsys):
     # issue 42: static, updated and probe-only with the probe times marked, from synthesised
     # readings (the options) and from a run's logged probe_<axis> column
-    from host.analysis import load_for_model
-    from host.analysis.service import readings_for, service_of
-    from host.service import ProbePlan
+    from thermal_comp.host.analysis import load_for_model
+    from thermal_comp.host.analysis.service import readings_for, service_of
+    from thermal_comp.host.service import ProbePlan
 
     plan = ProbePlan(3600.0, 0.5, 3)
     run = example["runs"][1]

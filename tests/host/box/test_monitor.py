@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from host.box import Monitor, render
-from host.cli import main as host_main
+from thermal_comp.host.box import Monitor, render
+from thermal_comp.host.cli import main as host_main
 
 
 def wire(payload: str) -> bytes:
@@ -283,7 +283,7 @@ def native_box(tmp_path_factory):
 def _build_native(tmp: Path, model: dict) -> tuple[Path, Path]:
     if shutil.which("gcc") is None or shutil.which("make") is None:
         pytest.skip("gcc/make not installed: cannot build the native firmware")
-    from codegen import write_header
+    from thermal_comp.codegen import write_header
 
     model_path = tmp / "model.json"
     model_path.write_text(json.dumps(model))
@@ -309,7 +309,8 @@ def _monitor_native(binary: Path, model_path: Path, temps: list[tuple[float, flo
     """Start the native box and `host monitor --model` on its pty, feed (T05, T12) samples,
     and return the monitor's (exit code, first line, rest of stdout, stderr)."""
     box, pty = start_native(binary)
-    monitor = subprocess.Popen([sys.executable, "-m", "host", "monitor", pty, "--model",
+    monitor = subprocess.Popen([sys.executable, "-m", "thermal_comp.host", "monitor", pty,
+                                "--model",
                                 str(model_path), "--count", str(len(temps)), *(extra or [])],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                cwd=ROOT)
@@ -523,7 +524,8 @@ def test_monitor_names_the_faulted_channel_on_the_native_firmware(native_box):
     monitor asks STATUS, names T12 and the axis that reads it (dz), and not dx."""
     binary, model_path = native_box
     box, pty = start_native(binary)
-    monitor = subprocess.Popen([sys.executable, "-m", "host", "monitor", pty, "--model",
+    monitor = subprocess.Popen([sys.executable, "-m", "thermal_comp.host", "monitor", pty,
+                                "--model",
                                 str(model_path), "--count", "6", "--json"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                cwd=ROOT)
@@ -622,7 +624,8 @@ def test_the_screen_in_tmux_at_80x24_and_200x50_on_the_native_firmware(native_bo
     log = tmp_path / "screen.csv"
     # --retry 60: once the box has stopped, its /dev/pts number may go to another process's pty
     # (tests running side by side); the monitor would reconnect there (and say so), not here
-    term = Tmux(tmp_path, 80, 24, [sys.executable, "-m", "host", "monitor", pty, "--model",
+    term = Tmux(tmp_path, 80, 24, [sys.executable, "-m", "thermal_comp.host", "monitor", pty,
+                                   "--model",
                                    str(model_path), "--log", str(log), "--screen", "--retry",
                                    "60"])
     assert box.stdin is not None
@@ -695,7 +698,7 @@ def test_the_screen_in_tmux_at_80x24_and_200x50_on_the_native_firmware(native_bo
 
 
 def test_layout_clips_to_the_width_and_gives_way_by_priority():
-    from host.box.screen import RED, RESET, clip, layout, visible
+    from thermal_comp.host.box.screen import RED, RESET, clip, layout, visible
 
     main = ["host monitor on /dev/x: connected", "x" * 300, f"{RED}STALE{RESET} " + "y" * 100]
     history = [f"entry {i}" for i in range(10)]
@@ -716,7 +719,7 @@ def test_layout_clips_to_the_width_and_gives_way_by_priority():
 
 
 def test_the_fault_history_opens_refines_and_closes_entries():
-    from host.box.history import LINK, SAMPLE, FaultHistory
+    from thermal_comp.host.box.history import LINK, SAMPLE, FaultHistory
 
     h = FaultHistory()
     assert [(w, e.label) for w, e in h.update(SAMPLE, {"OPEN": "OPEN", "HOLD": "HOLD"}, 10.0,

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from contract import protocol
-from host.box.state import MonitorState
-from host.box.views import service_lines
+from thermal_comp.contract import protocol
+from thermal_comp.host.box.state import MonitorState
+from thermal_comp.host.box.views import service_lines
 
 
 def test_estimate_residual_and_repeated_refusals_are_shown():

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from direct_fits import direct_lag, direct_out_of_fold_residual
 
-from contract.terms import make_lag, make_rate, make_speed, make_temp, make_time
-from host.effects import (
+from thermal_comp.contract.terms import make_lag, make_rate, make_speed, make_temp, make_time
+from thermal_comp.host.effects import (
     Candidate,
     EffectsError,
     FeatureCache,
@@ -34,10 +34,10 @@ from host.effects import (
     state_quantisation_um,
     tau_grid,
 )
-from host.effects.scoring import ACTIVE_SHARE
-from host.fitting import design_matrix, fit_linear, rmse
-from host.io import Run
-from host.train import axis_with_effects
+from thermal_comp.host.effects.scoring import ACTIVE_SHARE
+from thermal_comp.host.fitting import design_matrix, fit_linear, rmse
+from thermal_comp.host.io import Run
+from thermal_comp.host.train import axis_with_effects
 
 DT = 60.0
 
@@ -438,8 +438,8 @@ def test_cli_no_effects_and_ambient_option(tmp_path):
     import io
     import json
 
-    from host.cli import main
-    from host.io import write_run
+    from thermal_comp.host.cli import main
+    from thermal_comp.host.io import write_run
 
     run = synth_run("speed", 9, hours=8.0)
     path = tmp_path / "run.csv"

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from host.io import load_run
-from host.train import train_model
+from thermal_comp.host.io import load_run
+from thermal_comp.host.train import train_model
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "sim_dev"
 MACHINES = ("machine11", "machine12", "machine13")

@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.terms import Term
-from host.cli import main
-from host.effects import state_quantisation_um
-from host.fitting import design_matrix
-from host.io import load_run
-from host.sim import load_truth
+from thermal_comp.contract.terms import Term
+from thermal_comp.host.cli import main
+from thermal_comp.host.effects import state_quantisation_um
+from thermal_comp.host.fitting import design_matrix
+from thermal_comp.host.io import load_run
+from thermal_comp.host.sim import load_truth
 
 TRAIN = ["--protocol", "step", "--hours", "6", "--cool-hours", "4", "--dt", "60"]
 TEST = ["--protocol", "random", "--hours", "6", "--cool-hours", "4", "--dt", "60"]
@@ -263,7 +263,7 @@ def test_the_ridge_leaves_slow_lag_effects_to_its_own_lags(scenario, tmp_path):
 def test_a_slow_lag_effect_is_marked_as_the_ridges_own_lags():
     """_mark_lags_in_basis: a lag effect whose filter is not in the ridge's basis names the
     ridge's lags of its sensor that stand for it; one whose filter the box runs is left as is."""
-    from host.train.pipeline import _mark_lags_in_basis
+    from thermal_comp.host.train.pipeline import _mark_lags_in_basis
 
     slow = Term("lag", "T03", {"tau_s": 7200.0})
     fast = Term("lag", "T05", {"tau_s": 300.0})

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from host.fitting import (
+from thermal_comp.host.fitting import (
     condition_number,
     fit_linear,
     fold_groups,
@@ -13,7 +13,7 @@ from host.fitting import (
     validation_rmse,
     variance_inflation,
 )
-from host.io import Run
+from thermal_comp.host.io import Run
 
 
 def test_fit_recovers_exact_linear_relation():

@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from host.parallel import forked_map, usable_cores
+from thermal_comp.host.parallel import forked_map, usable_cores
 
 
 class TwoPartError(Exception):

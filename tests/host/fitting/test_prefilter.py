@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from sklearn.linear_model import Ridge
 
-from host.fitting import fit_ridge
-from host.fitting.prefilter import PREFILTER_TAU_S, prefiltered
-from host.io import Run
-from host.train import train_model
+from thermal_comp.host.fitting import fit_ridge
+from thermal_comp.host.fitting.prefilter import PREFILTER_TAU_S, prefiltered
+from thermal_comp.host.io import Run
+from thermal_comp.host.train import train_model
 
 
 def _low_pass_by_hand(x: np.ndarray, lengths: list[int], a: float) -> np.ndarray:
@@ -104,9 +104,9 @@ def test_the_prefilter_pulls_the_coefficients_less_toward_zero_on_noisy_readings
 def test_the_prefilter_is_a_training_option_recorded_and_checked(tmp_path):
     import json
 
-    from host.cli import main
-    from host.io import write_run
-    from host.train import TrainingError
+    from thermal_comp.host.cli import main
+    from thermal_comp.host.io import write_run
+    from thermal_comp.host.train import TrainingError
 
     X, y, _ = _slow_and_noisy(7)
     t = np.arange(len(y)) * 60.0
@@ -132,7 +132,7 @@ def test_the_prefilter_is_a_training_option_recorded_and_checked(tmp_path):
 
 def test_an_axis_kept_as_least_squares_does_not_claim_the_prefilter(monkeypatch):
     """`--fit auto` may keep least squares, which fits the raw rows: the axis says 0."""
-    import host.train.next_day as next_day
+    import thermal_comp.host.train.next_day as next_day
 
     monkeypatch.setattr(next_day.NestedResult, "rms",
                         lambda self, family: 0.0 if family == "ols" else 1.0)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from host.analysis import evaluate_model
-from host.fitting import Reference, causal_reference
-from host.io import Run
-from host.train import train_model
+from thermal_comp.host.analysis import evaluate_model
+from thermal_comp.host.fitting import Reference, causal_reference
+from thermal_comp.host.io import Run
+from thermal_comp.host.train import train_model
 
 PERIOD = 60.0
 

@@ -19,15 +19,16 @@ import pytest
 
 pytest.importorskip("paho.mqtt.client")
 
-from contract import protocol  # noqa: E402
-from host.cli import main as host_main  # noqa: E402
-from host.fleet.collector import Collector  # noqa: E402
-from host.fleet.export import export_run, parse_since  # noqa: E402
-from host.fleet.gateway import Publisher, Translator, parse_command  # noqa: E402
-from host.fleet.localrun import Mosquitto, have_mosquitto  # noqa: E402
-from host.fleet.spool import Spool  # noqa: E402
-from host.fleet.store import Store  # noqa: E402
-from host.fleet.topics import (  # noqa: E402
+from tests.fleet_support import INFO, PtyBox, wait_for  # noqa: E402
+from thermal_comp.contract import protocol  # noqa: E402
+from thermal_comp.host.cli import main as host_main  # noqa: E402
+from thermal_comp.host.fleet.collector import Collector  # noqa: E402
+from thermal_comp.host.fleet.export import export_run, parse_since  # noqa: E402
+from thermal_comp.host.fleet.gateway import Publisher, Translator, parse_command  # noqa: E402
+from thermal_comp.host.fleet.localrun import Mosquitto, have_mosquitto  # noqa: E402
+from thermal_comp.host.fleet.spool import Spool  # noqa: E402
+from thermal_comp.host.fleet.store import Store  # noqa: E402
+from thermal_comp.host.fleet.topics import (  # noqa: E402
     MAX_PAYLOAD,
     FleetError,
     Refused,
@@ -35,9 +36,8 @@ from host.fleet.topics import (  # noqa: E402
     parse,
     topic,
 )
-from host.fleet.web import make_server, render_fleet  # noqa: E402
-from host.io import load_run  # noqa: E402
-from tests.fleet_support import INFO, PtyBox, wait_for  # noqa: E402
+from thermal_comp.host.fleet.web import make_server, render_fleet  # noqa: E402
+from thermal_comp.host.io import load_run  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[3]
 needs_broker = pytest.mark.skipif(not have_mosquitto(), reason="mosquitto not installed "
@@ -140,7 +140,7 @@ def test_commands_must_be_fresh_and_known():
 
 def test_the_spool_keeps_what_is_not_acknowledged_and_recovers_it_in_order(tmp_path,
                                                                            monkeypatch):
-    import host.fleet.spool as spool_mod
+    import thermal_comp.host.fleet.spool as spool_mod
 
     path = tmp_path / "state" / "spool-m1.jsonl"
     sp = Spool(path, fsync=False)
@@ -216,7 +216,7 @@ def test_host_gateway_on_a_pty_its_last_will_and_fleet_status(broker, tmp_path):
     collector = Collector(broker.url, store, client_id="tc-fleet-gw")
     collector.start()
     box = PtyBox()
-    gw = subprocess.Popen([sys.executable, "-m", "host", "gateway", box.path, "--mqtt",
+    gw = subprocess.Popen([sys.executable, "-m", "thermal_comp.host", "gateway", box.path, "--mqtt",
                            broker.url, "--machine", "lathe-2", "--spool",
                            str(tmp_path / "spool.jsonl")], cwd=ROOT,
                           stderr=subprocess.PIPE, text=True)
@@ -245,7 +245,7 @@ def test_host_gateway_on_a_pty_its_last_will_and_fleet_status(broker, tmp_path):
             gw.kill()
         box.close()
         collector.stop()
-    out = subprocess.run([sys.executable, "-m", "host", "fleet", "status", "--db", db],
+    out = subprocess.run([sys.executable, "-m", "thermal_comp.host", "fleet", "status", "--db", db],
                          cwd=ROOT, capture_output=True, text=True, timeout=30)
     assert out.returncode == 0, out.stderr
     line = next(ln for ln in out.stdout.splitlines() if ln.startswith("lathe-2"))
@@ -293,7 +293,8 @@ def test_bad_input_is_refused_flagged_and_never_stops_the_service(broker, tmp_pa
 
 
 def _gateway(box: PtyBox, url: str, machine: str, spool: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "host", "gateway", box.path, "--mqtt", url,
+    return subprocess.Popen([sys.executable, "-m", "thermal_comp.host", "gateway", box.path,
+                             "--mqtt", url,
                              "--machine", machine, "--spool", str(spool)], cwd=ROOT,
                             stderr=subprocess.PIPE, text=True)
 
@@ -369,7 +370,8 @@ def test_host_monitor_mqtt_publishes_what_the_gateway_would(broker, tmp_path):
     collector.start()
     wait_for(collector.connected.is_set, what="collector connected")
     box = PtyBox()
-    mon = subprocess.Popen([sys.executable, "-m", "host", "monitor", box.path, "--plain",
+    mon = subprocess.Popen([sys.executable, "-m", "thermal_comp.host", "monitor", box.path,
+                            "--plain",
                             "--count", "4", "--duration", "20", "--mqtt", broker.url,
                             "--machine", "mill-9", "--spool", str(tmp_path / "spool.jsonl")],
                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -414,7 +416,7 @@ def test_host_monitor_mqtt_publishes_what_the_gateway_would(broker, tmp_path):
 # ---- the page, export ---------------------------------------------------------------------
 def _filled_store(path: Path) -> Store:
     store = Store(f"sqlite:///{path}")
-    from host.fleet.topics import Message
+    from thermal_comp.host.fleet.topics import Message
 
     tr = Translator("mill-7", "g")
     t0 = time.time() - 3600

@@ -12,14 +12,14 @@ import pytest
 
 pytest.importorskip("paho.mqtt.client")
 
-from host.fleet.broker import make_client, parse_url  # noqa: E402
-from host.fleet.collector import Collector  # noqa: E402
-from host.fleet.export import export_run  # noqa: E402
-from host.fleet.gateway import Gateway  # noqa: E402
-from host.fleet.localrun import Mosquitto, Postgres, have_mosquitto, have_postgres  # noqa: E402
-from host.fleet.store import Store  # noqa: E402
-from host.fleet.topics import FleetError, command_topic  # noqa: E402
 from tests.fleet_support import PtyBox, wait_for  # noqa: E402
+from thermal_comp.host.fleet.broker import make_client, parse_url  # noqa: E402
+from thermal_comp.host.fleet.collector import Collector  # noqa: E402
+from thermal_comp.host.fleet.export import export_run  # noqa: E402
+from thermal_comp.host.fleet.gateway import Gateway  # noqa: E402
+from thermal_comp.host.fleet.localrun import Mosquitto, Postgres, have_mosquitto, have_postgres  # noqa: E402
+from thermal_comp.host.fleet.store import Store  # noqa: E402
+from thermal_comp.host.fleet.topics import FleetError, command_topic  # noqa: E402
 
 USERS = {"fleet": "fleet-pw", "gw-m1": "gw-pw", "alice": "alice-pw", "mallory": "mallory-pw"}
 ACL = """user fleet

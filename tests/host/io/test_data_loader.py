@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from host.io import RunFormatError, load_run, load_runs, write_run
+from thermal_comp.host.io import RunFormatError, load_run, load_runs, write_run
 
 GOOD = "time_s,T01,T02,spindle_rpm,dz_um\n0,20,21,0,0.0\n1,20.5,21,100,0.5\n2,21,21.5,100,1.0\n"
 

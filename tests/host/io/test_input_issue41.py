@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 
-from contract.errors import InputError
-from contract.model_file import ModelFormatError, check_model
-from hil.example_model import default_terms, fit_example_model
-from host.cli import main
-from host.io import load_run
-from host.io.runs import RunFormatError
+from thermal_comp.contract.errors import InputError
+from thermal_comp.contract.model_file import ModelFormatError, check_model
+from thermal_comp.hil.example_model import default_terms, fit_example_model
+from thermal_comp.host.cli import main
+from thermal_comp.host.io import load_run
+from thermal_comp.host.io.runs import RunFormatError
 
 REPO = Path(__file__).resolve().parents[3]
 EX = REPO / "examples"

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.box import BOX_CHANNELS
-from contract.errors import InputError
-from contract.model_file import (
+from thermal_comp.contract.box import BOX_CHANNELS
+from thermal_comp.contract.errors import InputError
+from thermal_comp.contract.model_file import (
     ModelFormatError,
     ModelHashError,
     check_model,
@@ -25,8 +25,8 @@ from contract.model_file import (
     read_model,
     write_model,
 )
-from contract.terms import make_lag
-from host.cli import main
+from thermal_comp.contract.terms import make_lag
+from thermal_comp.host.cli import main
 
 N = 120  # samples of the hand-made run (1 s period)
 
@@ -214,7 +214,7 @@ def test_every_command_refuses_what_codegen_refuses(files, capsys, command, labe
 
 
 def test_hil_replay_goes_through_the_same_validator(files, capsys):
-    from hil.cli import main as hil_main
+    from thermal_comp.hil.cli import main as hil_main
 
     good, run = files
     path = good.with_name("bad.json")
@@ -224,7 +224,7 @@ def test_hil_replay_goes_through_the_same_validator(files, capsys):
 
 
 def test_codegen_errors_are_input_errors():
-    import codegen
+    from thermal_comp import codegen
 
     with pytest.raises(codegen.CodegenError, match="term 1 lag") as err:
         codegen.generate(BAD_MODELS[3][1])
@@ -260,7 +260,7 @@ def _with_cell(text: str, line: int, column: str, value: str) -> str:
 
 
 def _load(path: Path, **kw):
-    from host.io import load_run
+    from thermal_comp.host.io import load_run
 
     return load_run(path, ["dz_um"], "T*", ["spindle_rpm"], **kw)
 
@@ -466,7 +466,7 @@ def test_a_data_logger_file_reads_as_the_plain_csv(tmp_path):
 
 
 def test_a_semicolon_file_read_with_a_comma_separator_names_the_delimiter(tmp_path):
-    from host.io import CsvFormat
+    from thermal_comp.host.io import CsvFormat
 
     p = _write(tmp_path / "semi.csv", _logger_text())
     msg = _refusal(p, fmt=CsvFormat(sep=","))
@@ -489,7 +489,7 @@ def test_format_errors_keep_file_line_and_column(tmp_path):
 
 
 def test_time_col_names_the_time_column(tmp_path):
-    from host.io import CsvFormat
+    from thermal_comp.host.io import CsvFormat
 
     text = _logger_text().replace("timestamp;", "Zeitstempel;", 1)
     p = _write(tmp_path / "named.csv", text)

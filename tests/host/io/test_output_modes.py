@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from codegen import fixed_point_path, write_header
-from contract.model_file import current_umask, write_model, write_text_atomic
+from thermal_comp.codegen import fixed_point_path, write_header
+from thermal_comp.contract.model_file import current_umask, write_model, write_text_atomic
 
 MODEL = {
     "schema": "thermal-model/1", "tool_version": "0.1.0", "sample_period_s": 1.0,

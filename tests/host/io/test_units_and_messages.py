@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.errors import InputError
-from contract.model_file import write_model
-from host.cli import main as host_main
-from host.io import CsvFormat, load_run, read_table
-from host.io.runs import RunFormatError, write_run
+from thermal_comp.contract.errors import InputError
+from thermal_comp.contract.model_file import write_model
+from thermal_comp.host.cli import main as host_main
+from thermal_comp.host.io import CsvFormat, load_run, read_table
+from thermal_comp.host.io.runs import RunFormatError, write_run
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN = ROOT / "examples" / "sim_constant.csv"
@@ -165,8 +165,8 @@ def test_one_phrasing_for_a_missing_sensor_with_did_you_mean(tmp_path, columns, 
     with pytest.raises(RunFormatError) as err:
         load_run(path, ["dz_um"], sensors=[used])
     messages.append(str(err.value))
-    from host.train import train_model
-    from host.train.training_data import TrainingError
+    from thermal_comp.host.train import train_model
+    from thermal_comp.host.train.training_data import TrainingError
 
     run = load_run(path, ["dz_um"], sensors="*", aux=["spindle_rpm"])
     run.sensor_names = [n for n in run.sensor_names if n != "T_amb"]

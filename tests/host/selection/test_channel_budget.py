@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from host.io import Run
-from host.selection import joint_l1_ranking
-from host.train import TrainingError, train_model
+from thermal_comp.host.io import Run
+from thermal_comp.host.selection import joint_l1_ranking
+from thermal_comp.host.train import TrainingError, train_model
 
 
 def _run(seed: int, n: int = 400) -> Run:
@@ -81,7 +81,7 @@ def test_the_budget_is_settled_before_the_effects_and_never_removes_one(tmp_path
     evidence relied on is removed afterwards, and the box's model is the one judged."""
     import json
 
-    from host.cli import main
+    from thermal_comp.host.cli import main
 
     run = tmp_path / "train.csv"
     assert main(["simulate", "--protocol", "step", "--hours", "6", "--cool-hours", "4", "--dt",
@@ -108,7 +108,7 @@ def test_auto_gives_up_the_baseline_when_an_effect_rewired_its_sensors():
     gave one of their channels away (once: FL_THERMAL's first two cycles, ch3, the speed family
     swapped T15 and T03 for T14 and T01) that family would read ten sensors on eight inputs, and
     `--fit auto` once chose it so that training failed its own channel check."""
-    from host.train.pipeline import auto_candidates
+    from thermal_comp.host.train.pipeline import auto_candidates
 
     assert auto_candidates(True, ["T15", "T03"]) == ["ols", "ridge"]
     assert auto_candidates(True, []) == ["ols", "baseline", "ridge", "ridge-baseline"]
@@ -121,8 +121,8 @@ def test_auto_on_real_data_only_reads_what_the_box_wires():
     sensors, at most eight, and a baseline that lost a channel is said and not chosen."""
     from pathlib import Path
 
-    from contract.terms import Term, term_sensors
-    from host.io import load_run, window
+    from thermal_comp.contract.terms import Term, term_sensors
+    from thermal_comp.host.io import load_run, window
 
     fl = Path(__file__).resolve().parents[3] / "examples" / "fl_thermal_steps.csv"
     run = window(load_run(fl, ["ch3_um"], "T*", ["spindle_rpm"]), None, 16 * 3600.0)
@@ -148,7 +148,7 @@ def test_effects_the_box_ridge_drops_give_back_the_channels_they_wired():
     the channels are filled again, and the model is the one trained without effects."""
     from pathlib import Path
 
-    from host.io import load_run, window
+    from thermal_comp.host.io import load_run, window
 
     fl = Path(__file__).resolve().parents[3] / "examples" / "fl_thermal_steps.csv"
     run = window(load_run(fl, ["ch1_um"], "T*", ["spindle_rpm"]), None, 24 * 3600.0)

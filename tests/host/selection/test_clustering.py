@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from sklearn.cluster import KMeans
 
-from host.selection import hard_c_means, standardise
+from thermal_comp.host.selection import hard_c_means, standardise
 
 
 def _blobs(seed: int = 0):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from host.selection import cross_correlation, pearson_r, thermal_parameters
+from thermal_comp.host.selection import cross_correlation, pearson_r, thermal_parameters
 
 
 def _smooth_noise(n: int, seed: int, width: int = 25) -> np.ndarray:

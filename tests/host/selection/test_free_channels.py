@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from contract.terms import make_lag
-from host.analysis import evaluate_model
-from host.fitting import design_matrix
-from host.io import Run
-from host.selection import fill_free_channels, l1_ranking
-from host.train import train_model
+from thermal_comp.contract.terms import make_lag
+from thermal_comp.host.analysis import evaluate_model
+from thermal_comp.host.fitting import design_matrix
+from thermal_comp.host.io import Run
+from thermal_comp.host.selection import fill_free_channels, l1_ranking
+from thermal_comp.host.train import train_model
 
 PERIOD = 60.0
 N_SENSORS = 12

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from direct_fits import direct_validation_rmse
 
-from host.selection import (
+from thermal_comp.host.selection import (
     GramCache,
     ec_reduction,
     fold_labels,
@@ -16,7 +16,7 @@ from host.selection import (
     select_sensors,
     sequential_selection,
 )
-from host.selection.estimator import ThermalSensorSelector
+from thermal_comp.host.selection.estimator import ThermalSensorSelector
 
 
 def _lstsq_rmse(X: np.ndarray, y: np.ndarray) -> float:

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from codegen.estimator import FixedParams, measure, reset, run_twin, to_nm
-from contract.model_file import SCHEMA, ModelFormatError, check_model
-from host.io import RunFormatError, load_run
-from host.service import (
+from thermal_comp.codegen.estimator import FixedParams, measure, reset, run_twin, to_nm
+from thermal_comp.contract.model_file import SCHEMA, ModelFormatError, check_model
+from thermal_comp.host.io import RunFormatError, load_run
+from thermal_comp.host.service import (
     BiasKalman,
     Gate,
     ProbePlan,
@@ -20,8 +20,8 @@ from host.service import (
     run_estimator,
     synthesise_probes,
 )
-from host.service.evaluation import updated
-from host.service.probes import probe_samples
+from thermal_comp.host.service.evaluation import updated
+from thermal_comp.host.service.probes import probe_samples
 
 ROOT = Path(__file__).resolve().parents[3]
 SIM_RUN = ROOT / "examples" / "sim_random.csv"
@@ -157,7 +157,7 @@ def test_a_service_field_out_of_range_is_named():
 def test_the_wander_splits_into_a_random_walk_and_white_noise():
     """A residual made of a random walk (q um^2/h) and white noise (s um), generated here: the
     line through D(dt) gives both back; the white part joins R, the walk stays q."""
-    from host.service.parameters import random_walk_and_noise, wander
+    from thermal_comp.host.service.parameters import random_walk_and_noise, wander
 
     rng = np.random.default_rng(7)
     period_s, q, s = 15.0, 2.0, 0.4

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from host.selection import thermal_parameters
+from thermal_comp.host.selection import thermal_parameters
 
 LENGTH_M = 0.5
 AREA_M2 = 8e-5

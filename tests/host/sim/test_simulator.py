@@ -9,10 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from contract.terms import make_lag, make_square, make_time
-from host.fitting import fit_linear, rmse, term_values
-from host.io import load_run
-from host.sim import (
+from thermal_comp.contract.terms import make_lag, make_square, make_time
+from thermal_comp.host.fitting import fit_linear, rmse, term_values
+from thermal_comp.host.io import load_run
+from thermal_comp.host.sim import (
     EFFECTS,
     SimConfig,
     SimulationError,
@@ -225,7 +225,7 @@ def test_without_effects_a_static_model_is_at_the_noise_floor():
 def test_every_node_link_and_effect_is_documented():
     from pathlib import Path
 
-    from host.sim import LINKS, NODES, SOURCES
+    from thermal_comp.host.sim import LINKS, NODES, SOURCES
 
     doc = (Path(__file__).parents[3] / "docs" / "simulator.md").read_text()
     for node in NODES:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from host.sim import (
+from thermal_comp.host.sim import (
     LINKS,
     NODES,
     SOURCES,

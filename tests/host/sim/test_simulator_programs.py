@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from host.sim import COOL, RUN, ProgramError, build_program
+from thermal_comp.host.sim import COOL, RUN, ProgramError, build_program
 
 
 def test_constant_runs_at_three_quarters_of_max_then_cools():

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from pygcode import Line
 
-from host.cli import main
-from host.sim import PlanError, ThermalTestPlan, build_program, parse_duration
+from thermal_comp.host.cli import main
+from thermal_comp.host.sim import PlanError, ThermalTestPlan, build_program, parse_duration
 
 
 def execute(text: str, dialect: str = "rs274") -> dict:

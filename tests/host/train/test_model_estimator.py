@@ -12,10 +12,10 @@ from direct_fits import direct_lag
 from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import FunctionTransformer
 
-import codegen
-from host.io import load_run
-from host.train import train_model
-from host.train.estimator import ThermalModel
+from thermal_comp import codegen
+from thermal_comp.host.io import load_run
+from thermal_comp.host.train import train_model
+from thermal_comp.host.train.estimator import ThermalModel
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN = ROOT / "examples" / "sim_constant.csv"
@@ -162,7 +162,7 @@ class Series:
 
 
 def test_column_names_reach_model_json_and_the_wiring_sheet(data):
-    from host.analysis.metrology import wiring_rows
+    from thermal_comp.host.analysis.metrology import wiring_rows
 
     run, X, y = data
     names = [f"spot_{i:02d}" for i in range(X.shape[1])]

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from sklearn.linear_model import Ridge
 
-import codegen
-from contract.box import BOX_STATES
-from contract.terms import make_lag, make_rate, make_speed, make_temp
-from host.fitting import NO_REFERENCE, Reference, fit_ridge, fold_groups
-from host.io import Run
-from host.train import train_model
-from host.train.next_day import (
+from thermal_comp import codegen
+from thermal_comp.contract.box import BOX_STATES
+from thermal_comp.contract.terms import make_lag, make_rate, make_speed, make_temp
+from thermal_comp.host.fitting import NO_REFERENCE, Reference, fit_ridge, fold_groups
+from thermal_comp.host.io import Run
+from thermal_comp.host.train import train_model
+from thermal_comp.host.train.next_day import (
     FoldTerms,
     NestedResult,
     fold_training,
@@ -124,7 +124,7 @@ def test_long_runs_are_judged_on_every_kth_sample():
 
 
 def test_nested_folds_of_long_runs_train_on_the_thinned_runs(monkeypatch):
-    import host.train.next_day as next_day
+    import thermal_comp.host.train.next_day as next_day
 
     monkeypatch.setattr(next_day, "NESTED_MAX_ROWS", 1000)
     runs = [_run("a", 1), _run("b", 2), _run("c", 3)]
@@ -149,7 +149,7 @@ def test_nested_folds_of_long_runs_train_on_the_thinned_runs(monkeypatch):
 
 
 def test_nested_folds_in_forked_processes_give_the_serial_folds_errors(monkeypatch):
-    import host.train.next_day as next_day
+    import thermal_comp.host.train.next_day as next_day
 
     runs = [_run("a", 1), _run("b", 2), _run("c", 3)]  # 1,440 samples in all
     terms = [make_temp("T1"), make_temp("T2")]
@@ -179,11 +179,11 @@ def test_nested_folds_in_forked_processes_give_the_serial_folds_errors(monkeypat
 
 def test_jobs_reach_the_nested_folds_from_every_entry_and_do_not_change_the_model(
         monkeypatch, tmp_path, capsys):
-    import host.train.next_day as next_day
-    from host.cli import main
-    from host.io import write_run
-    from host.train import TrainingError
-    from host.train.estimator import ThermalModel
+    import thermal_comp.host.train.next_day as next_day
+    from thermal_comp.host.cli import main
+    from thermal_comp.host.io import write_run
+    from thermal_comp.host.train import TrainingError
+    from thermal_comp.host.train.estimator import ThermalModel
 
     asked = []
     real = next_day.forked_map
@@ -372,8 +372,8 @@ def test_the_even_warming_penalty_shrinks_the_response_to_an_even_warming_as_it_
 
 
 def test_train_shapes_only_the_bending_axis_ridge_and_says_so():
-    from host.train import TrainingError
-    from host.train.next_day import EVEN_WARMING_PENALTY
+    from thermal_comp.host.train import TrainingError
+    from thermal_comp.host.train.next_day import EVEN_WARMING_PENALTY
 
     base = _run("a", 1)
     t1, t2 = base.temperatures[:, 0], base.temperatures[:, 1]
@@ -402,7 +402,7 @@ def test_train_shapes_only_the_bending_axis_ridge_and_says_so():
 
 
 def test_a_bending_axis_kept_as_least_squares_does_not_claim_the_penalty(monkeypatch):
-    import host.train.next_day as next_day
+    import thermal_comp.host.train.next_day as next_day
 
     monkeypatch.setattr(next_day.NestedResult, "rms",
                         lambda self, family: 0.0 if family == "ols" else 1.0)
@@ -431,7 +431,7 @@ def _speed_growth_run(name: str, seed: int, growth_um: float, n: int = 720) -> R
 
 def _write_dz_runs(runs: list[Run], folder: Path) -> list[Path]:
     """The runs as CSV files for the CLI (temperatures, dz_um, spindle_rpm)."""
-    from host.io import write_run
+    from thermal_comp.host.io import write_run
 
     paths = []
     for run in runs:
@@ -447,8 +447,8 @@ def test_the_box_models_error_without_and_with_its_effects_is_reported(tmp_path,
     folds with the effects and without them. A speed growth the basis lacks must show there."""
     import json
 
-    from host.cli import main
-    from host.train import box_effects_evidence
+    from thermal_comp.host.cli import main
+    from thermal_comp.host.train import box_effects_evidence
 
     runs = [_speed_growth_run("a", 1, 4.0), _speed_growth_run("b", 2, 4.0)]
     model = train_model(runs, ["dz_um"], aux=["spindle_rpm"], groups=3, max_sensors=2,
@@ -507,7 +507,7 @@ def test_an_effect_the_box_ridge_already_covers_is_named_and_not_run(tmp_path, c
     """The search names the slow path on least squares over the selected terms, but the box's
     ridge reads the lags of T1 already: it is not 10 % lower with the effect, so the box runs
     the ridge trained without effects, the effect stays listed with why, and host train says so."""
-    from host.cli import main
+    from thermal_comp.host.cli import main
 
     runs = [_slow_path_run("a", 1), _slow_path_run("b", 2)]
     kw = dict(aux=["spindle_rpm"], groups=2, max_sensors=2, reference="start", nested=False)

@@ -14,9 +14,9 @@ import pytest
 from test_next_day import _run  # the same two-sensor runs the nested validation tests use
 
 from bench import bench_promise as bp
-from host.io import write_run
-from host.train import summary, train_model
-from host.train.next_day import (
+from thermal_comp.host.io import write_run
+from thermal_comp.host.train import summary, train_model
+from thermal_comp.host.train.next_day import (
     PROMISE_COVERAGE,
     PROMISE_FACTOR,
     PROMISE_TAIL,
@@ -64,8 +64,8 @@ def test_model_json_and_host_train_json_state_the_promise_and_its_coverage(model
 
 
 def test_the_report_states_the_promise_with_its_coverage(model, tmp_path):
-    from contract.model_file import write_model
-    from host.analysis.report import build_report
+    from thermal_comp.contract.model_file import write_model
+    from thermal_comp.host.analysis.report import build_report
 
     path = tmp_path / "model.json"
     write_model(copy.deepcopy(model), path)

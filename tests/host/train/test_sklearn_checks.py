@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from host.selection.estimator import ThermalSensorSelector
-from host.train.estimator import EXPECTED_FAILED_CHECKS, ThermalModel
+from thermal_comp.host.selection.estimator import ThermalSensorSelector
+from thermal_comp.host.train.estimator import EXPECTED_FAILED_CHECKS, ThermalModel
 
 
 def _expected(estimator) -> dict[str, str]:

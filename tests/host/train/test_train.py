@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from contract.model_file import ModelFormatError, read_model, write_model
-from host.analysis import evaluate_model, predict
-from host.cli import main
-from host.io import Run, load_run, write_run
-from host.train import TrainingError, train_model
+from thermal_comp.contract.model_file import ModelFormatError, read_model, write_model
+from thermal_comp.host.analysis import evaluate_model, predict
+from thermal_comp.host.cli import main
+from thermal_comp.host.io import Run, load_run, write_run
+from thermal_comp.host.train import TrainingError, train_model
 
 ROOT = Path(__file__).resolve().parents[3]
 FL = ROOT / "examples" / "fl_thermal_steps.csv"
@@ -217,7 +217,7 @@ def test_cli_errors_are_clear(runs, tmp_path, capsys):
 
 
 def test_fast_csv_path_reads_exactly_what_the_careful_reader_reads(tmp_path, monkeypatch):
-    import host.io.runs as runs_module
+    import thermal_comp.host.io.runs as runs_module
 
     path = tmp_path / "r.csv"
     rng = np.random.default_rng(9)
@@ -261,8 +261,8 @@ def test_end_to_end_fl_thermal_split_train_evaluate(tmp_path, capsys):
 def test_end_to_end_simulated_machine_other_speed_profile(tmp_path, capsys):
     """Select and fit on a constant-speed run, judge on a random-speed run of the same
     simulated machine (host.sim.simulator); the residual must be near the probes' noise."""
-    sim = pytest.importorskip("host.sim.simulator")
-    programs = pytest.importorskip("host.sim.spindle_programs")
+    sim = pytest.importorskip("thermal_comp.host.sim.simulator")
+    programs = pytest.importorskip("thermal_comp.host.sim.spindle_programs")
     paths = {}
     for name, seed in (("constant", 1), ("random", 2)):
         run = sim.simulate(programs.build_program(name, hours=6, cool_hours=6, seed=seed),
@@ -309,7 +309,7 @@ def test_training_runs_blas_on_one_thread_and_gives_the_callers_threads_back(run
                                                                             monkeypatch):
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    import host.train.pipeline as pipeline
+    import thermal_comp.host.train.pipeline as pipeline
 
     def blas() -> dict[str, int]:
         return {i["filepath"]: i["num_threads"] for i in threadpool_info()

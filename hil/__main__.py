@@ -1,3 +1,0 @@
-from hil.cli import main
-
-raise SystemExit(main())

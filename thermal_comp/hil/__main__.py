@@ -1,0 +1,3 @@
+from thermal_comp.hil.cli import main
+
+raise SystemExit(main())

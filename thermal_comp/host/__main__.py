@@ -1,0 +1,3 @@
+from thermal_comp.host.cli import main
+
+raise SystemExit(main())

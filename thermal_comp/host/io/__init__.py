@@ -1,0 +1,33 @@
+"""Run I/O: thermal test runs (CSV) in and out, and cutting a run in two.
+"""
+
+from __future__ import annotations
+
+from thermal_comp.host.io.runs import (
+    TIME_COLUMN,
+    CsvFormat,
+    Run,
+    RunFormatError,
+    check_variation,
+    load_run,
+    load_runs,
+    read_header,
+    read_table,
+    write_run,
+)
+from thermal_comp.host.io.split import split_file, window
+
+__all__ = [
+    "CsvFormat",
+    "Run",
+    "RunFormatError",
+    "TIME_COLUMN",
+    "check_variation",
+    "load_run",
+    "load_runs",
+    "read_header",
+    "read_table",
+    "split_file",
+    "window",
+    "write_run",
+]

@@ -1,0 +1,181 @@
+"""Per-axis estimators of what the model misses, updated by probe readings (float reference).
+
+Each estimator holds a correction that adds to the model's output. Between readings its
+state propagates in time (its variance grows with the process noise ``q`` per hour); at a
+reading it sees the innovation, reading - (model output + current correction) at that sample,
+and, when the gate accepts it, updates. A reading at sample k changes the output from sample
+k + 1 on (the box answers MEAS after it has output sample k).
+
+- ``BiasKalman`` (the default, docs/service.md): a scalar Kalman filter on a bias that walks
+  randomly (variance q per hour), probe noise R. Its variance starts at ``p0_um2`` (0 for a
+  ``start`` model: at ZERO the bias is zero by definition; ``p_max_um2`` for ``none``) and is
+  capped by ``p_max_um2``.
+- ``BiasRateKalman``: bias and its rate (a constant-velocity Kalman filter, the rate walking
+  with ``q / 1 h^2``); the correction between readings extrapolates the rate.
+- ``DiscountedBias``: exponential smoothing of the innovation with a fixed gain ``alpha``
+  (a Kalman filter frozen at one gain), gated with the same bookkeeping of P.
+
+``run_estimator`` runs one over a run; ``ESTIMATORS`` names them for the bench.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from thermal_comp.host.service.gate import Gate
+from thermal_comp.host.service.parameters import ServiceParams
+
+
+class Estimator:
+    """The interface: reset, propagate by dt hours, the correction dt hours ahead, the
+    variance of the current correction, and an update by an accepted innovation."""
+
+    def reset(self) -> None:
+        raise NotImplementedError
+
+    def propagate(self, dt_h: float) -> None:
+        raise NotImplementedError
+
+    def offset(self, dt_h: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def variance(self) -> float:
+        raise NotImplementedError
+
+    def update(self, innovation: float, r: float) -> None:
+        raise NotImplementedError
+
+
+class BiasKalman(Estimator):
+    """Scalar Kalman filter on a random-walk bias."""
+
+    def __init__(self, q_um2_per_h: float, p_max_um2: float, p0_um2: float | None = None
+                 ) -> None:
+        self.q, self.p_max = q_um2_per_h, p_max_um2
+        self.p0 = p_max_um2 if p0_um2 is None else min(p0_um2, p_max_um2)
+        self.reset()
+
+    def reset(self) -> None:
+        self.b, self.p = 0.0, self.p0
+
+    def propagate(self, dt_h: float) -> None:
+        self.p = min(self.p + self.q * dt_h, self.p_max)
+
+    def offset(self, dt_h: np.ndarray) -> np.ndarray:
+        return np.full(np.shape(dt_h), self.b)
+
+    def variance(self) -> float:
+        return self.p
+
+    def update(self, innovation: float, r: float) -> None:
+        k = self.p / (self.p + r)
+        self.b += k * innovation
+        self.p = (1.0 - k) * self.p
+
+
+class BiasRateKalman(Estimator):
+    """Bias and rate (um/h), a constant-velocity Kalman filter."""
+
+    def __init__(self, q_um2_per_h: float, p_max_um2: float, p0_um2: float | None = None,
+                 q_rate: float | None = None) -> None:
+        self.q, self.p_max = q_um2_per_h, p_max_um2
+        self.p0 = p_max_um2 if p0_um2 is None else min(p0_um2, p_max_um2)
+        self.q_rate = q_um2_per_h if q_rate is None else q_rate  # (um/h)^2 per hour
+        self.reset()
+
+    def reset(self) -> None:
+        self.x = np.zeros(2)
+        # the rate a priori: what the bias could reach in an hour at the cap
+        self.P = np.diag([self.p0, self.p_max])
+
+    def propagate(self, dt_h: float) -> None:
+        F = np.array([[1.0, dt_h], [0.0, 1.0]])
+        qr = self.q_rate
+        Q = np.array([[self.q * dt_h + qr * dt_h ** 3 / 3, qr * dt_h ** 2 / 2],
+                      [qr * dt_h ** 2 / 2, qr * dt_h]])
+        self.x = F @ self.x
+        self.P = F @ self.P @ F.T + Q
+        if self.P[0, 0] > self.p_max:  # the same cap as the bias alone, both states scaled
+            self.P *= self.p_max / self.P[0, 0]
+
+    def offset(self, dt_h: np.ndarray) -> np.ndarray:
+        return self.x[0] + self.x[1] * np.asarray(dt_h, dtype=float)
+
+    def variance(self) -> float:
+        return float(self.P[0, 0])
+
+    def update(self, innovation: float, r: float) -> None:
+        s = self.P[0, 0] + r
+        k = self.P[:, 0] / s
+        self.x = self.x + k * innovation
+        self.P = self.P - np.outer(k, self.P[0, :])
+
+
+class DiscountedBias(BiasKalman):
+    """b += alpha * innovation: a fixed gain; P (propagated as the Kalman's) is kept only for
+    the gate."""
+
+    def __init__(self, q_um2_per_h: float, p_max_um2: float, p0_um2: float | None = None,
+                 alpha: float = 0.7) -> None:
+        self.alpha = alpha
+        super().__init__(q_um2_per_h, p_max_um2, p0_um2)
+
+    def update(self, innovation: float, r: float) -> None:
+        self.b += self.alpha * innovation
+        self.p = (1.0 - self.alpha) ** 2 * self.p + self.alpha ** 2 * r
+
+
+ESTIMATORS: dict[str, Callable[[ServiceParams], Estimator]] = {
+    "bias": lambda p: BiasKalman(p.q_um2_per_h, p.p_max_um2, p.p0_um2),
+    "bias+rate": lambda p: BiasRateKalman(p.q_um2_per_h, p.p_max_um2, p.p0_um2),
+    "discounted": lambda p: DiscountedBias(p.q_um2_per_h, p.p_max_um2, p.p0_um2),
+}
+DEFAULT_ESTIMATOR = "bias"
+
+
+@dataclass
+class ServiceTrace:
+    """What an estimator did over a run: the correction added at every sample, and per
+    reading its sample, innovation and whether the gate accepted it."""
+
+    correction: np.ndarray
+    index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    innovation: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    accepted: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    @property
+    def refused(self) -> int:
+        return int(np.count_nonzero(~self.accepted))
+
+
+def run_estimator(est: Estimator, gate: Gate, r_um2: float, prediction: np.ndarray,
+                  time_s: np.ndarray, index: np.ndarray, value: np.ndarray) -> ServiceTrace:
+    """Run ``est`` over one run: ``prediction`` is the model's output (referenced as the box
+    outputs it), readings ``value`` at samples ``index`` (increasing)."""
+    prediction = np.asarray(prediction, dtype=float)
+    t_h = (np.asarray(time_s, dtype=float) - float(time_s[0])) / 3600.0
+    n = prediction.size
+    est.reset()
+    corr = np.zeros(n)
+    t_state, start = 0.0, 0
+    nus, oks = [], []
+    order = np.argsort(index, kind="stable")
+    for k, z in zip(np.asarray(index)[order], np.asarray(value, dtype=float)[order],
+                    strict=True):
+        k = int(k)
+        corr[start:k + 1] = est.offset(t_h[start:k + 1] - t_state)
+        est.propagate(t_h[k] - t_state)
+        t_state = t_h[k]
+        nu = float(z - (prediction[k] + est.offset(np.zeros(1))[0]))
+        ok = gate.accepts(nu, est.variance() + r_um2)
+        if ok:
+            est.update(nu, r_um2)
+        nus.append(nu)
+        oks.append(ok)
+        start = max(start, k + 1)
+    corr[start:] = est.offset(t_h[start:] - t_state)
+    return ServiceTrace(corr, np.asarray(index)[order].astype(int), np.asarray(nus, dtype=float),
+                        np.asarray(oks, dtype=bool))

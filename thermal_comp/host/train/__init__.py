@@ -1,0 +1,47 @@
+"""The training pipeline: selection, the channel budget, effects, one refit; the model dict.
+"""
+
+from __future__ import annotations
+
+from thermal_comp.host.train.next_day import DEFAULT_FIT, FITS
+from thermal_comp.host.train.pipeline import (
+    DEFAULT_REFERENCE,
+    TrainingError,
+    axis_with_effects,
+    train_model,
+)
+from thermal_comp.host.train.ranges import (
+    TOLERANCE_SHARE,
+    describe,
+    input_units,
+    outside_training,
+    training_ranges,
+)
+from thermal_comp.host.train.summary import (
+    axis_sensors,
+    box_effects_evidence,
+    box_model_note,
+    dropped_reason,
+    ridge_lags_note,
+    summary,
+)
+
+__all__ = [
+    "box_effects_evidence",
+    "box_model_note",
+    "dropped_reason",
+    "ridge_lags_note",
+    "DEFAULT_FIT",
+    "FITS",
+    "DEFAULT_REFERENCE",
+    "TOLERANCE_SHARE",
+    "TrainingError",
+    "axis_sensors",
+    "axis_with_effects",
+    "describe",
+    "input_units",
+    "outside_training",
+    "summary",
+    "train_model",
+    "training_ranges",
+]
