@@ -32,7 +32,7 @@ from thermal_comp.host.fitting import design_matrix
 ROOT = Path(__file__).resolve().parents[2]
 INCLUDE = ROOT / "firmware" / "include"
 RUNTIME = ROOT / "firmware" / "src" / "model_eval.c"
-HARNESS = ROOT / "tests" / "thermal_comp" / "codegen" / "test_codegen_harness.c"
+HARNESS = ROOT / "tests" / "codegen" / "test_codegen_harness.c"
 CFLAGS = ["-std=c11", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 GCC = shutil.which("gcc")
 ARM_GCC = shutil.which("arm-none-eabi-gcc")

@@ -13,7 +13,7 @@ def test_no_firmware_sources_names_what_is_missing(tmp_path, monkeypatch):
     header = tmp_path / "model.h"
     header.write_text("/* no model */\n")
     with pytest.raises(checkout.CheckoutMissing,
-                       match=r"HIL.*missing in .*: firmware/Makefile.*THERMAL_COMP_CHECKOUT"):
+                       match=r"HIL.*has no firmware/Makefile.*THERMAL_COMP_CHECKOUT"):
         build.build_firmware(header, tmp_path / "build")
 
 

@@ -65,11 +65,12 @@ def test_error_table_shows_raw_baseline_box_reduction_and_effects_kept():
 
 def test_outside_a_checkout_the_demo_says_what_it_needs(monkeypatch, tmp_path, capsys):
     import thermal_comp.host.demo as demo
+    from thermal_comp.contract import checkout
 
-    monkeypatch.setattr(demo, "ROOT", tmp_path)  # an installed wheel: no examples, no firmware
+    monkeypatch.setenv(checkout.ENV, str(tmp_path))  # as a wheel: no examples, no firmware
     assert demo.main([]) == 2
     err = capsys.readouterr().err
-    assert "needs a git checkout" in err and "firmware/Makefile" in err
+    assert "needs the project's git checkout" in err and "firmware/Makefile" in err
 
 
 def test_training_line_says_each_reason_once_for_the_effects_the_box_does_not_run():

@@ -34,7 +34,7 @@ def require(what: str, *parts: str) -> Path:
     missing = [p for p in parts if not (base / p).exists()]
     if missing:
         raise CheckoutMissing(
-            f"{what} needs the project's git checkout (missing in {base}: {', '.join(missing)}); "
-            f"the installed package carries the Python tools only. Run it from a checkout, or "
+            f"{what} needs the project's git checkout, and {base} has no {', '.join(missing)}. "
+            f"The installed package carries the Python tools only: run it from a checkout, or "
             f"set {ENV} to one.")
     return base

@@ -11,7 +11,7 @@ import json
 import sys
 
 from thermal_comp.contract.tilt import unit_of
-from thermal_comp.hil.build import BuildError
+from thermal_comp.hil.build import BuildError, firmware_dir
 from thermal_comp.hil.checks import Judging, ReplayReport, write_box_csv
 from thermal_comp.hil.link import LinkTimeout
 from thermal_comp.hil.native import BoxStartError
@@ -164,6 +164,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         v = getattr(args, name)
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"--{name.replace('_', '-')} {v:g} must be between 0 and 1")
+    firmware_dir()  # the box's sources and box_config.h are the checkout's: say so first
     setup = hil_replay.prepare(args.model, args.data, args.build_dir, args.box_cflags,
                                args.firmware, zero_at_powerup=args.zero_at_powerup,
                                reference=args.reference)
