@@ -31,6 +31,7 @@ from thermal_comp.host.train import (
     train_model,
 )
 from thermal_comp.host.train.next_day import promise_rule
+from thermal_comp.host.train.service_refit import load_service_logs, refit_on_probes
 
 NAME = "train"
 HELP = "select sensors (paper 000), fit and validate the thermal model; write model.json"
@@ -140,6 +141,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "(default 1: this process only; forked workers pay only on an "
                              "idle machine and each adds its memory); the model is the same "
                              "whatever N")
+    parser.add_argument("--service", nargs="+", action="extend", default=[], metavar="LOG.csv",
+                        help="service logs (host fleet export, or runs with the box's channels "
+                        "and sparse probe_<axis> columns): the trained terms' coefficients are "
+                        "refitted to their probe readings (docs/service.md)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -302,6 +307,9 @@ def run(args: argparse.Namespace) -> int:
                         fill_channels=not args.no_fill_channels, tilts=args.tilt,
                         bending=args.bending, prefilter_s=args.prefilter_s, jobs=args.jobs,
                         quiet=args.json)
+    if args.service:
+        logs = load_service_logs(args.service, model, args.fill_gaps, csv_format(args))
+        model = refit_on_probes(model, runs, logs)
     out = Path(args.out)
     model_path = out / "model.json"
     header = None
