@@ -144,7 +144,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--service", nargs="+", action="extend", default=[], metavar="LOG.csv",
                         help="service logs (host fleet export, or runs with the box's channels "
                         "and sparse probe_<axis> columns): the trained terms' coefficients are "
-                        "refitted to their probe readings (docs/service.md)")
+                        "refitted to their probe readings if held-out logs gain 5 %%; opt-in, "
+                        "neutral on the simulator so far (docs/service.md)")
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
