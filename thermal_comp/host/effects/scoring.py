@@ -247,7 +247,7 @@ class GramScorer(FoldGram):
         (``full_beta``: ``beta(cols)``, if known)."""
         pos = np.array([list(cols).index(c) + 1 for c in new])
         nz = np.array([c + 1 for c in new])
-        C = self.M[np.ix_(nz, nz)] / self.n  # covariance of the (centred) new columns
+        C = self.M[nz[:, None], nz] / self.n  # covariance of the (centred) new columns
         full = (self.beta(cols) if full_beta is None else full_beta)[pos]
         size = math.sqrt(max(float(full @ C @ full), 0.0))
         if not size > 0:
@@ -259,7 +259,7 @@ class GramScorer(FoldGram):
         active = []
         for Mf, nf in zip(self.M_f, self.n_f, strict=True):
             mean = float(Mf[0, nz] @ full) / nf
-            var = float(full @ Mf[np.ix_(nz, nz)] @ full) / nf - mean * mean
+            var = float(full @ Mf[nz[:, None], nz] @ full) / nf - mean * mean
             active.append(math.sqrt(max(var, 0.0)) >= ACTIVE_SHARE * size)
         scored.fold_active = np.array(active)
 
@@ -271,9 +271,9 @@ class GramScorer(FoldGram):
         z = np.array([c + 1 for c in new], dtype=int)
         G = self.M
         if P is None:
-            P = solve_normal(G[np.ix_(b, b)], G[np.ix_(b, z)])
+            P = solve_normal(G[b[:, None], b], G[b[:, None], z])
         zr = q[z] - P.T @ q[b]
-        zz = G[np.ix_(z, z)] - G[np.ix_(z, b)] @ P
+        zz = G[z[:, None], z] - G[z[:, None], b] @ P
         rr = float(residual @ residual) - residual.size * float(residual.mean()) ** 2
         if rr <= 0:
             return 0.0
@@ -322,7 +322,7 @@ class GramScorer(FoldGram):
         """For each of ``news``, ``partial_correlation``'s projection of those columns on the
         base columns (one stacked solve per count of new columns, see ``score_many``)."""
         b = self.index(base)
-        Gbb = self.M[np.ix_(b, b)]
+        Gbb = self.M[b[:, None], b]
         out: list[np.ndarray | None] = [None] * len(news)
         by_size: dict[int, list[int]] = {}
         for k, new in enumerate(news):

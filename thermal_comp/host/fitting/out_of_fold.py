@@ -166,12 +166,12 @@ class FoldGram:
     def beta(self, cols: Sequence[int]) -> np.ndarray:
         """Coefficients of the fit on all rows (intercept first)."""
         idx = self.index(cols)
-        return solve_normal(self.M[np.ix_(idx, idx)], self.v[idx])
+        return solve_normal(self.M[idx[:, None], idx], self.v[idx])
 
     def train_rmse(self, cols: Sequence[int]) -> float:
         """RMSE (= residual SD, the intercept centres it) of the fit on all rows."""
         idx = self.index(cols)
-        M, v = self.M[np.ix_(idx, idx)], self.v[idx]
+        M, v = self.M[idx[:, None], idx], self.v[idx]
         beta = solve_normal(M, v)
         sse = self.s - 2 * beta @ v + beta @ M @ beta
         return math.sqrt(max(sse, 0.0) / self.n)
@@ -180,7 +180,7 @@ class FoldGram:
         """(F, m) coefficients of the fit without each fold."""
         idx = self.index(cols)
         Mg = self.M_f[:, idx][:, :, idx]
-        return solve_normal(self.M[np.ix_(idx, idx)] - Mg, self.v[idx] - self.v_f[:, idx])
+        return solve_normal(self.M[idx[:, None], idx] - Mg, self.v[idx] - self.v_f[:, idx])
 
     def fold_sse(self, cols: Sequence[int], betas: np.ndarray | None = None) -> np.ndarray:
         """Squared error of each fold predicted by the fit without it (``betas`` if known)."""
