@@ -4,7 +4,7 @@ a broker restart in the middle, the page fetched while it runs.
     python -m bench fleet             # 200 boxes, 10 minutes (python -m bench fleet --quick: 30 s)
     python -m bench.bench_fleet --boxes 200 --minutes 10 [--db postgresql] [--quick]
 
-Each box is what a gateway is (host.fleet.gateway's Translator and Publisher: its own MQTT
+Each box is what a gateway is (host.fleet's Translator and Publisher: its own MQTT
 connection, last will, QoS 1, retained state) fed with encoded protocol lines instead of a
 serial port. The service is host.fleet.collector into SQLite (or a throw-away PostgreSQL).
 Writes bench/results/fleet.json: boxes, messages, lost, store latency p50/p99 (publish to
@@ -30,8 +30,9 @@ from bench.goal import goal
 from thermal_comp.contract import protocol
 
 if TYPE_CHECKING:  # the fleet's modules need paho; imported when the bench runs
-    from thermal_comp.host.fleet.gateway import Publisher, Translator
     from thermal_comp.host.fleet.localrun import Mosquitto
+    from thermal_comp.host.fleet.publisher import Publisher
+    from thermal_comp.host.fleet.translator import Translator
 
 RESULTS = Path(__file__).parent / "results" / "fleet.json"
 INFO = protocol.Info("1.4.0", "a1b2c3d4", True, 1000, ("dx_um", "dy_um", "dz_um"),
@@ -136,7 +137,8 @@ def bench(boxes: int = 200, seconds: float = 600.0, db: str = "sqlite",
           restart_down_s: float = 3.0, workdir: str | None = None) -> dict:
     """``boxes`` gateways publishing for ``seconds`` through a broker restarted half-way into
     the service: what was lost, how late it was stored, how fast the page came."""
-    from thermal_comp.host.fleet.gateway import Publisher, Translator
+    from thermal_comp.host.fleet.publisher import Publisher
+    from thermal_comp.host.fleet.translator import Translator
 
     logging.basicConfig(level=logging.ERROR)
     work = Path(workdir or tempfile.mkdtemp(prefix="bench-fleet-"))
