@@ -2,7 +2,7 @@
 
 The model is trained as `make train` trains it (sim_constant + sim_step, dx/dy/dz; not
 timed), the report drawn on those two runs and sim_random. In one process, figure by
-figure, the report's own PNG step (host.analysis.plots.save_png: one draw with the
+figure, the report's own PNG step (host.analysis.png.save_png: one draw with the
 figure's constrained layout, the clipped-label check on that drawing, the PNG written from
 its pixels) is timed against ``Figure.savefig`` of a fresh copy of the same figure (what
 drawing it once costs), in alternating order; the PNGs must have the same pixels.
