@@ -34,7 +34,7 @@ TARGET = 0.8  # issue 13: geometric mean of ours / best peer on sim_dev and FL
 
 
 def draw(cases: Sequence[CaseResult], summary: dict) -> Figure:
-    """The two panels for the bench's cases and its summary (bench_accuracy.summarise: the
+    """The two panels for the bench's cases and its summary (accuracy_summary.summarise: the
     geometric means and the calibration counts are its numbers, not recomputed here)."""
     fig = Figure(figsize=(12.0, 5.2), layout="constrained")
     left, right = fig.subplots(1, 2, width_ratios=[1, 1.25])

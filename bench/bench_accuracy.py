@@ -59,6 +59,12 @@ timing target of ``host train`` on 64 x 86,400 rows. Writes bench/results/accura
 figure bench/results/accuracy.png (bench.accuracy_figure) and the text table to stdout and
 /tmp/accuracy_latest.txt; progress on stderr.
 
+The bench's parts, one job each: the cases (bench.accuracy_jobs), the one score
+(bench.accuracy_score), the peers (bench.accuracy_peers), the summary (bench.accuracy_summary)
+and its text (bench.accuracy_table); this module trains ours, runs the jobs and writes the
+results. Their names stay reachable here (``bench_accuracy.score``), as the other benches use
+them.
+
     python -m bench accuracy                  # as part of the bench runner (also `make bench`)
     python -m bench.bench_accuracy --source fl --jobs 2   # one source, table only
 """
@@ -73,238 +79,100 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from bench.accuracy_cases import CALIBRATION_FACTOR, PEERS, RESULTS, CaseResult
-from bench.goal import INFO, goal
-from thermal_comp.contract.box import BOX_CHANNELS
+from bench.accuracy_cases import CALIBRATION_FACTOR, OURS, PEERS, RESULTS, ROOT, CaseResult
+from bench.accuracy_jobs import (
+    AUX,
+    BENDING,
+    BENDING_SOURCES,
+    DEV_TARGETS,
+    FL_CYCLE_S,
+    FL_PROBES,
+    FL_STEPS,
+    OTHER_SIM_SEEDS,
+    SHARED,
+    SIM_DEV,
+    SIM_EFFECTS,
+    SIM_SEEDS,
+    SIM_TARGETS,
+    SOURCES,
+    Job,
+    RunSpec,
+    declared_bending,
+    dev_jobs,
+    fl_jobs,
+    fl_next_jobs,
+    manifest_floor,
+    sim_jobs,
+)
+from bench.accuracy_peers import (
+    EXHAUSTIVE_LIMIT,
+    HGB_MAX_ROWS,
+    LAG_TAUS_S,
+    PeerFit,
+    Predictor,
+    fit_peers,
+    inner_folds,
+    peer_features,
+    peer_target,
+    peer_validation,
+    score_peers,
+)
+from bench.accuracy_score import (
+    REF_WINDOW_S,
+    Reference,
+    causal_reference,
+    reference_window,
+    referenced,
+    score,
+)
+from bench.accuracy_summary import (
+    BOOTSTRAP_DRAWS,
+    INTERVAL,
+    LOOP_TOLERANCE,
+    MIN_TRAINING_SETS,
+    against_visible_oracle,
+    clustered_interval,
+    geomean,
+    intervals,
+    per_peer,
+    summarise,
+)
+from bench.accuracy_table import (
+    TARGET_SOURCES,
+    interval_detail,
+    interval_text,
+    summary_rows,
+    table,
+)
+from bench.goal import goal
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path(os.environ.get("THERMAL_SHARED_DATA", ROOT.parent / "shared" / "data"))
-SIM_DEV = SHARED / "sim_dev"
-FL_STEPS = SHARED / "fl_thermal" / "steps.csv"
+__all__ = [  # the bench's face: its own names and those of its parts the other benches use
+    "AUX", "BENDING", "BENDING_SOURCES", "BOOTSTRAP_DRAWS", "CALIBRATION_FACTOR", "DEV_TARGETS",
+    "EXHAUSTIVE_LIMIT", "FL_CYCLE_S", "FL_PROBES", "FL_STEPS", "HGB_MAX_ROWS", "INTERVAL",
+    "LAG_TAUS_S", "LATEST_TXT", "LOOP_TOLERANCE", "MIN_TRAINING_SETS", "OTHER_SIM_SEEDS",
+    "OURS", "PEERS", "REF_WINDOW_S", "RESULTS", "ROOT", "SHARED", "SIM_DEV", "SIM_EFFECTS",
+    "SIM_SEEDS", "SIM_TARGETS", "SOURCES", "TARGET_SOURCES", "CaseResult", "Job", "PeerFit",
+    "Predictor", "Reference", "RunSpec", "against_visible_oracle", "causal_reference",
+    "clustered_interval", "declared_bending", "dev_jobs", "evaluate", "fit_peers", "fl_jobs",
+    "fl_next_jobs", "geomean", "highest_fold", "inner_folds", "interval_detail",
+    "interval_text", "intervals", "jobs_for", "main", "manifest_floor", "ours_models",
+    "peer_features", "peer_target", "peer_validation", "per_peer", "promised",
+    "raw_prediction", "reference_window", "referenced", "run", "run_job", "score",
+    "score_peers", "sim_jobs", "summarise", "summary_rows", "table", "train_kwargs",
+    "train_timing_row",
+]
+
 LATEST_TXT = Path("/tmp/accuracy_latest.txt")
 
-REF_WINDOW_S = 300.0  # the start reference before the project had one: the first 5 min
-LAG_TAUS_S = (600.0, 1800.0, 5400.0)  # first-order lags of every sensor for the lag peers
-EXHAUSTIVE_LIMIT = 60_000  # subsets; C(25,5) = 53,130 runs, C(65,4) = 677,040 is skipped
-SIM_SEEDS = (0, 1, 2)
-# not used to choose the defaults (bench_selection compares selections on 0-4; 3-8 were
-# consulted for variants not taken, docs/lab/next-day.md)
-OTHER_SIM_SEEDS = (3, 4, 5, 6, 7, 8)
-SIM_EFFECTS = ("lag", "ambient", "speed")
-FL_PROBES = [f"ch{i}_um" for i in range(1, 6)]
-FL_CYCLE_S = 8 * 3600.0
-DEV_TARGETS = ["dy_um", "dz_um"]
-SIM_TARGETS = ["dx_um", "dy_um", "dz_um"]
-AUX = ["spindle_rpm"]
-# the simulators' axis a column's front/back difference bends (Y of a vertical machining
-# center: sim_dev's README, "+ toward the column"; host.sim's column_front/column_back); FL's
-# probe directions are not documented, so it declares none
-BENDING = ("dy_um",)
-BENDING_SOURCES = ("sim", "sim_dev", "sim_other")
 
-
-def declared_bending(source: str) -> tuple[str, ...]:
-    """The axes a source's jobs declare bending (train_model(bending=)): one home for it."""
-    return BENDING if source in BENDING_SOURCES else ()
-# ours: "undeclared" is the default without the job's bending axes (the comparison for the
-# declaration; where a job declares none it is the default itself, not trained twice); "no
-# prefilter" is the default with its ridge fitted to the raw rows (host.fitting.prefilter)
-OURS = {"default": {}, "no effects": {"effects": False}, "paper": {"selection": "paper"},
-        "undeclared": {}, "no prefilter": {"prefilter_s": 0.0}}
-HGB_MAX_ROWS = 2000  # gradient boosting fits on every k-th training row beyond this
-SOURCES = ("sim", "sim_dev", "fl", "fl_next", "sim_other")
-TARGET_SOURCES = ("sim_dev", "fl")  # issue 13's <= 0.8 (FL: its cycles held out in turn)
-LOOP_TOLERANCE = 1.05
-INTERVAL = 0.90  # the geometric means' intervals: 5th to 95th percentile
-BOOTSTRAP_DRAWS = 4000
-MIN_TRAINING_SETS = 3  # fewer and a resampled interval says nothing: none is given
-
-
-# --------------------------------------------------------------------------- reference
-
-try:  # the project's start reference (issue 13); the same definition stands in before it
-    from thermal_comp.host.fitting.reference import Reference, causal_reference
-except ImportError:  # pragma: no cover - main before the reference landed
-    Reference = None  # type: ignore[assignment,misc]
-
-    def causal_reference(values: np.ndarray, samples: int) -> np.ndarray:
-        values = np.asarray(values, dtype=float)
-        if values.shape[0] == 0:
-            return values.copy()
-        k = max(1, min(int(samples), values.shape[0]))
-        counts = np.arange(1, k + 1, dtype=float).reshape((-1,) + (1,) * (values.ndim - 1))
-        head = np.cumsum(values[:k], axis=0) / counts
-        return np.concatenate([head, np.repeat(head[-1:], values.shape[0] - k, axis=0)])
-
-
-def reference_window(period_s: float) -> int:
-    """K, the samples of the start reference: the project's (host.fitting.reference), else
-    ``REF_WINDOW_S`` of samples."""
-    if Reference is not None:
-        return int(Reference.of_kind("start").samples)
-    return max(1, int(round(REF_WINDOW_S / period_s)))
-
-
-def referenced(x: np.ndarray, k: int) -> np.ndarray:
-    """``x`` minus its start reference: sample n minus the mean of samples 0..min(n, k-1).
-
-    A series (n,) or columns (n, m) of one run (call it per run); the reference is
-    host.fitting.reference.causal_reference, the one the model and the box use.
-    """
-    x = np.asarray(x, dtype=float)
-    return x - causal_reference(x, k)
-
-
-def score(measured: np.ndarray, predicted: np.ndarray, reference: str, period_s: float) -> float:
-    """Test RMSE (um) of one run, the same for every column (see the module docstring)."""
-    measured = np.asarray(measured, dtype=float)
-    predicted = np.asarray(predicted, dtype=float)
-    if reference == "start":
-        k = reference_window(period_s)
-        err = referenced(predicted, k) - referenced(measured, k)
-    elif reference == "none":
-        err = predicted - measured
-    else:
-        raise ValueError(f"unknown reference {reference!r}")
-    return float(np.sqrt(np.mean(err * err)))
-
-
-# --------------------------------------------------------------------------- cases
-
-@dataclass(frozen=True)
-class RunSpec:
-    """A run to load: a CSV path and optionally a time window [start_s, stop_s)."""
-
-    path: str
-    start_s: float | None = None
-    stop_s: float | None = None
-    label: str = ""
-
-    @property
-    def name(self) -> str:
-        return self.label or Path(self.path).stem
-
-
-@dataclass(frozen=True)
-class Job:
-    """One training set with its test runs: trains every column once per job."""
-
-    source: str  # one of SOURCES
-    group: str  # e.g. "machine11 S1", "S0 LORO machine12: P3 held out", "FL cycle 2 out"
-    train: tuple[RunSpec, ...]
-    test: tuple[RunSpec, ...]
-    targets: tuple[str, ...]
-    reference: str  # "start" or "none"
-    # (case group, one model per target?) per way of training ours on this data; the peers
-    # are fitted once and shared (FL: one probe per model, and all five probes on one box)
-    variants: tuple[tuple[str, bool], ...] = ()
-    bending: tuple[str, ...] = ()  # train_model(bending=): what the user knows of the axes
-
-    def ours_variants(self) -> tuple[tuple[str, bool], ...]:
-        return self.variants or ((self.group, False),)
-
-
-def sim_jobs(tmp: Path, seeds: Sequence[int] = SIM_SEEDS, source: str = "sim") -> list[Job]:
-    """The project's simulator: write the runs of machines ``seeds`` into ``tmp`` (seconds),
-    one job per machine, under ``source``."""
-    from thermal_comp.host.sim import SimConfig, build_program, simulate, write_simulation
-
-    jobs = []
-    days = (("constant", 0, 8.0, 20.0), ("step", 1, 8.0, 20.0),
-            ("random", 100, 13.0, 21.5), ("sine", 101, 6.0, 22.0))
-    for m in seeds:
-        specs = []
-        for protocol, offset, start_hour, ambient in days:
-            seed = 1000 * m + offset
-            program = build_program(protocol, hours=8.0, cool_hours=8.0, seed=seed)
-            sim = simulate(program, SimConfig(seed=seed, machine_seed=m, effects=SIM_EFFECTS,
-                                              start_hour=start_hour, ambient_c=ambient))
-            path = tmp / f"sim_m{m}_{protocol}.csv"
-            write_simulation(sim, path)
-            specs.append(RunSpec(str(path), label=protocol))
-        jobs.append(Job(source, f"machine {m}", tuple(specs[:2]), tuple(specs[2:]),
-                        tuple(SIM_TARGETS), "start", bending=declared_bending(source)))
-    return jobs
-
-
-def manifest_floor(test_path: str, target: str) -> dict[str, float]:
-    """The sim_dev manifest's oracle and noise floor for one test run and axis (its README:
-    "use the oracle as the floor"); empty where the manifest scores no such run (a training
-    run held out by leave-one-run-out) or the file is not a sim_dev run."""
-    path = Path(test_path)
-    manifest = path.parent / "manifest.json"
-    if not manifest.is_file():
-        return {}
-    axis = target.removesuffix("_um")
-    for scenario in json.loads(manifest.read_text()).get("scenarios", []):
-        scores = scenario.get("rmse_um", {}).get(path.name, {}).get(axis)
-        if scores:
-            out = {"oracle": float(scores["oracle"]), "noise floor": float(scores["noise_floor"])}
-            if "oracle_without_hidden" in scores:
-                out["oracle without hidden"] = float(scores["oracle_without_hidden"])
-            return out
-    return {}
-
-
-def dev_jobs(big: bool = True) -> list[Job]:
-    jobs = []
-    for machine in sorted(p for p in SIM_DEV.glob("machine*") if p.is_dir()):
-        files = sorted(machine.glob("*.csv"))
-        scenarios = sorted({f.name.split("_train_")[0] for f in files if "_train_" in f.name})
-        for sc in scenarios:
-            if sc.startswith("S0_64") and not big:
-                continue
-            train = [f for f in files if f.name.startswith(f"{sc}_train_")]
-            test = [f for f in files if f.name.startswith(f"{sc}_test_")]
-            jobs.append(Job("sim_dev", f"{machine.name} {sc}",
-                            tuple(RunSpec(str(f)) for f in train),
-                            tuple(RunSpec(str(f)) for f in test), tuple(DEV_TARGETS), "start",
-                            bending=declared_bending("sim_dev")))
-        days = [f for f in files if f.name.startswith("S0_") and not f.name.startswith("S0_64")]
-        for held in days:
-            jobs.append(Job("sim_dev", f"{machine.name} S0 LORO",
-                            tuple(RunSpec(str(f)) for f in days if f != held),
-                            (RunSpec(str(held)),), tuple(DEV_TARGETS), "start",
-                            bending=declared_bending("sim_dev")))
-    return jobs
-
-
-def fl_next_jobs() -> list[Job]:
-    """FL_THERMAL the way a shop would use it: the recording so far as one training run, the
-    next 8 h cycle (faster and hotter than any before it) as the unseen day. Trained on
-    cycles 1-2, tested on 3; on 1-3, tested on 4 (the demo's split)."""
-    jobs = []
-    for k in (2, 3):
-        train = RunSpec(str(FL_STEPS), None, k * FL_CYCLE_S, f"cycles 1-{k}")
-        test = RunSpec(str(FL_STEPS), k * FL_CYCLE_S, (k + 1) * FL_CYCLE_S if k < 3 else None,
-                       f"cycle {k + 1}")
-        jobs.append(Job("fl_next", f"FL cycles 1-{k}, next", (train,), (test,),
-                        tuple(FL_PROBES), "none",
-                        ((f"FL next, one probe, cycles 1-{k}", True),
-                         (f"FL next, 5 probes, cycles 1-{k}", False))))
-    return jobs
-
-
-def fl_jobs() -> list[Job]:
-    cuts: list[float | None] = [None, FL_CYCLE_S, 2 * FL_CYCLE_S, 3 * FL_CYCLE_S, None]
-    cycles = [RunSpec(str(FL_STEPS), cuts[i], cuts[i + 1], f"cycle {i + 1}") for i in range(4)]
-    jobs = []
-    for i, held in enumerate(cycles):
-        train = tuple(c for j, c in enumerate(cycles) if j != i)
-        jobs.append(Job("fl", f"FL cycle {i + 1} out", train, (held,), tuple(FL_PROBES), "none",
-                        ((f"FL one probe, cycle {i + 1} out", True),
-                         (f"FL 5 probes, cycle {i + 1} out", False))))
-    return jobs
-
-
-# --------------------------------------------------------------------------- worker
+# --------------------------------------------------------------------------- ours
 
 def _load(spec: RunSpec, targets: Sequence[str]):
     from thermal_comp.host.io import load_run, window
@@ -358,125 +226,6 @@ def raw_prediction(model: dict, run) -> dict[str, np.ndarray]:
         return predict(model, run, reference="none")
     return predict(model, run)
 
-
-def peer_features(run, reference: str, lags: bool) -> np.ndarray:
-    """Temperatures (plus their first-order lags) of one run, referenced at its start."""
-    from thermal_comp.host.fitting import first_order_lag
-
-    X = run.temperatures
-    parts = [X]
-    if lags:
-        for tau in LAG_TAUS_S:
-            alpha = -math.expm1(-run.period_s / tau)
-            parts.append(np.column_stack([first_order_lag(X[:, j], alpha)
-                                          for j in range(X.shape[1])]))
-    F = np.hstack(parts)
-    return referenced(F, reference_window(run.period_s)) if reference == "start" else F
-
-
-def peer_target(run, target: str, reference: str) -> np.ndarray:
-    y = run.target(target)
-    return referenced(y, reference_window(run.period_s)) if reference == "start" else y
-
-
-Predictor = Callable[[np.ndarray], np.ndarray]
-
-
-@dataclass
-class PeerFit:
-    """A fitted peer: its prediction from the features (None when skipped), whether it reads
-    the lag features, the thermocouples it reads and a note."""
-
-    predict: Predictor | None
-    lags: bool = False
-    n_sensors: int = 0
-    note: str = ""
-
-
-def fit_peers(X: np.ndarray, XL: np.ndarray, y: np.ndarray, folds: np.ndarray,
-              exhaustive_limit: int = EXHAUSTIVE_LIMIT) -> dict[str, PeerFit]:
-    """Every peer fitted on the training features (``XL``: the sensors, then their lags)."""
-    from sklearn.ensemble import HistGradientBoostingRegressor
-    from sklearn.feature_selection import SequentialFeatureSelector
-    from sklearn.linear_model import LassoCV, LinearRegression, RidgeCV
-    from sklearn.model_selection import PredefinedSplit
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
-
-    from thermal_comp.host.analysis.compare import best_subset
-    from thermal_comp.host.selection import pearson_r
-
-    cv = PredefinedSplit(folds)
-    n = X.shape[1]
-    out: dict[str, PeerFit] = {}
-
-    def ols(cols: Sequence[int], note: str = "") -> PeerFit:
-        idx = [int(i) for i in cols]
-        fit = LinearRegression().fit(X[:, idx], y)
-        return PeerFit(lambda F: fit.predict(F[:, idx]), False, len(idx), note)
-
-    def sensors_of(coef: np.ndarray) -> int:  # lag feature j belongs to sensor j % n
-        return int(np.unique(np.flatnonzero(np.abs(coef) > 0) % n).size)
-
-    out["OLS all"] = ols(range(n))
-    order = np.argsort(-np.abs(pearson_r(X, y)), kind="stable")
-    out["top-4 |r|"] = ols(order[:4])
-    for k in (4, 5):
-        if k >= n:
-            out[f"SFS-{k}"] = out[f"best-{k}"] = PeerFit(None, note="skipped: k >= sensors")
-            continue
-        sfs = SequentialFeatureSelector(LinearRegression(), n_features_to_select=k,
-                                        direction="forward", cv=cv,
-                                        scoring="neg_root_mean_squared_error").fit(X, y)
-        out[f"SFS-{k}"] = ols(np.flatnonzero(sfs.get_support()))
-        subsets = math.comb(n, k)
-        if subsets <= exhaustive_limit:
-            out[f"best-{k}"] = ols(best_subset(X, y, k), f"{subsets} subsets")
-        else:
-            out[f"best-{k}"] = PeerFit(None, note=f"skipped: C({n},{k}) = {subsets} subsets")
-    lasso = make_pipeline(StandardScaler(), LassoCV(cv=cv, max_iter=20000)).fit(X, y)
-    out["LassoCV"] = PeerFit(lasso.predict, False, sensors_of(lasso[-1].coef_))
-    ridge = make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 4, 15), cv=cv)
-                          ).fit(XL, y)
-    out["ridge+lags"] = PeerFit(ridge.predict, True, n, f"alpha {ridge[-1].alpha_:.3g}")
-    lasso_l = make_pipeline(StandardScaler(), LassoCV(cv=cv, max_iter=20000)).fit(XL, y)
-    out["lasso+lags"] = PeerFit(lasso_l.predict, True, sensors_of(lasso_l[-1].coef_),
-                                f"{int(np.count_nonzero(lasso_l[-1].coef_))} of {XL.shape[1]} "
-                                "features")
-    step = max(1, X.shape[0] // HGB_MAX_ROWS)  # smooth thermal data: thinning costs little
-    hgb = HistGradientBoostingRegressor(random_state=0).fit(X[::step], y[::step])
-    out["HGB"] = PeerFit(hgb.predict, False, n,
-                         f"every {step}. training row" if step > 1 else "")
-    return out
-
-
-def inner_folds(groups: np.ndarray) -> np.ndarray:
-    """The folds a peer chooses its own settings on inside one training fold: the groups
-    left, numbered 0..k-1, or three contiguous blocks when only one group is left."""
-    ids, inner = np.unique(groups, return_inverse=True)
-    if ids.size >= 2:
-        return inner
-    n = groups.size
-    return np.minimum(np.arange(n) * 3 // max(n, 1), 2)
-
-
-def peer_validation(X: np.ndarray, XL: np.ndarray, y: np.ndarray, folds: np.ndarray,
-                    exhaustive_limit: int = EXHAUSTIVE_LIMIT) -> dict[str, float]:
-    """Each peer's out-of-fold RMSE on the training data: the whole peer (its subset,
-    penalty or trees too) refitted without each fold, that fold predicted. NaN for a peer
-    that is skipped (too many subsets, k >= sensors)."""
-    sse: dict[str, float] = {}
-    for fold in np.unique(folds):
-        keep = folds != fold
-        fits = fit_peers(X[keep], XL[keep], y[keep], inner_folds(folds[keep]),
-                         exhaustive_limit)
-        for peer, fit in fits.items():
-            if fit.predict is None:
-                sse[peer] = math.nan
-                continue
-            pred = fit.predict((XL if fit.lags else X)[~keep])
-            sse[peer] = sse.get(peer, 0.0) + float(np.sum((y[~keep] - pred) ** 2))
-    return {peer: math.sqrt(v / len(y)) for peer, v in sse.items()}
 
 
 _FOLD_JOBS: int | None = None  # train_model(jobs=): 1 in a pool of several workers
@@ -570,304 +319,8 @@ def run_job(job: Job) -> tuple[list[dict], dict]:
     return [asdict(c) for c in cases.values()], {"group": job.group, **timings}
 
 
-def score_peers(job: Job, train: list, test: list, cases: dict) -> None:
-    """Fit every peer on ``job``'s training runs and score it on each test run, into
-    ``cases`` ((variant, test name, target) -> CaseResult; bench.quick_accuracy's baseline
-    uses it too)."""
-    from thermal_comp.host.fitting import fold_groups
 
-    period = train[0].period_s
-    folds, _ = fold_groups(train)
-    X = np.vstack([peer_features(r, job.reference, False) for r in train])
-    XL = np.vstack([peer_features(r, job.reference, True) for r in train])
-    tests = [(s, peer_features(r, job.reference, False), peer_features(r, job.reference, True), r)
-             for s, r in test]
-    for t in job.targets:
-        y = np.concatenate([peer_target(r, t, job.reference) for r in train])
-        validation = peer_validation(X, XL, y, folds)
-        for peer, fit in fit_peers(X, XL, y, folds).items():
-            for s, F, FL, run in tests:
-                err = math.nan if fit.predict is None else \
-                    score(run.target(t), fit.predict(FL if fit.lags else F), job.reference,
-                          period)
-                for variant, _ in job.ours_variants():
-                    case = cases[(variant, s.name, t)]
-                    case.rmse_um[peer] = err
-                    case.peer_sensors[peer] = fit.n_sensors
-                    case.peer_validation_um[peer] = validation[peer]
-                    if fit.note:
-                        case.notes[peer] = fit.note
-
-
-# --------------------------------------------------------------------------- summary
-
-def geomean(values: Sequence[float]) -> float:
-    v = np.array([x for x in values if x > 0 and math.isfinite(x)])
-    return float(np.exp(np.mean(np.log(v)))) if v.size else math.nan
-
-
-def clustered_interval(cases: Sequence[CaseResult], ratio: Callable[[CaseResult], float],
-                       level: float = INTERVAL, draws: int = BOOTSTRAP_DRAWS,
-                       seed: int = 0) -> tuple[float, float]:
-    """Percentile interval of the geometric mean of ``ratio`` over ``cases`` when whole
-    training sets are drawn again with replacement (a cluster bootstrap, seeded).
-
-    The cases of one training set share its models and are not independent: the project
-    simulator's 18 cases are 3 machines, FL's 40 are 4 held-out cycles. Resampling single
-    cases would give intervals as if there were 18 or 40 independent draws. NaN, NaN with
-    fewer than MIN_TRAINING_SETS training sets."""
-    units: dict[str, list[float]] = {}
-    for c in cases:
-        r = ratio(c)
-        if r > 0 and math.isfinite(r):
-            units.setdefault(c.cluster, []).append(math.log(r))
-    if len(units) < MIN_TRAINING_SETS:
-        return math.nan, math.nan
-    sums = np.array([sum(v) for v in units.values()])
-    counts = np.array([len(v) for v in units.values()])
-    pick = np.random.default_rng(seed).integers(0, len(units), (draws, len(units)))
-    means = np.exp(sums[pick].sum(axis=1) / counts[pick].sum(axis=1))
-    tail = (1 - level) / 2
-    return float(np.quantile(means, tail)), float(np.quantile(means, 1 - tail))
-
-
-def intervals(cs: list[CaseResult]) -> dict:
-    """The target's ratio, the loop (default / no effects) and ours against paper 000's
-    method (default / paper), each a geometric mean with its clustered_interval."""
-    def over(column: str) -> Callable[[CaseResult], float]:
-        return lambda c: c.rmse_um["default"] / c.rmse_um.get(column, math.nan)
-
-    ratios: dict[str, Callable[[CaseResult], float]] = {
-        "default / best peer": lambda c: c.ratio(),
-        "default / no effects": over("no effects"), "default / paper": over("paper")}
-    return {"training sets": len({c.cluster for c in cs}),
-            **{name: {"geomean": geomean([f(c) for c in cs]),
-                      "interval": list(clustered_interval(cs, f))}
-               for name, f in ratios.items()}}
-
-
-def per_peer(cs: list[CaseResult]) -> dict:
-    """Ours against each peer method on its own, and the strongest single method.
-
-    The best peer per case is picked after seeing the test run, from ten methods; no method
-    can do that. The strongest single method (the lowest geometric mean of its error / the
-    best per case) is the bar a shop could actually pick, and how far it is from the best per
-    case is what picking after the fact is worth. A case a peer skipped (too many subsets)
-    is left out of that peer's means.
-    """
-    ours = {p: geomean([c.rmse_um["default"] / c.rmse_um.get(p, math.nan) for c in cs])
-            for p in PEERS}
-    to_best = {p: geomean([c.rmse_um.get(p, math.nan) / c.best_peer[1] for c in cs])
-               for p in PEERS}
-    scored = [p for p in PEERS if math.isfinite(to_best[p])]
-    strongest = min(scored, key=to_best.__getitem__) if scored else ""
-    return {"geomean default / each peer": ours,
-            "geomean each peer / best peer": to_best,
-            "strongest single peer": strongest,
-            "geomean default / strongest single peer": ours.get(strongest, math.nan),
-            "geomean strongest single peer / best peer": to_best.get(strongest, math.nan)}
-
-
-def against_visible_oracle(cases: list[CaseResult]) -> dict:
-    """Ours, the best peer and the oracle without hidden parts against it and the noise floor
-    (geometric means over ``cases``, all scored by the sim_dev manifest)."""
-    it = [c.floor_um["oracle without hidden"] for c in cases]
-    return {"cases": len(cases),
-            "geomean default / it": geomean(
-                [c.rmse_um["default"] / o for c, o in zip(cases, it, strict=True)]),
-            "geomean best peer / it": geomean(
-                [c.best_peer[1] / o for c, o in zip(cases, it, strict=True)]),
-            "geomean it / noise floor": geomean(
-                [o / c.floor_um["noise floor"] for c, o in zip(cases, it, strict=True)])}
-
-
-def summarise(cases: list[CaseResult]) -> dict:
-    out: dict = {"per_source": {}, "loop_worse": [], "calibration": {}}
-    for source in dict.fromkeys(c.source for c in cases):
-        cs = [c for c in cases if c.source == source]
-        out["per_source"][source] = {
-            "cases": len(cs),
-            **{f"geomean {col} / best peer": geomean([c.ratio(col) for c in cs])
-               for col in OURS},
-            "default within 1.1x of best peer": sum(c.ratio() <= 1.1 for c in cs),
-            "default beats best peer": sum(c.ratio() < 1.0 for c in cs),
-            "geomean default / best peer within the box": geomean([c.box_ratio() for c in cs]),
-            "best peer counts": dict(sorted(
-                {p: sum(c.best_peer[0] == p for c in cs) for p in PEERS}.items(),
-                key=lambda kv: -kv[1])),
-            **{f"geomean {col} / peer picked by validation":
-               geomean([c.validated_ratio(col) for c in cs]) for col in OURS},
-            "peer picked by validation counts": dict(sorted(
-                {p: sum(c.validated_peer[0] == p for c in cs) for p in PEERS}.items(),
-                key=lambda kv: -kv[1])),
-            **per_peer(cs),
-            "intervals": intervals(cs),
-        }
-        floored = [c for c in cs if c.floor_um.get("oracle", 0) > 0]
-        if floored:  # sim_dev: how far from what a model could at best reach
-            out["per_source"][source].update({
-                "cases with an oracle": len(floored),
-                "geomean default / oracle": geomean(
-                    [c.rmse_um["default"] / c.floor_um["oracle"] for c in floored]),
-                "geomean best peer / oracle": geomean(
-                    [c.best_peer[1] / c.floor_um["oracle"] for c in floored]),
-                "geomean oracle / noise floor": geomean(
-                    [c.floor_um["oracle"] / c.floor_um["noise floor"] for c in floored]),
-            })
-        visible = [c for c in cs if c.floor_um.get("oracle without hidden", 0) > 0]
-        if visible:  # per axis: is it the sensors or the model that is short of the floor?
-            out["per_source"][source]["against the oracle without hidden parts"] = {
-                target: against_visible_oracle([c for c in visible if c.target == target])
-                for target in dict.fromkeys(c.target for c in visible)}
-        ratios = [c.rmse_um["default"] / c.promised_um["default"] for c in cs
-                  if c.promised_um.get("default", 0) > 0]
-        out["calibration"][source] = {
-            "cases": len(ratios),
-            "within factor 2": sum(1 / CALIBRATION_FACTOR <= r <= CALIBRATION_FACTOR
-                                   for r in ratios),
-            # the two ways out: the unseen run went worse than promised, or better
-            "optimistic by more than 2": sum(r > CALIBRATION_FACTOR for r in ratios),
-            "pessimistic by more than 2": sum(r < 1 / CALIBRATION_FACTOR for r in ratios),
-            # against the top of the spread: how often the unseen run exceeded every fold
-            "worse than the highest fold": sum(
-                c.rmse_um["default"] > c.highest_fold_um.get("default", math.inf) for c in cs),
-            "worse than twice the highest fold": sum(
-                c.rmse_um["default"] > CALIBRATION_FACTOR * c.highest_fold_um.get(
-                    "default", math.inf) for c in cs),
-            "median test / promised": float(np.median(ratios)) if ratios else math.nan,
-            "max test / promised": float(np.max(ratios)) if ratios else math.nan,
-            # the promise's stated coverage (issue 43; bench.bench_promise calibrates it):
-            # the share of unseen runs at or below it and above twice it
-            "fraction at or below the promise": (float(np.mean(np.array(ratios) <= 1.0))
-                                                 if ratios else math.nan),
-            "fraction above twice the promise": (
-                float(np.mean(np.array(ratios) > CALIBRATION_FACTOR)) if ratios else math.nan),
-        }
-    for c in cases:
-        d, b = c.rmse_um["default"], c.rmse_um["no effects"]
-        if d > LOOP_TOLERANCE * b:
-            out["loop_worse"].append({"source": c.source, "group": c.group, "test": c.test,
-                                      "target": c.target, "default_um": d, "no_effects_um": b,
-                                      "effects": c.effects.get("default", [])})
-    return out
-
-
-def interval_text(iv: dict) -> str:
-    """One line: each ratio of ``intervals`` with its interval over the training sets."""
-    def one(name: str) -> str:
-        lo, hi = iv[name]["interval"]
-        span = f" ({lo:.3f}-{hi:.3f})" if math.isfinite(lo) else " (no interval)"
-        return f"{name} {iv[name]['geomean']:.3f}{span}"
-    return (f"{100 * INTERVAL:.0f} % intervals, whole training sets resampled "
-            f"({iv['training sets']} of them): "
-            + "; ".join(one(n) for n in ("default / best peer", "default / no effects",
-                                         "default / paper")))
-
-
-def _f(x: float, width: int = 6) -> str:
-    return f"{'-':>{width}}" if not math.isfinite(x) else f"{x:{width}.2f}"
-
-
-def table(cases: list[CaseResult], summary: dict, extra_rows: Sequence[dict] = ()) -> str:
-    cols = [*OURS, *PEERS]
-    short = {"default": "deflt", "no effects": "noeff", "paper": "paper", "undeclared": "undcl",
-             "no prefilter": "nopre", "OLS all": "OLS",
-             "top-4 |r|": "top4", "SFS-4": "SFS4", "SFS-5": "SFS5", "LassoCV": "Lasso",
-             "best-4": "best4", "best-5": "best5", "ridge+lags": "ridgeL",
-             "lasso+lags": "lassoL", "HGB": "HGB"}
-    head = (f"{'case':<42} {'axis':<6} {'ref':<5} {'raw':>6} "
-            + " ".join(f"{short[c]:>6}" for c in cols)
-            + f" {'best peer':<11} {'d/peer':>6} {'d/box':>6} {'val. peer':<11} {'d/val':>6}"
-            f" {'promis':>6} {'t/prom':>6}")
-    lines = ["Held-out test RMSE (um); ours = deflt/noeff/paper/undcl/nopre (undcl: the "
-             "default without the bending declaration; nopre: without the ridge's prefilter); "
-             "raw = no compensation; "
-             "d/peer = default / best peer, d/box = default / best peer with <= "
-             f"{BOX_CHANNELS} sensors, val. peer = the peer with the lowest out-of-fold error "
-             "on the training file, d/val = default / it; "
-             "promis = default's metrics.promised_rmse_um (else "
-             "validation_rmse_um), "
-             f"t/prom = test / promised; ours on {' and '.join(BENDING_SOURCES)} with "
-             f"{', '.join(BENDING)} declared a bending axis (train_model(bending=))",
-             head, "-" * len(head)]
-    source = None
-    for c in cases:
-        if c.source != source:
-            source = c.source
-            lines.append(f"[{source}]")
-        name, best, val = f"{c.group}: {c.test}", c.best_peer, c.validated_peer
-        prom = c.promised_um.get("default", math.nan)
-        lines.append(f"{name[:42]:<42} {c.target.removesuffix('_um'):<6} {c.reference:<5} "
-                     f"{_f(c.raw_um)} "
-                     + " ".join(_f(c.rmse_um.get(col, math.nan)) for col in cols)
-                     + f" {best[0]:<11} {_f(c.ratio())} {_f(c.box_ratio())} {val[0]:<11} "
-                     f"{_f(c.validated_ratio())} {_f(prom)} "
-                     f"{_f(c.rmse_um['default'] / prom if prom > 0 else math.nan)}")
-    lines.append("")
-    lines.append("Summary (geometric mean of ours / best peer per case; target <= 0.8 on "
-                 "sim_dev and FL)")
-    for source, s in summary["per_source"].items():
-        lines.append(f"  {source:<8} {s['cases']:>3} cases: "
-                     + ", ".join(f"{col} {s[f'geomean {col} / best peer']:.3f}" for col in OURS)
-                     + f"; default within 1.1x of best peer in "
-                     f"{s['default within 1.1x of best peer']}, beats it in "
-                     f"{s['default beats best peer']}; default / best peer the box can run "
-                     f"(<= {BOX_CHANNELS} sensors) "
-                     f"{s['geomean default / best peer within the box']:.3f}")
-        lines.append("           " + interval_text(s["intervals"]))
-        lines.append("           best peer: " + ", ".join(
-            f"{p} {n}" for p, n in s["best peer counts"].items() if n))
-        lines.append("           ours / the peer picked by validation on the training file: "
-                     + ", ".join(f"{col} {s[f'geomean {col} / peer picked by validation']:.3f}"
-                                 for col in OURS)
-                     + "; picked: " + ", ".join(
-                         f"{p} {n}" for p, n in s["peer picked by validation counts"].items()
-                         if n))
-        lines.append("           ours / each peer on its own: " + ", ".join(
-            f"{p} {v:.3f}" for p, v in s["geomean default / each peer"].items()
-            if math.isfinite(v)))
-        lines.append(f"           the strongest single peer, {s['strongest single peer']}, is "
-                     f"{s['geomean strongest single peer / best peer']:.3f}x the best per "
-                     f"case; ours / it {s['geomean default / strongest single peer']:.3f}")
-        if "geomean default / oracle" in s:
-            lines.append(f"           against the manifest's oracle (the floor, on "
-                         f"{s['cases with an oracle']} cases): default "
-                         f"{s['geomean default / oracle']:.2f}x, best peer "
-                         f"{s['geomean best peer / oracle']:.2f}x; the oracle is "
-                         f"{s['geomean oracle / noise floor']:.2f}x the probe noise floor")
-        for target, v in s.get("against the oracle without hidden parts", {}).items():
-            lines.append(f"           {target} against the oracle without hidden parts "
-                         f"(perfect sensors on every measurable node, {v['cases']} cases): "
-                         f"default {v['geomean default / it']:.2f}x, best peer "
-                         f"{v['geomean best peer / it']:.2f}x; it is "
-                         f"{v['geomean it / noise floor']:.2f}x the probe noise floor")
-    worse = summary["loop_worse"]
-    lines.append(f"The loop (default vs effects=False): worse by more than "
-                 f"{100 * (LOOP_TOLERANCE - 1):.0f} % in {len(worse)} of {len(cases)} cases")
-    for w in worse:
-        lines.append(f"  {w['source']} {w['group']}: {w['test']} {w['target']}: "
-                     f"{w['no_effects_um']:.2f} -> {w['default_um']:.2f} um; effects: "
-                     f"{', '.join(w['effects']) or 'none kept'}")
-    lines.append("Calibration (default: test RMSE / the RMSE host train promised; the "
-                 "promise states 80 % at or below it, bench.bench_promise)")
-    lines.append(f"  {'source':<10} {'cases':>5} {'<= promise':>10} {'> 2x promise':>12}")
-    for source, s in summary["calibration"].items():
-        lines.append(f"  {source:<10} {s['cases']:>5} "
-                     f"{100 * s.get('fraction at or below the promise', math.nan):>9.0f}% "
-                     f"{100 * s.get('fraction above twice the promise', math.nan):>11.0f}%")
-    for source, s in summary["calibration"].items():
-        lines.append(f"  {source:<8} within a factor 2 in {s['within factor 2']} of "
-                     f"{s['cases']} (the test worse by more than 2x in "
-                     f"{s['optimistic by more than 2']}, better in "
-                     f"{s['pessimistic by more than 2']}); median ratio "
-                     f"{s['median test / promised']:.2f}, max {s['max test / promised']:.2f};"
-                     f" worse than the highest fold in {s['worse than the highest fold']}, "
-                     f"than twice it in {s['worse than twice the highest fold']}")
-    for r in extra_rows:
-        lines.append(f"  {r['name']}: {r['value']:.3g} {r['unit']} (target {r.get('target', '')})"
-                     f" {r.get('detail', '')}")
-    return "\n".join(lines)
-
+# --------------------------------------------------------------------------- the run
 
 def train_timing_row() -> dict:
     """`host train` with defaults on 64 sensors x 86,400 rows in a fresh process (issue 2's
@@ -965,66 +418,6 @@ def run() -> list[dict]:
     print(text, flush=True)
     _write(cases, summary, timings, extra, text)
     return summary_rows(summary, len(cases)) + extra
-
-
-def interval_detail(iv: dict, name: str = "default / best peer") -> str:
-    lo, hi = iv[name]["interval"]
-    if not math.isfinite(lo):
-        return f"no interval ({iv['training sets']} training sets)"
-    return (f"{100 * INTERVAL:.0f} % interval {lo:.3f}-{hi:.3f} over "
-            f"{iv['training sets']} training sets")
-
-
-def summary_rows(summary: dict, n_cases: int) -> list[dict]:
-    """The bench runner's rows (its table and bench.json) from the summary."""
-    rows = []
-    for source, s in summary["per_source"].items():
-        rows.append({"name": f"{source}: geomean default / best peer",
-                     "value": s["geomean default / best peer"], "unit": "ratio",
-                     "target": "<= 0.8" if source in TARGET_SOURCES else "",
-                     "goal": goal("<=", 0.8) if source in TARGET_SOURCES else INFO,
-                     "detail": f"{s['cases']} cases; " + interval_detail(s["intervals"])})
-        loop = s["intervals"]["default / no effects"]
-        rows.append({"name": f"{source}: geomean default / no effects (the loop)",
-                     "value": loop["geomean"], "unit": "ratio", "goal": INFO,
-                     "detail": interval_detail(s["intervals"], "default / no effects")})
-        rows.append({"name": f"{source}: geomean default / strongest single peer",
-                     "value": s["geomean default / strongest single peer"], "unit": "ratio",
-                     "goal": INFO,
-                     "detail": f"{s['strongest single peer']}, itself "
-                     f"{s['geomean strongest single peer / best peer']:.2f}x the best per case"})
-        rows.append({"name": f"{source}: geomean default / peer picked by validation",
-                     "value": s["geomean default / peer picked by validation"],
-                     "unit": "ratio", "goal": INFO,
-                     "detail": "the peer with the lowest out-of-fold error "
-                     "on the training file"})
-        if "geomean default / oracle" in s:
-            rows.append({"name": f"{source}: geomean default / its manifest's oracle",
-                         "value": s["geomean default / oracle"], "unit": "ratio", "goal": INFO,
-                         "detail": f"best peer {s['geomean best peer / oracle']:.2f}x; "
-                         f"{s['cases with an oracle']} cases"})
-        for target, v in s.get("against the oracle without hidden parts", {}).items():
-            rows.append({"name": f"{source}: geomean default / oracle without hidden, {target}",
-                         "value": v["geomean default / it"], "unit": "ratio", "goal": INFO,
-                         "detail": f"best peer {v['geomean best peer / it']:.2f}x; perfect "
-                         f"sensors on every measurable node; {v['cases']} cases"})
-        cal = summary["calibration"][source]
-        rows.append({"name": f"{source}: promised error within 2x of test", "value":
-                     cal["within factor 2"], "unit": f"of {cal['cases']}", "goal": INFO,
-                     "detail": f"test worse by > 2x in {cal['optimistic by more than 2']}, "
-                     f"better in {cal['pessimistic by more than 2']}; median test / promised "
-                     f"{cal['median test / promised']:.2f}; worse than twice the highest "
-                     f"fold in {cal['worse than twice the highest fold']}"})
-        rows.append({"name": f"{source}: test at or below the promise", "value":
-                     cal.get("fraction at or below the promise", math.nan), "unit": "fraction",
-                     "target": ">= 0.8", "goal": goal(">=", 0.8),
-                     "detail": "above twice it: "
-                     f"{cal.get('fraction above twice the promise', math.nan):.2f} "
-                     "(target <= 0.05)"})
-    rows.append({"name": "loop worse than its baseline by > 5 %",
-                 "value": len(summary["loop_worse"]), "unit": f"of {n_cases}",
-                 "target": "0", "goal": goal("==", 0)})
-    return rows
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -2,7 +2,7 @@
 
 The model is trained as `make train` trains it (sim_constant + sim_step, dx/dy/dz; not
 timed), the report drawn on those two runs and sim_random. In one process, figure by
-figure, the report's own PNG step (host.analysis.plots.save_png: one draw with the
+figure, the report's own PNG step (host.analysis.png.save_png: one draw with the
 figure's constrained layout, the clipped-label check on that drawing, the PNG written from
 its pixels) is timed against ``Figure.savefig`` of a fresh copy of the same figure (what
 drawing it once costs), in alternating order; the PNGs must have the same pixels.
@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -44,50 +45,56 @@ def _train(out: Path) -> Path:
     return out / "model.json"
 
 
-def paired(model: Path, out: Path) -> dict:
-    """build_report with each figure's PNG step timed against savefig of a fresh copy."""
-    from matplotlib import image
+class PairedSave:
+    """The report's PNG step (``save``, host.analysis.report's) in place of it, each figure
+    timed against savefig of a fresh copy, in alternating order, and their pixels compared.
 
-    import thermal_comp.host.analysis.report as rep
+    ``remember`` wraps each figure function so the copy can be made again from its last
+    arguments; ``totals`` holds the seconds of each part, the figures and those that differ.
+    """
 
-    last: dict = {}
-    totals = {"report": 0.0, "savefig": 0.0, "layout": 0.0, "copies": 0.0, "figures": 0,
-              "differ": 0}
+    def __init__(self, save: Callable, dpi: float) -> None:
+        self.save = save
+        self.dpi = dpi
+        self.again: Callable | None = None
+        self.totals: dict = {"report": 0.0, "savefig": 0.0, "layout": 0.0, "copies": 0.0,
+                             "figures": 0, "differ": 0}
 
-    def remember(make):
+    def remember(self, make: Callable) -> Callable:
         def wrapped(*args):
-            last["again"] = lambda: make(*args)
+            self.again = lambda: make(*args)
             return make(*args)
         return wrapped
 
-    def timed_layout(fig):
+    def _time_layout(self, fig) -> None:
         engine = fig.get_layout_engine()
         execute = engine.execute
 
         def execute_timed(f):
             t0 = time.perf_counter()
             execute(f)
-            totals["layout"] += time.perf_counter() - t0
+            self.totals["layout"] += time.perf_counter() - t0
         engine.execute = execute_timed
 
-    save = rep._save
+    def __call__(self, fig, path):
+        from matplotlib import image
 
-    def save_paired(fig, path):
+        totals = self.totals
         t0 = time.perf_counter()
-        fresh = last["again"]()[0]
+        fresh = self.again()[0]
         totals["copies"] += time.perf_counter() - t0
-        timed_layout(fig)
+        self._time_layout(fig)
         buf = io.BytesIO()
 
         def ours():
             t0 = time.perf_counter()
-            clipped = save(fig, path)
+            clipped = self.save(fig, path)
             totals["report"] += time.perf_counter() - t0
             return clipped
 
         def once():
             t0 = time.perf_counter()
-            fresh.savefig(buf, format="png", dpi=rep.plots.PNG_DPI)
+            fresh.savefig(buf, format="png", dpi=self.dpi)
             totals["savefig"] += time.perf_counter() - t0
 
         if totals["figures"] % 2:
@@ -102,10 +109,18 @@ def paired(model: Path, out: Path) -> dict:
         totals["figures"] += 1
         return clipped
 
+
+def paired(model: Path, out: Path) -> dict:
+    """build_report with each figure's PNG step timed against savefig of a fresh copy."""
+    import thermal_comp.host.analysis.report as rep
+
+    save = rep._save
+    saver = PairedSave(save, rep.plots.PNG_DPI)
+    totals = saver.totals
     figures = dict(rep.FIGURES)
     try:
-        rep.FIGURES.update({k: remember(f) for k, f in figures.items()})
-        rep._save = save_paired
+        rep.FIGURES.update({k: saver.remember(f) for k, f in figures.items()})
+        rep._save = saver
         t0 = time.perf_counter()
         rep.build_report(model, [*TRAIN, TEST], out, quiet=True)
         # the report alone: without the copies made and drawn here for the comparison

@@ -56,7 +56,8 @@ BELOW = {
               "host.fitting", "host.sim", "host.selection", "host.effects", "host.service",
               "host.train", "host.analysis", "host.box", "host.fleet"},
 }
-TOP = ("host.cli", "host.commands", "host.demo", "host.__main__", "host")  # may import any wing
+TOP = ("host.cli", "host.commands", "host.demo", "host.demo_baseline", "host.__main__",
+       "host")  # may import any wing
 UNITS = sorted(BELOW, key=len, reverse=True)
 
 

@@ -32,19 +32,7 @@ def format_table(report: ReplayReport, data: str) -> str:
             if report.elapsed_s else "")
     lines = [f"HIL replay of {data}: {report.samples} samples, {report.received} lines "
              f"received{rate}", ""]
-    head = (f"{'axis':<10} {'raw rms':>9} {'raw peak':>9} {'comp rms':>9} {'comp peak':>10} "
-            f"{'twin diff':>10} {'float diff':>11} {'bound':>9}")
-    units = ("um (urad for a tilt axis)" if any(unit_of(a) == "urad" for a in report.axes)
-             else "um")
-    lines += [head, f"{'':<10} {'um':>9} {'um':>9} {'um':>9} {'um':>10} {'nm':>10} "
-              f"{'um':>11} {'um':>9}" if units == "um" else
-              f"{'':<10} in each axis's unit: {units}; twin diff in thousandths of it",
-              "-" * len(head)]
-    for name, a in report.axes.items():
-        lines.append(f"{name:<10} {_fmt(a.raw_rms_um):>9} {_fmt(a.raw_peak_um):>9} "
-                     f"{_fmt(a.compensated_rms_um):>9} {_fmt(a.compensated_peak_um):>10} "
-                     f"{a.max_abs_diff_nm:>10d} {_fmt(a.float_max_diff_um, 6):>11} "
-                     f"{_fmt(a.bound_um, 6):>9}")
+    lines += axis_lines(report)
     lines += format_service(report)
     lines.append("")
     checks = {k: "PASS" if v else "FAIL" for k, v in report.checks.items()}
@@ -57,30 +45,7 @@ def format_table(report: ReplayReport, data: str) -> str:
                  f"reordered, {report.bad_lines} bad lines)")
     lines.append("4. residuals                      reported above (measured - correction)")
     if report.judging is not None:
-        j, jm = report.judging, report.judgement
-        first = ("held_within_limit", "limited_within_limit", "clamped_within_limit",
-                 "corrected")
-        lines.append(f"6. held, limited, clamped         "
-                     f"{'PASS' if all(jm.get(k, True) for k in first) else 'FAIL'}"
-                     f"  (held {100 * report.held_fraction:.1f} % <= "
-                     f"{100 * j.max_held_fraction:g} %, limited "
-                     f"{100 * report.limited_fraction:.1f} % <= "
-                     f"{100 * j.max_limited_fraction:g} %, clamped "
-                     f"{100 * report.clamped_fraction:.1f} % <= "
-                     f"{100 * j.max_clamped_fraction:g} %, corrected on "
-                     f"{report.corrected_samples} samples)")
-        if "no_worse_than_uncompensated" in jm:
-            worse = report.worse_axes
-            lines.append(f"7. no worse than uncompensated    "
-                         f"{'PASS' if jm['no_worse_than_uncompensated'] else 'FAIL'}"
-                         + (f"  (worse: {', '.join(worse)})" if worse else
-                            "  (compensated RMS and peak <= raw on every measured axis)"))
-        if "steps_within_limit" in jm:
-            steps = ", ".join(f"{name} {_int(a.largest_step_nm)} <= {_int(a.max_step_nm)}"
-                              for name, a in report.axes.items())
-            lines.append(f"8. output steps within limit      "
-                         f"{'PASS' if jm['steps_within_limit'] else 'FAIL'}"
-                         f"  (largest step nm: {steps})")
+        lines += judged_lines(report)
     if report.status_counts:
         lines.append("   status bits the box raised (samples): " + ", ".join(
             f"{k} {v}" for k, v in report.status_counts.items())
@@ -93,6 +58,55 @@ def format_table(report: ReplayReport, data: str) -> str:
         lines += ["", "problems:"] + [f"  {p}" for p in report.problems]
     lines += ["", "RESULT: " + ("PASS" if report.ok else "FAIL")]
     return "\n".join(lines)
+
+
+def axis_lines(report: ReplayReport) -> list[str]:
+    """The per-axis table: raw and compensated error, the twin's and the float model's
+    differences from the firmware, the proven bound; a tilt axis in its own unit."""
+    head = (f"{'axis':<10} {'raw rms':>9} {'raw peak':>9} {'comp rms':>9} {'comp peak':>10} "
+            f"{'twin diff':>10} {'float diff':>11} {'bound':>9}")
+    units = ("um (urad for a tilt axis)" if any(unit_of(a) == "urad" for a in report.axes)
+             else "um")
+    lines = [head, f"{'':<10} {'um':>9} {'um':>9} {'um':>9} {'um':>10} {'nm':>10} "
+             f"{'um':>11} {'um':>9}" if units == "um" else
+             f"{'':<10} in each axis's unit: {units}; twin diff in thousandths of it",
+             "-" * len(head)]
+    for name, a in report.axes.items():
+        lines.append(f"{name:<10} {_fmt(a.raw_rms_um):>9} {_fmt(a.raw_peak_um):>9} "
+                     f"{_fmt(a.compensated_rms_um):>9} {_fmt(a.compensated_peak_um):>10} "
+                     f"{a.max_abs_diff_nm:>10d} {_fmt(a.float_max_diff_um, 6):>11} "
+                     f"{_fmt(a.bound_um, 6):>9}")
+    return lines
+
+
+def judged_lines(report: ReplayReport) -> list[str]:
+    """Checks 6-8, the replay judged (``Judging``: ``--max-held-fraction`` and its kin): held,
+    limited and clamped shares, no worse than uncompensated, the output steps."""
+    j, jm = report.judging, report.judgement
+    first = ("held_within_limit", "limited_within_limit", "clamped_within_limit",
+             "corrected")
+    lines = [f"6. held, limited, clamped         "
+             f"{'PASS' if all(jm.get(k, True) for k in first) else 'FAIL'}"
+             f"  (held {100 * report.held_fraction:.1f} % <= "
+             f"{100 * j.max_held_fraction:g} %, limited "
+             f"{100 * report.limited_fraction:.1f} % <= "
+             f"{100 * j.max_limited_fraction:g} %, clamped "
+             f"{100 * report.clamped_fraction:.1f} % <= "
+             f"{100 * j.max_clamped_fraction:g} %, corrected on "
+             f"{report.corrected_samples} samples)"]
+    if "no_worse_than_uncompensated" in jm:
+        worse = report.worse_axes
+        lines.append(f"7. no worse than uncompensated    "
+                     f"{'PASS' if jm['no_worse_than_uncompensated'] else 'FAIL'}"
+                     + (f"  (worse: {', '.join(worse)})" if worse else
+                        "  (compensated RMS and peak <= raw on every measured axis)"))
+    if "steps_within_limit" in jm:
+        steps = ", ".join(f"{name} {_int(a.largest_step_nm)} <= {_int(a.max_step_nm)}"
+                          for name, a in report.axes.items())
+        lines.append(f"8. output steps within limit      "
+                     f"{'PASS' if jm['steps_within_limit'] else 'FAIL'}"
+                     f"  (largest step nm: {steps})")
+    return lines
 
 
 def build_parser() -> argparse.ArgumentParser:

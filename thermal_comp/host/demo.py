@@ -31,7 +31,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from thermal_comp.contract import checkout
-from thermal_comp.host.train import DEFAULT_FIT, dropped_reason, ridge_lags_note
+from thermal_comp.host.demo_baseline import why_worse_than_baseline, worse_than_baseline
+from thermal_comp.host.train import dropped_reason, ridge_lags_note
 
 ROOT = checkout.root()
 EXAMPLES = Path("examples")
@@ -341,121 +342,6 @@ def effects_on_box(row: dict) -> str:
     if not found:
         return "—"
     return f"{sum(not s.get('dropped') for s in found)} of {len(found)}"
-
-
-FAMILY_WORDS = {  # host.train.next_day.FAMILIES, in words
-    "ols": "least squares on the selected terms with the effects",
-    "baseline": "least squares on the selected sensors' temperatures (the table's baseline)",
-    "ridge": "a ridge over the selected terms, their lags, speed and the free channels, with "
-             "the effects",
-    "ridge-baseline": "a ridge over the selected sensors, their lags, speed and the free "
-                      "channels, without the effects",
-}
-
-
-def _um_list(values: Sequence[float]) -> str:
-    return ", ".join(f"{v:.2f}" for v in values)
-
-
-def worse_than_baseline(row: Mapping) -> bool:
-    """An unseen run on which the box's model leaves more error than the baseline it started
-    from (least squares on the selected sensors' temperatures)."""
-    base = row.get("baseline_rms_um")
-    return (not row.get("in_training", True) and base is not None
-            and row["residual_rms_um"]["our model"] > base)
-
-
-def why_worse_than_baseline(axis: str, row: Mapping, model: Mapping | None,
-                            summary: Mapping, run_name: str) -> list[str]:
-    """The facts model.json and the report hold about why the box's model can lose to its
-    baseline on an unseen run: the family it runs and what chose it, what nested validation
-    said of that family against the baseline before the run was seen, the effects it does not
-    run, the sensors only it reads and which of them this run took beyond their training
-    range, the report's warnings on the fit, and where the figure stands against the promise.
-    Facts, not a verdict: which of them caused the loss is not measured here."""
-    ours = row["residual_rms_um"]["our model"]
-    facts: list[str] = []
-    spec = (model or {}).get("axes", {}).get(axis)
-    if spec is None:
-        return ["model.json for this axis was not at hand: no reason can be given"]
-    fit = spec.get("fit") or {}
-    family, requested = str(fit.get("family") or "ols"), fit.get("requested")
-    what = FAMILY_WORDS.get(family, family)
-    n_terms = len(spec.get("terms", []))
-    if requested == "auto":
-        chosen = "chosen by nested validation (--fit auto: the family with the lowest error)"
-    elif requested is not None:
-        chosen = (f"chosen by --fit {requested}"
-                  + (" (host train's default)" if requested == DEFAULT_FIT else "")
-                  + ", not by nested validation on this axis")
-        if requested == "ridge" and not family.startswith("ridge"):
-            chosen += "; no ridge kept the box's fixed-point bound, so least squares"
-    else:
-        chosen = "a model.json without a fit record (least squares)"
-    facts.append(f"it runs {family}: {what} ({n_terms} terms), {chosen}")
-    nested = fit.get("nested") or {}
-    rms, folds = nested.get("rmse_um") or {}, nested.get("fold_rmse_um") or {}
-    if family in rms and "baseline" in rms and family != "baseline":
-        a, b = rms[family], rms["baseline"]
-        fa, fb = folds.get(family) or [], folds.get("baseline") or []
-        better = sum(x < y for x, y in zip(fb, fa, strict=False))
-        detail = (f"{family} {a:.2f} µm RMS (folds {_um_list(fa)}), the baseline {b:.2f} µm "
-                  f"(folds {_um_list(fb)}), the baseline better in {better} of {len(fa)} "
-                  "folds")
-        best = min(rms, key=lambda f: rms[f])
-        if a > b:
-            facts.append("nested validation (the pipeline refitted without each training "
-                         "fold) had already ranked it behind the baseline: " + detail
-                         + (f"; lowest: {best}, {FAMILY_WORDS.get(best, best)}, "
-                            f"{rms[best]:.2f} µm" if best not in (family, "baseline")
-                            else ""))
-        else:
-            facts.append("nested validation (the pipeline refitted without each training "
-                         "fold) had ranked it ahead of the baseline, so the training folds "
-                         "did not foresee this: " + detail)
-    elif not rms:
-        facts.append("trained without nested validation: model.json holds no out-of-fold "
-                     "comparison with the baseline")
-    dropped: dict[str, list[str]] = {}
-    kept = []
-    for e in spec.get("effects", []):
-        why = dropped_reason(e)
-        if why:
-            dropped.setdefault(why, []).append(e.get("name", "?"))
-        else:
-            kept.append(e.get("name", "?"))
-    for why, names in dropped.items():
-        facts.append(f"the effects the loop found, {', '.join(names)}, are not run: {why}"
-                     + (f" ({spec['effects_rejected']})" if spec.get("effects_rejected")
-                        else ""))
-    if kept:
-        facts.append(f"it runs effects the baseline has not: {', '.join(kept)}")
-    base_sensors = {t["source"] for t in (spec.get("baseline") or {}).get("terms", [])
-                    if "source" in t}
-    free = [s for s in fit.get("free_channels_read") or [] if s not in base_sensors]
-    if free:
-        facts.append(f"it also reads {', '.join(free)} on free channels, which the baseline "
-                     "does not")
-    beyond = [r["input"] for r in (summary.get("outside_training") or {}).get(run_name) or []]
-    if beyond:
-        only_box = [b for b in beyond if b in free]
-        facts.append(f"this run takes {', '.join(beyond)} beyond their training range"
-                     + (f" ({', '.join(only_box)} read by the box's model only)" if only_box
-                        else ""))
-    if fit.get("refilled_without_dropped_effects"):
-        facts.append("its free channels were filled again after its effects were dropped")
-    if fit.get("baseline_not_candidate"):
-        facts.append(f"the baseline was no candidate: {fit['baseline_not_candidate']}")
-    table = next((c for c in summary.get("coefficients") or []
-                  if isinstance(c, Mapping) and c.get("axis") == axis), None)
-    for w in (table or {}).get("warnings") or []:
-        facts.append(f"the report warns '{w.get('name')}': {w.get('text')}")
-    metrics = spec.get("metrics") or {}
-    promised = metrics.get("promised_rmse_um")
-    if promised is not None:
-        facts.append(("still within" if ours <= promised else "ABOVE")
-                     + f" its promise ({metrics.get('promise') or fmt_um(promised)})")
-    return facts
 
 
 def print_error_table(demo: Demo, reports: list[tuple[str, dict]],

@@ -178,16 +178,7 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
     the change since each fold's start and every prediction and measurement is referenced at
     its test run's start (host.fitting.reference)."""
     train_runs, test_runs = list(train_runs), list(test_runs)
-    if not train_runs or not test_runs:
-        raise InputError("compare needs at least one training and one test run")
-    for name in bending:
-        if name not in targets:
-            raise InputError(f"--bending {name}: not among the targets ({', '.join(targets)})")
-    names = train_runs[0].sensor_names
-    for run in test_runs:
-        if run.sensor_names != names:
-            raise InputError(f"{run.path}: sensor columns differ from the training runs")
-    common_period(train_runs + test_runs)  # one period for all, or a clear error
+    names = _check_runs(train_runs, test_runs, targets, bending)
     ref = Reference.of_kind(reference)
     X = np.vstack([r.temperatures for r in train_runs])
     Xt_runs = [r.temperatures for r in test_runs]
@@ -195,42 +186,18 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
     X = ref.apply(X, run_labels(train_runs))
     out: dict = {"train": [r.path for r in train_runs], "test": [r.path for r in test_runs],
                  "validation": scheme, "reference": ref.kind, "axes": {}}
+    settings = dict(max_sensors=max_sensors, groups=groups, max_delay_s=max_delay_s,
+                    n_blocks=n_blocks, seed=seed, reference=reference, nested=False)
     for target in targets:
         y = np.concatenate([ref.apply(r.target(target)) for r in train_runs])
         yt = np.concatenate([ref.apply(r.target(target)) for r in test_runs])
         results: list[MethodResult] = []
         if box_model:
-            t0 = time.perf_counter()
-            model = train_model(train_runs, [target], aux=list(aux), max_sensors=max_sensors,
-                                groups=groups, max_delay_s=max_delay_s, n_blocks=n_blocks,
-                                seed=seed, reference=reference, nested=False,
-                                bending=[target] if target in bending else [])
-            dt = time.perf_counter() - t0
-            pred = np.concatenate([predict(model, r)[target] for r in test_runs])
-            axis = model["axes"][target]
-            effects = [e["name"] for e in axis.get("effects", []) if not dropped_reason(e)]
-            results.append(MethodResult(
-                BOX_MODEL, axis_sensors(axis), rmse(yt - pred), float(np.max(np.abs(yt - pred))),
-                dt, f"fit {axis.get('fit', {}).get('family', '?')}"
-                + (f"; effects: {', '.join(effects)}" if effects else "")))
-        k = None
-        for method in methods:
-            t0 = time.perf_counter()
-            model = train_model(train_runs, [target], max_sensors=max_sensors, groups=groups,
-                                effects=False, selection=method, max_delay_s=max_delay_s,
-                                n_blocks=n_blocks, seed=seed, reference=reference,
-                                fit="ols", nested=False)  # the selection methods compared
-            dt = time.perf_counter() - t0
-            pred = np.concatenate([predict(model, r)[target] for r in test_runs])
-            sensors = axis_sensors(model["axes"][target])
-            k = len(sensors) if k is None else k  # peers get as many sensors as the default
-            label = {"validated": "ours, validated selection + OLS",
-                     "paper": "ours, paper 000 exact",
-                     "validated-refined": "ours, validated + group refinement",
-                     "validated-ec": "ours, validated reps + EC"}.get(method, method)
-            results.append(MethodResult(label, sensors, rmse(yt - pred),
-                                        float(np.max(np.abs(yt - pred))), dt))
-        assert k is not None
+            results.append(_box_model_result(train_runs, test_runs, target, yt, settings,
+                                              aux=list(aux),
+                                              bending=[target] if target in bending else []))
+        ours, k = _selection_results(train_runs, test_runs, target, yt, methods, settings)
+        results += ours
         for label, thunk, note in progress(
                 _peers(names, X, y, folds, k, k_correlated, engineering, exhaustive_limit, quiet),
                 f"peers for {target}", quiet=quiet):
@@ -245,6 +212,65 @@ def compare_methods(train_runs: Sequence[Run], test_runs: Sequence[Run], targets
                                "methods": [r.to_json() for r in results],
                                **best_methods(results)}
     return out
+
+
+def _check_runs(train_runs: list[Run], test_runs: list[Run], targets: Sequence[str],
+                bending: Sequence[str]) -> list[str]:
+    """The sensor names every run shares, after refusing what cannot be compared: no runs on
+    one side, a bending axis not among the targets, other sensor columns, mixed periods."""
+    if not train_runs or not test_runs:
+        raise InputError("compare needs at least one training and one test run")
+    for name in bending:
+        if name not in targets:
+            raise InputError(f"--bending {name}: not among the targets ({', '.join(targets)})")
+    names = train_runs[0].sensor_names
+    for run in test_runs:
+        if run.sensor_names != names:
+            raise InputError(f"{run.path}: sensor columns differ from the training runs")
+    common_period(train_runs + test_runs)  # one period for all, or a clear error
+    return names
+
+
+def _box_model_result(train_runs: list[Run], test_runs: list[Run], target: str,
+                      yt: np.ndarray, settings: dict, aux: list[str],
+                      bending: list[str]) -> MethodResult:
+    """The model ``host train`` makes with its defaults (its fit family and the effects it
+    kept in the note), scored on the test runs."""
+    t0 = time.perf_counter()
+    model = train_model(train_runs, [target], aux=aux, **settings, bending=bending)
+    dt = time.perf_counter() - t0
+    pred = np.concatenate([predict(model, r)[target] for r in test_runs])
+    axis = model["axes"][target]
+    effects = [e["name"] for e in axis.get("effects", []) if not dropped_reason(e)]
+    return MethodResult(
+        BOX_MODEL, axis_sensors(axis), rmse(yt - pred), float(np.max(np.abs(yt - pred))),
+        dt, f"fit {axis.get('fit', {}).get('family', '?')}"
+        + (f"; effects: {', '.join(effects)}" if effects else ""))
+
+
+def _selection_results(train_runs: list[Run], test_runs: list[Run], target: str,
+                       yt: np.ndarray, methods: Sequence[str],
+                       settings: dict) -> tuple[list[MethodResult], int]:
+    """Each selection method of ours with OLS and no effects, scored on the test runs, and
+    the sensors the first chose: the peers get as many."""
+    results = []
+    k = None
+    for method in methods:
+        t0 = time.perf_counter()
+        model = train_model(train_runs, [target], **settings, effects=False,
+                            selection=method, fit="ols")  # the selection methods compared
+        dt = time.perf_counter() - t0
+        pred = np.concatenate([predict(model, r)[target] for r in test_runs])
+        sensors = axis_sensors(model["axes"][target])
+        k = len(sensors) if k is None else k  # peers get as many sensors as the default
+        label = {"validated": "ours, validated selection + OLS",
+                 "paper": "ours, paper 000 exact",
+                 "validated-refined": "ours, validated + group refinement",
+                 "validated-ec": "ours, validated reps + EC"}.get(method, method)
+        results.append(MethodResult(label, sensors, rmse(yt - pred),
+                                    float(np.max(np.abs(yt - pred))), dt))
+    assert k is not None
+    return results, k
 
 
 def best_methods(results: Sequence[MethodResult]) -> dict:

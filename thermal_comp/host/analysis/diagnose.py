@@ -229,35 +229,52 @@ def check_sensor(run: Run, sensor: str, ref: Mapping | None, fallback_mates: Seq
         mates = [m for m in fallback_mates if m in run.sensor_names and m != sensor]
         ref = _own_reference(run, sensor, mates) if mates else {"mates": [], "pairs": {}}
     mates = [m for m in ref["mates"] if m in run.sensor_names and m in ref["pairs"]]
-    t = run.time_s
-    x = run.column(sensor)
     evidence: dict = {"mates": mates, "reference": ref.get("source", "training")}
     faults: list[dict] = []
-
     if mates:
-        drifts, scatter = [], []
-        for m in mates:
-            p = ref["pairs"][m]
-            gap = x - (p["intercept"] + p["slope"] * run.column(m))
-            drifts.append(_trend(t, gap))
-            scatter.append(max(float(p["rmse_c"]), 1e-3))
-        drift = float(np.median(drifts))
-        sigma = float(np.max(scatter))  # the least redundant mate sets the bar
-        d = np.array(drifts)
-        consistent = bool(np.all(np.sign(d) == np.sign(drift))
-                          and np.all(np.abs(d) >= DRIFT_AGREEMENT * abs(drift))
-                          and np.all(np.abs(d) <= abs(drift) / DRIFT_AGREEMENT))
-        evidence.update({"drift_c": drift, "drift_per_mate_c": dict(zip(mates, drifts,
-                                                                        strict=True)),
-                         "drift_consistent": consistent,
-                         "training_scatter_c": sigma, "drift_sigmas": abs(drift) / sigma})
-        if (consistent and abs(drift) >= DRIFT_MIN_C and abs(drift) >= DRIFT_SIGMAS * sigma):
-            hours = (t[-1] - t[0]) / 3600.0
-            faults.append({"fault": "drifting", "message": (
-                f"{sensor} drifts {drift:+.2f} degC from its mates "
-                f"({', '.join(mates)}) over {hours:.1f} h ({abs(drift) / sigma:.0f}x their "
-                "training scatter)")})
+        _check_drift(run, sensor, ref, mates, evidence, faults)
+    _check_stuck(run, sensor, mates, evidence, faults)
+    _check_noise(run, sensor, ref, mates, evidence, faults)
+    return {"status": faults[0]["fault"] if faults else "ok", "faults": faults,
+            "evidence": evidence}
 
+
+def _check_drift(run: Run, sensor: str, ref: Mapping, mates: list[str], evidence: dict,
+                 faults: list[dict]) -> None:
+    """Drifting: the gap to every mate's line from the reference moves the same way over the
+    run, by more than DRIFT_MIN_C and DRIFT_SIGMAS times the mates' training scatter."""
+    t = run.time_s
+    x = run.column(sensor)
+    drifts, scatter = [], []
+    for m in mates:
+        p = ref["pairs"][m]
+        gap = x - (p["intercept"] + p["slope"] * run.column(m))
+        drifts.append(_trend(t, gap))
+        scatter.append(max(float(p["rmse_c"]), 1e-3))
+    drift = float(np.median(drifts))
+    sigma = float(np.max(scatter))  # the least redundant mate sets the bar
+    d = np.array(drifts)
+    consistent = bool(np.all(np.sign(d) == np.sign(drift))
+                      and np.all(np.abs(d) >= DRIFT_AGREEMENT * abs(drift))
+                      and np.all(np.abs(d) <= abs(drift) / DRIFT_AGREEMENT))
+    evidence.update({"drift_c": drift, "drift_per_mate_c": dict(zip(mates, drifts,
+                                                                    strict=True)),
+                     "drift_consistent": consistent,
+                     "training_scatter_c": sigma, "drift_sigmas": abs(drift) / sigma})
+    if (consistent and abs(drift) >= DRIFT_MIN_C and abs(drift) >= DRIFT_SIGMAS * sigma):
+        hours = (t[-1] - t[0]) / 3600.0
+        faults.append({"fault": "drifting", "message": (
+            f"{sensor} drifts {drift:+.2f} degC from its mates "
+            f"({', '.join(mates)}) over {hours:.1f} h ({abs(drift) / sigma:.0f}x their "
+            "training scatter)")})
+
+
+def _check_stuck(run: Run, sensor: str, mates: list[str], evidence: dict,
+                 faults: list[dict]) -> None:
+    """Stuck: the longest run of one reading, long enough, while the mates moved (or, with
+    no mates, a sensor that never changed)."""
+    t = run.time_s
+    x = run.column(sensor)
     start, length = _longest_constant(x)
     evidence["longest_constant_samples"] = int(length)
     if length >= max(STUCK_MIN_SAMPLES, STUCK_MIN_FRACTION * x.size):
@@ -271,6 +288,12 @@ def check_sensor(run: Run, sensor: str, ref: Mapping | None, fallback_mates: Seq
                 f"{sensor} reads {x[start]:.3f} degC unchanged for "
                 f"{(t[seg][-1] - t[start]) / 60:.0f} min while its mates moved {moved:.2f} degC")})
 
+
+def _check_noise(run: Run, sensor: str, ref: Mapping, mates: list[str], evidence: dict,
+                 faults: list[dict]) -> None:
+    """Noisy: sample-to-sample noise NOISY_FACTOR times the reference's (the training's, else
+    the mates' median) and at least NOISY_MIN_C."""
+    x = run.column(sensor)
     seg_ids = np.zeros(x.size, dtype=int)
     noise = noise_floor(x, seg_ids)
     mate_noise = [noise_floor(run.column(m), seg_ids) for m in mates]
@@ -283,8 +306,6 @@ def check_sensor(run: Run, sensor: str, ref: Mapping | None, fallback_mates: Seq
         faults.append({"fault": "noisy", "message": (
             f"{sensor} is noisy: {noise:.3f} degC sample to sample, "
             f"{noise / max(reference_noise, 1e-4):.0f}x its reference {reference_noise:.4f} degC")})
-    return {"status": faults[0]["fault"] if faults else "ok", "faults": faults,
-            "evidence": evidence}
 
 
 def check_sensors(model: Mapping, run: Run) -> dict[str, dict]:

@@ -214,6 +214,58 @@ def _steady(terms: Sequence[Term], coefs: Sequence[float]) -> dict[str, float]:
     return {g["sensor"]: g["steady_um_per_k"] for g in sensor_gains(terms, coefs)}
 
 
+def _refits(axis: Mapping, terms: Sequence[Term], coefs: np.ndarray, d: TrainingDesign,
+            period_s: float) -> tuple[list[dict[str, float]], float, float]:
+    """The fit done again on the training design: each sensor's steady gain without each
+    fold, the whole refit's largest difference from the file's coefficients (relative), and
+    its effective degrees of freedom."""
+    whole = axis_refit(axis, terms, d, period_s)
+    edf = whole.effective_dof
+    scale = max(float(np.max(np.abs(coefs))) if coefs.size else 0.0, 1e-12)
+    refit_diff = (float(np.max(np.abs(whole.coef - coefs))) / scale) if coefs.size else 0.0
+    folds = []
+    for g in np.unique(d.groups):
+        rows = d.groups != g
+        if rows.sum() > len(terms) + 1:
+            folds.append(_steady(terms, axis_refit(axis, terms, d, period_s, rows).coef))
+    return folds, refit_diff, edf
+
+
+def _standard_errors(d: TrainingDesign, coefs: np.ndarray, intercept: float, reference: Reference,
+                     se: list[float], se_ar1: list[float]
+                     ) -> tuple[list[float], list[float], int, float]:
+    """A least-squares fit's standard errors on its training design, and the same inflated
+    for the residuals' lag-1 autocorrelation within each run: (se, se_ar1, samples, rho).
+    ``se``/``se_ar1`` come back unchanged when there are no more samples than columns."""
+    rho = math.nan
+    if reference.kind != "none":  # referenced: the intercept cancels, its column is zero
+        A = d.X
+        resid = d.y - A @ coefs
+    else:
+        A = np.column_stack([np.ones(len(d.y)), d.X])
+        resid = d.y - A @ np.concatenate([[intercept], coefs])
+    n, p = A.shape
+    if n > p:
+        s2 = float(resid @ resid) / (n - p)
+        cov = s2 * np.linalg.pinv(A.T @ A)
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None)).tolist()
+        if reference.kind != "none":
+            se = [math.nan, *se]
+        # lag-1 autocorrelation within each run (the filters restart at each run's start)
+        num = den = 0.0
+        start = 0
+        for length in d.lengths:
+            e = resid[start:start + length]
+            e = e - e.mean()
+            num += float(e[1:] @ e[:-1])
+            den += float(e @ e)
+            start += length
+        rho = num / den if den > 0 else 0.0
+        inflate = math.sqrt((1 + rho) / (1 - rho)) if -1 < rho < 1 else math.inf
+        se_ar1 = [v * inflate for v in se]
+    return se, se_ar1, n, rho
+
+
 def coefficient_table(axis_name: str, axis: Mapping, runs: Sequence[Run], period_s: float,
                       units: Mapping[str, str] | None = None,
                       reference: Reference = NO_REFERENCE) -> dict:
@@ -239,40 +291,9 @@ def coefficient_table(axis_name: str, axis: Mapping, runs: Sequence[Run], period
     folds: list[dict[str, float]] = []
     refit_diff = edf = math.nan
     if d is not None:
-        whole = axis_refit(axis, terms, d, period_s)
-        edf = whole.effective_dof
-        scale = max(float(np.max(np.abs(coefs))) if coefs.size else 0.0, 1e-12)
-        refit_diff = (float(np.max(np.abs(whole.coef - coefs))) / scale) if coefs.size else 0.0
-        for g in np.unique(d.groups):
-            rows = d.groups != g
-            if rows.sum() > len(terms) + 1:
-                folds.append(_steady(terms, axis_refit(axis, terms, d, period_s, rows).coef))
+        folds, refit_diff, edf = _refits(axis, terms, coefs, d, period_s)
     if d is not None and least_squares:
-        if reference.kind != "none":  # referenced: the intercept cancels, its column is zero
-            A = d.X
-            resid = d.y - A @ coefs
-        else:
-            A = np.column_stack([np.ones(len(d.y)), d.X])
-            resid = d.y - A @ np.concatenate([[intercept], coefs])
-        n, p = A.shape
-        if n > p:
-            s2 = float(resid @ resid) / (n - p)
-            cov = s2 * np.linalg.pinv(A.T @ A)
-            se = np.sqrt(np.clip(np.diag(cov), 0.0, None)).tolist()
-            if reference.kind != "none":
-                se = [math.nan, *se]
-            # lag-1 autocorrelation within each run (the filters restart at each run's start)
-            num = den = 0.0
-            start = 0
-            for length in d.lengths:
-                e = resid[start:start + length]
-                e = e - e.mean()
-                num += float(e[1:] @ e[:-1])
-                den += float(e @ e)
-                start += length
-            rho = num / den if den > 0 else 0.0
-            inflate = math.sqrt((1 + rho) / (1 - rho)) if -1 < rho < 1 else math.inf
-            se_ar1 = [v * inflate for v in se]
+        se, se_ar1, n, rho = _standard_errors(d, coefs, intercept, reference, se, se_ar1)
     out = unit_text(axis_name)
     rows = [{"term": "intercept", "symbol": "C₀", "coef": intercept, "unit": out,
              "se": se[0], "se_ar1": se_ar1[0], "vif": None}]

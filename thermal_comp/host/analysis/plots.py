@@ -2,8 +2,9 @@
 
 Every function takes plain arrays and names (no model or run objects), returns a
 ``matplotlib.figure.Figure`` and leaves saving to the caller (``save_png``, which also says
-which legends and labels would be cut off at the PNG's edge: ``clipped_artists``); ``Figure`` is
-used directly rather than ``pyplot`` so no global state or GUI backend is involved.
+which legends and labels would be cut off at the PNG's edge: ``clipped_artists``; both live in
+host.analysis.png and are named here too); ``Figure`` is used directly rather than ``pyplot``
+so no global state or GUI backend is involved.
 """
 
 from __future__ import annotations
@@ -11,21 +12,21 @@ from __future__ import annotations
 import math
 import textwrap
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 
 import numpy as np  # noqa: E402
-from matplotlib import image  # noqa: E402
-from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.transforms import offset_copy  # noqa: E402
 
 from thermal_comp.contract.tilt import unit_of, unit_text  # noqa: E402
+from thermal_comp.host.analysis.png import PNG_DPI as PNG_DPI  # noqa: E402
+from thermal_comp.host.analysis.png import clipped_artists as clipped_artists  # noqa: E402
+from thermal_comp.host.analysis.png import save_png as save_png  # noqa: E402
 
 WIDE = (9.0, 5.0)
 SQUARE = (7.0, 6.0)
@@ -33,69 +34,7 @@ OURS_COLOUR = "tab:blue"
 PEER_COLOURS = ("tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 HEATING_COLOUR = "tab:red"
 COOLING_COLOUR = "tab:blue"
-
-
-PNG_DPI = 100
-CLIP_TOLERANCE_PX = 1.0
 LEGEND_WRAP = 60  # characters per legend line below a WIDE figure (two columns fit 9 inches)
-
-
-def _drawn(fig: Figure, dpi: float) -> FigureCanvasAgg:
-    """``fig`` drawn (its layout engine run) on an Agg canvas at ``dpi``, as savefig draws it."""
-    fig.set_dpi(dpi)
-    canvas = FigureCanvasAgg(fig)
-    canvas.draw()
-    return canvas
-
-
-def clipped_artists(fig: Figure, dpi: float = PNG_DPI,
-                    canvas: FigureCanvasAgg | None = None) -> list[str]:
-    """What of ``fig`` would lie (partly) outside the image saved at ``dpi``: every legend,
-    title, axis label, tick-label row and text, each named; [] when everything is inside.
-    ``canvas``: the figure already drawn at that dpi (else it is drawn here)."""
-    canvas = canvas or _drawn(fig, dpi)
-    renderer = canvas.get_renderer()
-    width, height = fig.bbox.width, fig.bbox.height
-    tol = CLIP_TOLERANCE_PX
-    named: list[tuple[str, object]] = [(f"figure legend {k}", leg)
-                                       for k, leg in enumerate(fig.legends)]
-    named += [(f"figure text {t.get_text()!r}", t) for t in fig.texts]
-    for k, ax in enumerate(fig.axes):
-        where = f"axes {k} ({ax.get_title() or ax.get_ylabel() or ax.get_label()})"
-        if ax.get_legend() is not None:
-            named.append((f"{where}: legend", ax.get_legend()))
-        named += [(f"{where}: {what}", t) for what, t in (
-            ("title", ax.title), ("left title", ax._left_title),
-            ("right title", ax._right_title), ("x label", ax.xaxis.label),
-            ("y label", ax.yaxis.label))]
-        named += [(f"{where}: text {t.get_text()!r}", t) for t in ax.texts]
-        named += [(f"{where}: {name} tick labels", axis)
-                  for name, axis in (("x", ax.xaxis), ("y", ax.yaxis))]
-    out = []
-    for name, artist in named:
-        if not artist.get_visible() or (hasattr(artist, "get_text")
-                                        and not artist.get_text().strip()):
-            continue
-        box = (artist.get_tightbbox(renderer) if hasattr(artist, "get_ticklabels")
-               else artist.get_window_extent(renderer))
-        if box is None or box.width == 0 and box.height == 0:
-            continue
-        if box.x0 < -tol or box.y0 < -tol or box.x1 > width + tol or box.y1 > height + tol:
-            out.append(f"{name} at x {box.x0:.0f}..{box.x1:.0f}, y {box.y0:.0f}..{box.y1:.0f} "
-                       f"px outside the {width:.0f}×{height:.0f} px image")
-    return out
-
-
-def save_png(fig: Figure, path: str | Path, dpi: float = PNG_DPI) -> list[str]:
-    """Write ``fig`` as a PNG at ``path`` (atomically) and return clipped_artists: what a
-    reader would find cut off at its edge."""
-    path = Path(path)
-    canvas = _drawn(fig, dpi)  # drawn once: checked, then written from the same pixels
-    clipped = clipped_artists(fig, dpi, canvas)
-    tmp = path.with_name(path.name + ".tmp")
-    image.imsave(tmp, np.asarray(canvas.buffer_rgba()), format="png", dpi=dpi)
-    tmp.replace(path)
-    return clipped
 
 
 def wrap_label(text: str, width: int = LEGEND_WRAP) -> str:
@@ -162,9 +101,26 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
     ax = fig.add_subplot()
     raw_delays = np.asarray(delays_s, dtype=float)
     delays, xlabel = delay_axis(raw_delays)
-    scale = 1 / 3600.0 if "(h)" in xlabel else 1 / 60.0 if "(min)" in xlabel else 1.0
     corr = np.asarray(correlations, dtype=float)
-    labels_arr = np.asarray(labels, dtype=int)
+    alone = _sensor_groups(ax, delays, corr, np.asarray(labels, dtype=int))
+    if delay_limit_s is not None and delay_limit_s > 0:
+        _search_limit(ax, raw_delays, delays, corr, delay_limit_s, xlabel)
+    chosen_set, dropped_set = set(chosen), set(dropped)
+    _circle_and_name(fig, ax, sensors, delays, corr, chosen_set, dropped_set)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("correlation coefficient r with displacement (–)")
+    ax.set_title(f"{axis}: sensors " + ("by delay and correlation (each its own group)"
+                                        if alone else "grouped by delay and correlation")
+                 + f",\n{len(chosen_set)} of {len(sensors)} read by the box")
+    ax.grid(True, alpha=0.3)
+    fig.legend(fontsize=8, loc="outside right upper")
+    return fig
+
+
+def _sensor_groups(ax, delays: np.ndarray, corr: np.ndarray, labels_arr: np.ndarray) -> bool:
+    """Each group of sensors in its colour with its centre, those without a box channel as
+    grey crosses; True when every group has one member (then drawn as candidates, no
+    centres: there are no groups to show)."""
     groups = sorted(set(labels_arr.tolist()))
     offered = [g for g in groups if g >= 0]
     alone = len(offered) > 1 and all(int((labels_arr == g).sum()) == 1 for g in offered)
@@ -190,16 +146,28 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
     if not alone:
         ax.scatter([], [], s=90, marker="D", facecolors="none", edgecolors="0.4",
                    linewidths=1.5, label="group centre (mean of members)")
-    if delay_limit_s is not None and delay_limit_s > 0:
-        edge = np.abs(raw_delays) >= delay_limit_s - 1e-6
-        if edge.any():
-            ax.scatter(delays[edge], corr[edge], s=420, marker="^", facecolors="none",
-                       edgecolors="tab:red", linewidths=1.4, zorder=4,
-                       label=f"delay at the search limit (±{delay_limit_s * scale:.3g} "
-                             f"{xlabel.rsplit('(', 1)[-1].rstrip(')')})")
-        for x in (-delay_limit_s * scale, delay_limit_s * scale):
-            ax.axvline(x, color="tab:red", ls=":", lw=0.8)
-    chosen_set, dropped_set = set(chosen), set(dropped)
+    return alone
+
+
+def _search_limit(ax, raw_delays: np.ndarray, delays: np.ndarray, corr: np.ndarray,
+                  delay_limit_s: float, xlabel: str) -> None:
+    """The delay search's limits as dotted lines, and a triangle on each sensor whose delay
+    sits at one: its true delay may be longer."""
+    scale = 1 / 3600.0 if "(h)" in xlabel else 1 / 60.0 if "(min)" in xlabel else 1.0
+    edge = np.abs(raw_delays) >= delay_limit_s - 1e-6
+    if edge.any():
+        ax.scatter(delays[edge], corr[edge], s=420, marker="^", facecolors="none",
+                   edgecolors="tab:red", linewidths=1.4, zorder=4,
+                   label=f"delay at the search limit (±{delay_limit_s * scale:.3g} "
+                         f"{xlabel.rsplit('(', 1)[-1].rstrip(')')})")
+    for x in (-delay_limit_s * scale, delay_limit_s * scale):
+        ax.axvline(x, color="tab:red", ls=":", lw=0.8)
+
+
+def _circle_and_name(fig: Figure, ax, sensors: Sequence[str], delays: np.ndarray,
+                     corr: np.ndarray, chosen_set: set[str], dropped_set: set[str]) -> None:
+    """The sensors the box reads circled in black, those dropped by its channel budget in
+    dashed grey, each named to its right (pushed apart so no two names overprint)."""
     named = [(n, float(x), float(y)) for n, x, y in zip(sensors, delays, corr, strict=True)
              if n in chosen_set or n in dropped_set]
     for name, x, y in named:
@@ -208,7 +176,6 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
         else:
             ax.scatter([x], [y], s=220, facecolors="none", edgecolors="0.5", linewidths=1.5,
                        linestyle="--")
-    # labels: to the right of each circled sensor, pushed apart vertically so none overprint
     ylim = ax.get_ylim()
     span = (ylim[1] - ylim[0]) or 1.0
     label_y = _spread_labels([(x, y) for _, x, y in named], 0.045 * span)
@@ -226,14 +193,6 @@ def selection_plane(axis: str, sensors: Sequence[str], delays_s: Sequence[float]
     if dropped_set:
         ax.scatter([], [], s=220, facecolors="none", edgecolors="0.5", linewidths=1.5,
                    linestyle="--", label="chosen, then dropped (not read by the box)")
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel("correlation coefficient r with displacement (–)")
-    ax.set_title(f"{axis}: sensors " + ("by delay and correlation (each its own group)"
-                                        if alone else "grouped by delay and correlation")
-                 + f",\n{len(chosen_set)} of {len(sensors)} read by the box")
-    ax.grid(True, alpha=0.3)
-    fig.legend(fontsize=8, loc="outside right upper")
-    return fig
 
 
 def ec_curve(axis: str, ec: Sequence[float], chosen_count: int,

@@ -208,20 +208,7 @@ def compare_protocols(runs: Mapping[str, Sequence[str | Path]], targets: Sequenc
     labels = list(runs)
     rows = [name for name in labels if name != PRODUCTION] if train_only is None else list(
         train_only)
-    for name in rows:
-        if name not in runs:
-            raise ProtocolComparisonError(f"no runs for training protocol '{name}'")
-    loaded: dict[str, list[Run]] = {
-        name: [load_run(p, targets, sensors, aux, min_samples=4) for p in paths]
-        for name, paths in runs.items()}
-    first = next(iter(loaded.values()))[0]
-    for rs in loaded.values():
-        for r in rs:
-            if r.sensor_names != first.sensor_names:
-                raise ProtocolComparisonError(
-                    f"{r.path}: temperature columns differ from {first.path}; protocols can "
-                    "only be compared on one machine's sensors")
-
+    loaded = _load_protocols(runs, rows, targets, sensors, aux)
     test_cols: list[tuple[str, int]] = []  # (label, index of its run used for testing)
     for name in labels:
         test_cols.append((name, 1 if len(loaded[name]) > 1 and name in rows else 0))
@@ -237,13 +224,7 @@ def compare_protocols(runs: Mapping[str, Sequence[str | Path]], targets: Sequenc
                                          max_sensors=max_sensors, groups=groups,
                                          effects=fit_effects, quiet=True, fit="ols", nested=False,
                                          **train_kwargs)  # many trainings: no nested folds
-            models[rows[i]] = {
-                "run": train_run.path,
-                "axes": {a: [_term_label(t) for t in ax["terms"]]
-                         for a, ax in model_cache[i]["axes"].items()},
-                "validation_rmse_um": {a: round(ax["metrics"]["validation_rmse_um"], 4)
-                                       for a, ax in model_cache[i]["axes"].items()},
-            }
+            models[rows[i]] = _model_summary(train_run, model_cache[i])
         label, k = test_cols[j]
         test_run = loaded[label][k]
         in_sample[i, j] = test_run is loaded[rows[i]][0]
@@ -258,6 +239,37 @@ def compare_protocols(runs: Mapping[str, Sequence[str | Path]], targets: Sequenc
                       {n: [str(p) for p in ps] for n, ps in runs.items()}, models, raw,
                       {"sensors": sensors, "aux": aux, "max_sensors": max_sensors,
                        "groups": groups, "fit_effects": fit_effects})
+
+
+def _load_protocols(runs: Mapping[str, Sequence[str | Path]], rows: Sequence[str],
+                    targets: list[str], sensors: str, aux: list[str]) -> dict[str, list[Run]]:
+    """Every label's runs loaded, after refusing a training protocol without runs; all must
+    read one machine's sensors, or the matrix would compare machines, not protocols."""
+    for name in rows:
+        if name not in runs:
+            raise ProtocolComparisonError(f"no runs for training protocol '{name}'")
+    loaded: dict[str, list[Run]] = {
+        name: [load_run(p, targets, sensors, aux, min_samples=4) for p in paths]
+        for name, paths in runs.items()}
+    first = next(iter(loaded.values()))[0]
+    for rs in loaded.values():
+        for r in rs:
+            if r.sensor_names != first.sensor_names:
+                raise ProtocolComparisonError(
+                    f"{r.path}: temperature columns differ from {first.path}; protocols can "
+                    "only be compared on one machine's sensors")
+    return loaded
+
+
+def _model_summary(train_run: Run, model: dict) -> dict:
+    """What the matrix keeps of a row's model: its run, each axis's terms and validation."""
+    return {
+        "run": train_run.path,
+        "axes": {a: [_term_label(t) for t in ax["terms"]]
+                 for a, ax in model["axes"].items()},
+        "validation_rmse_um": {a: round(ax["metrics"]["validation_rmse_um"], 4)
+                               for a, ax in model["axes"].items()},
+    }
 
 
 def combine(comps: Sequence[Comparison]) -> Comparison:

@@ -140,6 +140,25 @@ def selection_figure(axis_name: str, axis: dict, limit_s: float | None = None,
                   "lists the members); one representative per group is tried. ")
                + f"Circled and named: the sensors the box reads for {axis_name} "
                f"({e(', '.join(box)) or 'none'}).")
+    caption += _dropped_caption(axis, dropped)
+    caption += _added_caption(axis, [n for n in box if n not in selected])
+    caption += _grouping_note(axis_name, axis, groups_requested)
+    if limit_s:
+        at_edge = [n for n, d in zip(names, delays, strict=True)
+                   if math.isfinite(d) and abs(d) >= limit_s - 1e-6]
+        caption += (f" Triangles: delay at the limit of the search (±{limit_s / 3600:.3g} h): "
+                    + (e(", ".join(at_edge)) if at_edge else "none")
+                    + (", whose true delay may be longer." if at_edge else "."))
+    caption += f" Method: {e(str(sel.get('method', '?')))}."
+    return fig, title, caption
+
+
+def _dropped_caption(axis: dict, dropped: list[str]) -> str:
+    """The caption's word on the dashed circles: chosen by the selection, then dropped by the
+    box's channel budget, or otherwise missing from the box's model."""
+    e = html.escape
+    sel = axis["selection"]
+    caption = ""
     budget = set(dropped_sensors(axis)) | set((sel.get("channel_budget") or {}).get("dropped")
                                               or [])
     by_budget = [n for n in dropped if n in budget]
@@ -151,7 +170,14 @@ def selection_figure(axis_name: str, axis: dict, limit_s: float | None = None,
     if other:
         caption += (f" Dashed: chosen by the selection but not in the box's model "
                     f"({e(', '.join(other))}).")
-    added = [n for n in box if n not in selected]
+    return caption
+
+
+def _added_caption(axis: dict, added: list[str]) -> str:
+    """The caption's word on sensors the box reads that the selection did not choose: on
+    channels it left free, brought in by an effect, or neither."""
+    e = html.escape
+    caption = ""
     free = [n for n in added if n in set((axis.get("fit") or {}).get("free_channels_read")
                                          or [])]
     by_effects = [n for n in added if n not in free and n in effect_sensors(axis)]
@@ -166,15 +192,7 @@ def selection_figure(axis_name: str, axis: dict, limit_s: float | None = None,
     if other:
         caption += (f" Read by the box's model though neither selected nor brought in by an "
                     f"effect it runs: {e(', '.join(other))}.")
-    caption += _grouping_note(axis_name, axis, groups_requested)
-    if limit_s:
-        at_edge = [n for n, d in zip(names, delays, strict=True)
-                   if math.isfinite(d) and abs(d) >= limit_s - 1e-6]
-        caption += (f" Triangles: delay at the limit of the search (±{limit_s / 3600:.3g} h): "
-                    + (e(", ".join(at_edge)) if at_edge else "none")
-                    + (", whose true delay may be longer." if at_edge else "."))
-    caption += f" Method: {e(str(sel.get('method', '?')))}."
-    return fig, title, caption
+    return caption
 
 
 def fold_stages(axis: dict) -> list[dict]:

@@ -118,6 +118,22 @@ class Monitor:
         """Monitor until count/duration is reached (or Ctrl-C, or q on the screen); 1 if the
         model check failed."""
         start = time.monotonic()
+        self._open()
+        if self.screen:
+            self._screen = Screen()
+            self._screen.start()
+        self._connected()
+        try:
+            self._watch(start)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self._close()
+        return self._summary()
+
+    def _open(self) -> None:
+        """The port opened and identified, every view started (none left running, the port
+        closed, when one fails to start)."""
         try:
             self._port = self.opener(self.port_name, self.baud)
         except (OSError, serial.SerialException) as exc:
@@ -133,43 +149,45 @@ class Monitor:
                 view.stop()
             self._port.close()
             raise
-        if self.screen:
-            self._screen = Screen()
-            self._screen.start()
-        self._connected()
-        try:
-            while not self._done(start):
-                if self._port is None:
-                    self._reconnect(start)
-                else:
-                    try:
-                        self._poll()
-                    except (OSError, serial.SerialException) as exc:
-                        self._lost(exc)
-                # also while the port is gone: the age and STALE keep counting on screen
-                self._check_stale(time.monotonic())
-                self._draw()
-                if self._screen is not None and self._screen.key() == "quit":
-                    break
-        except KeyboardInterrupt:
-            pass
-        finally:
-            self._flush_pending(force=True)
-            if self._screen is not None:
-                self._screen.stop()
-                self._screen = None
-                # the last frame stays readable in the terminal after the screen is gone
-                now = time.monotonic()
-                self._emit("\n".join([*render(self.state, now),
-                                      "fault history (newest first):",
-                                      *(f"  {ln}" for ln in self.state.history.lines(
-                                          time.time())), ""]), final=True)
-            if self._port is not None:
-                self._port.close()
-            if self.log:
-                self.log.close()
-            for view in self.views:
-                view.stop()
+
+    def _watch(self, start: float) -> None:
+        """Read, reconnect and draw until done or q on the screen."""
+        while not self._done(start):
+            if self._port is None:
+                self._reconnect(start)
+            else:
+                try:
+                    self._poll()
+                except (OSError, serial.SerialException) as exc:
+                    self._lost(exc)
+            # also while the port is gone: the age and STALE keep counting on screen
+            self._check_stale(time.monotonic())
+            self._draw()
+            if self._screen is not None and self._screen.key() == "quit":
+                break
+
+    def _close(self) -> None:
+        """What is pending written, the screen's last frame left in the terminal, the port,
+        the log and the views closed."""
+        self._flush_pending(force=True)
+        if self._screen is not None:
+            self._screen.stop()
+            self._screen = None
+            # the last frame stays readable in the terminal after the screen is gone
+            now = time.monotonic()
+            self._emit("\n".join([*render(self.state, now),
+                                  "fault history (newest first):",
+                                  *(f"  {ln}" for ln in self.state.history.lines(
+                                      time.time())), ""]), final=True)
+        if self._port is not None:
+            self._port.close()
+        if self.log:
+            self.log.close()
+        for view in self.views:
+            view.stop()
+
+    def _summary(self) -> int:
+        """The closing line (or JSON summary); 1 if the model check failed, else 0."""
         st = self.state
         text = (f"monitor: {st.samples} samples, {st.bad_lines} bad lines, {st.seq_gaps} seq "
                 f"gaps, {st.reconnects} reconnects"

@@ -113,9 +113,8 @@ def _numbers(data: dict, key: str, machine: str) -> dict[str, float | None]:
     return value
 
 
-def parse(topic_name: str, payload: bytes) -> Message | None:
-    """Check one received message. Returns None for a topic the service does not store (a
-    command), raises :class:`Refused` with the reason for anything malformed."""
+def _topic_parts(topic_name: str) -> tuple[str, str] | None:
+    """(machine, kind) of a topic the service stores; None for a command's topic."""
     parts = topic_name.split("/")
     if len(parts) < 3 or parts[0] != ROOT:
         raise Refused(f"topic {topic_name!r} is not {ROOT}/<machine>/<kind>")
@@ -127,7 +126,16 @@ def parse(topic_name: str, payload: bytes) -> Message | None:
     if len(parts) != 3 or parts[2] not in KINDS:
         raise Refused(f"unknown topic kind {'/'.join(parts[2:])[:80]!r} (known: "
                       f"{', '.join(KINDS)})", machine)
-    kind = parts[2]
+    return machine, parts[2]
+
+
+def parse(topic_name: str, payload: bytes) -> Message | None:
+    """Check one received message. Returns None for a topic the service does not store (a
+    command), raises :class:`Refused` with the reason for anything malformed."""
+    where = _topic_parts(topic_name)
+    if where is None:
+        return None
+    machine, kind = where
     if len(payload) > MAX_PAYLOAD:
         raise Refused(f"oversized message: {len(payload)} bytes > {MAX_PAYLOAD}", machine)
     if kind == "online":
@@ -154,26 +162,32 @@ def parse(topic_name: str, payload: bytes) -> Message | None:
     if n < 0 or t <= 0:
         raise Refused(f"n {n} or t {t} out of range", machine)
     if kind == "state":
-        seq = _need(data, "seq", int, machine)
-        if not 0 <= seq < 2**32:
-            raise Refused(f"seq {seq} outside 0..2^32-1", machine)
-        status = _need(data, "status", str, machine)
-        if not re.fullmatch(r"[0-9A-F]{4}", status):
-            raise Refused(f"status {status[:10]!r} is not 4 hex digits", machine)
-        flags = _need(data, "flags", list, machine)
-        if not all(isinstance(f, str) for f in flags):
-            raise Refused("flags are not names", machine)
-        _numbers(data, "corrections_um", machine)
-        _numbers(data, "temperatures_c", machine)
-        _need(data, "faults", dict, machine)
-        _need(data, "model_hash", str, machine, optional=True)
-        _need(data, "period_ms", int, machine, optional=True)
-        probe = _need(data, "probe", dict, machine, optional=True)
-        if probe is not None:
-            _numbers(probe, "residual_um", machine)
+        _check_state(data, machine)
     else:
         event = _need(data, "event", str, machine)
         if event not in EVENT_KINDS:
             raise Refused(f"unknown event {event[:40]!r}", machine)
         _need(data, "message", str, machine)
     return Message(machine, kind, data)
+
+
+def _check_state(data: dict, machine: str) -> None:
+    """A state's own fields: sequence, status word, flag names, numbers per axis and channel,
+    faults, and the optional model hash, period and probe residual."""
+    seq = _need(data, "seq", int, machine)
+    if not 0 <= seq < 2**32:
+        raise Refused(f"seq {seq} outside 0..2^32-1", machine)
+    status = _need(data, "status", str, machine)
+    if not re.fullmatch(r"[0-9A-F]{4}", status):
+        raise Refused(f"status {status[:10]!r} is not 4 hex digits", machine)
+    flags = _need(data, "flags", list, machine)
+    if not all(isinstance(f, str) for f in flags):
+        raise Refused("flags are not names", machine)
+    _numbers(data, "corrections_um", machine)
+    _numbers(data, "temperatures_c", machine)
+    _need(data, "faults", dict, machine)
+    _need(data, "model_hash", str, machine, optional=True)
+    _need(data, "period_ms", int, machine, optional=True)
+    probe = _need(data, "probe", dict, machine, optional=True)
+    if probe is not None:
+        _numbers(probe, "residual_um", machine)
