@@ -33,8 +33,8 @@ GEN_ARGS := --clamp-nm 40000 --slew-nm-per-s 700 --cold-start-slew 1
 APP_TEST_SRC := $(filter-out src/model_binding.c,$(APP_SRC)) emul/max31856_sim.c \
                 test/fake_board.c
 
-$(MODEL_DIR)/vectors.h: test/gen_test_model.py $(wildcard ../codegen/*.py ../codegen/templates/*) \
-                        ../contract/terms.py
+$(MODEL_DIR)/vectors.h: test/gen_test_model.py $(wildcard ../thermal_comp/codegen/*.py ../thermal_comp/codegen/templates/*) \
+                        ../thermal_comp/contract/terms.py
 	@test -x $(PYTHON) || { echo "make test: $(PYTHON) not found: run 'make setup' at the top level (the application tests generate their model with codegen)." >&2; exit 2; }
 	$(PYTHON) test/gen_test_model.py $(MODEL_DIR) $(GEN_ARGS)
 
