@@ -612,13 +612,16 @@ static void take_sample(void)
     }
     app.status = st;
     app.sampled = true;
-    if (--app.rate_left == 0u) {
+    bool send = --app.rate_left == 0u && !app.skipping;
+    if (app.rate_left == 0u) {
         app.rate_left = app.rate;
-        if (!app.skipping) {
-            send_sample_line(seq);
-        }
     }
+    /* saved before the line goes out: a reset after a line was seen never repeats its sample
+     * (at worst a reset in between loses that line: a gap in seq) */
     retain_save();
+    if (send) {
+        send_sample_line(seq);
+    }
 }
 
 /* ---- commands -------------------------------------------------------------------------- */
