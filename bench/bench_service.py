@@ -23,6 +23,9 @@ seeing the test run, in the peer's favour).
 The choice of the estimator: at 60 min and 0.5 um, bias Kalman (the default, q from train),
 the same with q / 4 and q x 4, bias + rate, and a discounted bias (fixed gain 0.7), each as
 a geometric mean of updated / static per source.
+The gate's lock-out (``STRESS``, same scheme): a +60 um model miss on the test day (RMSE
+over its second half) and a +50 um chip on 10 % of the readings, for reopen_after 0 (never
+re-open: the box before), 2, 3 and 4, on the same line (docs/service.md, "Re-opening").
 
 Summary per source and scheme: geometric means of updated / static, updated / probe-only
 hold and updated / peer updated, with 90 % intervals from a bootstrap over whole training
@@ -62,6 +65,13 @@ SEEDS = (0, 1)
 CHOICE = ("60min", 0.5)
 VARIANTS = {"bias": ("bias", 1.0), "bias q/4": ("bias", 0.25), "bias q*4": ("bias", 4.0),
             "bias+rate": ("bias+rate", 1.0), "discounted": ("discounted", 1.0)}
+# The gate's lock-out (docs/service.md, "Re-opening"), at the choice's scheme: name ->
+# (a constant added to the measured displacement and to every reading: a model miss beyond
+# the gate; the fraction of readings with a +50 um chip; reopen_after). A miss's row is the
+# RMSE over the run's second half (after the recovery) / static without the miss.
+STRESS = {f"miss +60um K={k}": (60.0, 0.0, k) for k in (0, 2, 3, 4)} | \
+    {f"chips 10% K={k}": (0.0, 0.1, k) for k in (0, 2, 3, 4)}
+CHIP_UM = 50.0
 COLUMNS = ("static", "updated", "hold", "extrapolated", "peer static", "peer updated")
 SIMPLE_PEERS = ("OLS all", "top-4 |r|", "ridge+lags")
 TOLERANCE = (1.05, 0.1)  # never worse than static by more than 5 % + 0.1 um
@@ -150,8 +160,31 @@ def case_rows(model: dict, run, target: str, peer_pred: np.ndarray, seeds: Seque
                                            q_um2_per_h=params.q_um2_per_h * scale)
                         r = service_axis(meas, pred, run.time_s, idx, val, p, est, max_step)
                         choice.setdefault(name, []).append(r["rmse_um"])
+                    for name, r in stress_rows(meas, pred, run.time_s, idx, val, params,
+                                               max_step, seed).items():
+                        choice.setdefault(name, []).append(r)
             out[key(scheme, noise)] = _mean_rmse(rows)
     return out, {k: float(np.mean(v)) for k, v in choice.items()}
+
+
+def stress_rows(meas: np.ndarray, pred: np.ndarray, time_s: np.ndarray, idx: np.ndarray,
+                val: np.ndarray, params, max_step: float | None, seed: int
+                ) -> dict[str, float]:
+    """``STRESS``'s RMSEs for one case: a large model miss, and chips on the artifact."""
+    from dataclasses import replace
+
+    from thermal_comp.host.service.evaluation import updated
+
+    chips = np.random.default_rng(seed).random(val.size)
+    out = {}
+    for name, (offset, rate, after) in STRESS.items():
+        p = replace(params, reopen_after=float(after))
+        v = val + offset + CHIP_UM * (chips < rate)
+        y, _ = updated(pred, time_s, idx, v, p, "bias", max_step)
+        e = meas + offset - y
+        half = e[e.size // 2:] if offset else e
+        out[name] = float(np.sqrt(np.mean(half ** 2)))
+    return out
 
 
 def run_job(job: acc.Job, seeds: Sequence[int]) -> list[ServiceCase]:
@@ -237,7 +270,8 @@ def summary(cases: Sequence[ServiceCase]) -> dict:
                            "worse_than_static": [f"{c.group} / {c.test} / {c.target}"
                                                  for c in worse(have, k)]}
         choice = {v: acc.geomean([c.choice_um[v] / c.rmse_um[key(*CHOICE)]["static"]
-                                  for c in cs if v in c.choice_um]) for v in VARIANTS}
+                                  for c in cs if v in c.choice_um])
+                  for v in (*VARIANTS, *STRESS)}
         out[source] = {"cases": len(cs), "training_sets": len({c.cluster for c in cs}),
                        "rows": rows, "choice": choice}
     return out

@@ -22,7 +22,15 @@ typedef struct {
     int64_t p_q8;               /* the bias's variance, 0 .. pmax_q8 */
     int32_t bias_nm;            /* added to the model's value, +-EST_BIAS_MAX_NM */
     int32_t last_innovation_nm; /* the last reading's innovation, saturated to int32 */
+    int32_t anchor_nm;          /* the re-opening streak's first innovation, |.| <= 2^22 */
+    uint16_t reopens;           /* re-openings since power-up or ZERO, saturating */
+    uint8_t agree;              /* refused readings in that streak, 0 .. reopen_after */
 } est_state_t;
+
+/* est_measure's verdict */
+#define EST_REFUSED 0u
+#define EST_ACCEPTED 1u
+#define EST_REOPENED 2u /* accepted: reopen_after agreeing refusals in a row (the lock-out) */
 
 /* Power-up and ZERO (no function: the application clears every axis's state in one run of its
  * retained block, est_reset_all in app.c): bias 0, innovation 0, P = pmax_q8 when p0_pmax (no
@@ -32,9 +40,12 @@ typedef struct {
 void est_tick(est_state_t *s, const tcm_service_t *p);
 
 /* One reading z_nm of a sample whose referenced model value (before the bias) was model_nm:
- * true if the gate accepted it (bias and P updated), false if it refused it (nothing but
- * last_innovation_nm changes). */
-bool est_measure(est_state_t *s, const tcm_service_t *p, int32_t z_nm, int32_t model_nm);
+ * EST_ACCEPTED if the gate accepted it (bias and P updated), EST_REFUSED if it refused it
+ * (nothing but last_innovation_nm and the re-opening streak change), EST_REOPENED if it was
+ * the reopen_after-th refused reading in a row agreeing with the streak's first (their
+ * difference passes the gate): the bias takes the reading as it is, P = min(R, pmax)
+ * (docs/service.md, "Re-opening"). */
+uint32_t est_measure(est_state_t *s, const tcm_service_t *p, int32_t z_nm, int32_t model_nm);
 
 /* P in nm^2 (rounded half up; P >= 0), for the MEAS reply: pmax < 2^38 / 2^8 fits 32 bits. */
 #define EST_P_NM2(s) ((uint32_t)(((s)->p_q8 + (INT64_C(1) << (EST_P_FRAC_BITS - 1))) >> EST_P_FRAC_BITS))

@@ -23,7 +23,7 @@
 #include <stdint.h>
 
 /* A generated model.h must carry the same number (nanopb style check in the header). */
-#define TCM_RUNTIME_FORMAT 6
+#define TCM_RUNTIME_FORMAT 7
 
 /* Capacity of the runtime (state is statically sized; codegen refuses bigger models). */
 #define TCM_MAX_CHANNELS 32u /* valid_mask is a uint32_t */
@@ -123,6 +123,7 @@ typedef struct {
     uint32_t g2_q8;     /* gate_sigma^2 in Q8, 2^8 .. 2^16 */
     uint8_t on;
     uint8_t p0_pmax; /* P at power-up / ZERO: 1 pmax_q8 (no start reference), 0 zero */
+    uint8_t reopen_after; /* agreeing refusals in a row that re-open the axis, 0: never */
 } tcm_service_t;
 
 #define TCM_SVC_Q_Q8_MAX INT64_C(25600000000)     /* 100 um^2/h over <= 3600 s, < 2^35 */
@@ -130,13 +131,13 @@ typedef struct {
 #define TCM_SVC_FLOOR2_MAX INT64_C(1000000000000) /* gate floor 1000 um, < 2^40 */
 #define TCM_SVC_PMAX_Q8_MAX INT64_C(256000000000) /* p_max 1000 um^2, < 2^38 */
 /* The header's check of one axis's parameters (a service-less axis: all zero). */
-#define TCM_SVC_PARAMS_OK(on, q, r, g2, f2, pmax, p0pmax)                                    \
+#define TCM_SVC_PARAMS_OK(on, q, r, g2, f2, pmax, p0pmax, reopen)                            \
     ((on) == 0u ? ((q) == 0 && (r) == 0 && (g2) == 0u && (f2) == 0 && (pmax) == 0 &&           \
-                   (p0pmax) == 0u)                                                            \
+                   (p0pmax) == 0u && (reopen) == 0u)                                          \
                 : ((on) == 1u && (q) >= 0 && (q) <= TCM_SVC_Q_Q8_MAX && (r) >= 1 &&             \
                    (r) <= TCM_SVC_R_Q8_MAX && (g2) >= 256u && (g2) <= 65536u && (f2) >= 0 &&    \
                    (f2) <= TCM_SVC_FLOOR2_MAX && (pmax) >= 1 && (pmax) <= TCM_SVC_PMAX_Q8_MAX && \
-                   (p0pmax) <= 1u))
+                   (p0pmax) <= 1u && (reopen) <= 255u))
 
 /*
  * One output axis. Its terms are the next n_terms entries of tcm_model_t.terms (axes in

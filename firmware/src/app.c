@@ -37,10 +37,10 @@ _Static_assert(SAMPLE_LINE_MAX <= LINE_MAX, "a full sample line must fit the lin
 _Static_assert(INFO_LINE_MAX <= LINE_MAX, "the longest INFO line must fit the line buffer");
 _Static_assert(BOX_MAX_CHANNELS <= 32 && BOX_MAX_AXES <= 32, "masks are uint32_t");
 /* Longest STATUS line: the fixed fields, a fault word per channel, then per axis the
- * estimator "bias:innovation:refusals" (7 + 11 + 5 characters and their separators). */
+ * estimator "bias:innovation:refusals:reopens" (7 + 11 + 5 + 5 characters and separators). */
 #define STATUS_LINE_MAX                                                                      \
     (3 + 4 + 1 + 10 + 1 + 10 + 1 + BOX_MAX_CHANNELS * 5 + 1 + 10 + 1 +                       \
-     BOX_MAX_AXES * (7 + 1 + 11 + 1 + 5 + 1) + LINE_TRAILER_LEN)
+     BOX_MAX_AXES * (7 + 1 + 11 + 1 + 5 + 1 + 5 + 1) + LINE_TRAILER_LEN)
 _Static_assert(STATUS_LINE_MAX <= LINE_MAX, "the longest STATUS line must fit the line buffer");
 
 /* ---- MEAS: the samples the box remembers (docs/service.md, "On the box") ------------------
@@ -117,7 +117,9 @@ static app_t app;
  * Everything that makes the next sample line what it would have been without a reset: the
  * sequence, the reference, the filters, the guards and the output stage. Written after every
  * sample; trusted at boot only after a warm reset, for the same model, with a valid CRC. */
-#define RETAIN_MAGIC UINT32_C(0x54434d45) /* "TCME": the layout with the estimator */
+/* "TCMF": the layout with the estimator's re-opening streak ("TCME", the layout before it, is
+ * refused: another magic, another size; such a box boots cold) */
+#define RETAIN_MAGIC UINT32_C(0x54434d46)
 
 typedef struct {
     uint32_t magic;
@@ -610,13 +612,16 @@ static void take_sample(void)
     }
     app.status = st;
     app.sampled = true;
-    if (--app.rate_left == 0u) {
+    bool send = --app.rate_left == 0u && !app.skipping;
+    if (app.rate_left == 0u) {
         app.rate_left = app.rate;
-        if (!app.skipping) {
-            send_sample_line(seq);
-        }
     }
+    /* saved before the line goes out: a reset after a line was seen never repeats its sample
+     * (at worst a reset in between loses that line: a gap in seq) */
     retain_save();
+    if (send) {
+        send_sample_line(seq);
+    }
 }
 
 /* ---- commands -------------------------------------------------------------------------- */
@@ -706,6 +711,7 @@ static void send_status(void)
         line_put_i32(l, est[a].bias_nm);
         put_opt_i32(':', ((snap.est_seen >> a) & 1u) != 0u, est[a].last_innovation_nm);
         put_opt_i32(':', true, snap.est_refusals[a]);
+        put_opt_i32(':', true, est[a].reopens);
     }
     send_line();
 }
@@ -718,26 +724,28 @@ static void handle_meas(const cmd_t *c)
     const uint32_t a = c->arg;
     const tcm_service_t *svc = service_of(a);
     const meas_ring_t *ring = &app.ring;
-    const char *reason;
+    const char *reason; /* ",R,<reason>" refused, ",A,-" applied, ",A,REOPEN" re-opened */
     bool measured = false; /* the reading reached the estimator: its innovation is shown */
     uint32_t back = ring->newest_seq - c->seq; /* samples before the newest (wraps) */
     uint32_t at = (ring->head + BOX_MEAS_SAMPLES - back % BOX_MEAS_SAMPLES) % BOX_MEAS_SAMPLES;
     if (!svc) {
-        reason = app.model_ok && a >= app.n_axes ? "AXIS" : "OFF";
+        reason = app.model_ok && a >= app.n_axes ? ",R,AXIS" : ",R,OFF";
     } else if ((app.needs_ref && !app.referenced) || app.zero_pending ||
                (back < ring->count && ring->flag[at][a] == MEAS_NO_REF)) {
-        reason = "NO_REF";
+        reason = ",R,NO_REF";
     } else if (back >= ring->count) {
-        reason = "SEQ";
+        reason = ",R,SEQ";
     } else if (ring->flag[at][a] != MEAS_OK || ring->flag[ring->head][a] != MEAS_OK) {
-        reason = "HOLDING";
+        reason = ",R,HOLDING";
     } else {
         measured = true;
-        bool accepted = est_measure(&est[a], svc, c->nm, ring->model_nm[at][a]);
+        uint32_t verdict = est_measure(&est[a], svc, c->nm, ring->model_nm[at][a]);
         snap.est_seen |= (uint32_t)1u << a;
         uint16_t *n = &snap.est_refusals[a];
-        *n = accepted ? 0u : (uint16_t)(*n + (*n < UINT16_MAX));
-        reason = accepted ? NULL : "GATE";
+        *n = verdict != EST_REFUSED ? 0u : (uint16_t)(*n + (*n < UINT16_MAX));
+        reason = verdict == EST_REFUSED    ? ",R,GATE"
+                 : verdict == EST_REOPENED ? ",A,REOPEN"
+                                           : ",A,-";
         retain_save(); /* the estimate survives a warm reset before the next sample */
     }
     line_t *l = &app.line;
@@ -746,8 +754,7 @@ static void handle_meas(const cmd_t *c)
     line_put_u32(l, a);
     line_sep(l);
     line_put_u32(l, c->seq);
-    line_put_str(l, reason ? ",R," : ",A,-");
-    line_put_str(l, reason ? reason : "");
+    line_put_str(l, reason);
     /* without an estimator nothing is shown (est[0] is read, not sent); P < 2^30 nm^2 */
     const est_state_t *e = &est[svc ? a : 0u];
     put_opt_i32(',', measured, e->last_innovation_nm);

@@ -150,8 +150,9 @@ uint32_t tcm_model_crc32(const tcm_model_t *m)
         crc = crc_i64(crc, ax->intercept_q);
         crc = crc_i32(crc, ax->max_step_nm);
         const tcm_service_t *sv = &ax->service;
-        /* on, p0_pmax, g2_q8 (1 + 1 + 4 bytes), then the four int64 */
-        crc = crc_le(crc, sv->on | (uint32_t)sv->p0_pmax << 8 | (uint64_t)sv->g2_q8 << 16, 6);
+        /* on, p0_pmax, g2_q8, reopen_after (1 + 1 + 4 + 1 bytes), then the four int64 */
+        crc = crc_le(crc, sv->on | (uint32_t)sv->p0_pmax << 8 | (uint64_t)sv->g2_q8 << 16 |
+                              (uint64_t)sv->reopen_after << 48, 7);
         crc = crc_i64(crc, sv->q_q8);
         crc = crc_i64(crc, sv->r_q8);
         crc = crc_i64(crc, sv->floor2_nm2);

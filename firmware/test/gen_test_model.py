@@ -131,7 +131,14 @@ def meas_expectations() -> dict[str, int]:
     p1t = min(p1 + q, pmax)
     k2 = (p1t * 2**16 + (p1t + r) // 2) // (p1t + r)
     p2 = p1t - rdiv16(k2 * p1t)
+    # the lock-out (docs/service.md, "Re-opening"): the third refused reading in a row that
+    # agrees with the first (their difference passes the gate; a +90 um one does not) is taken
+    # as it is (bias + nu: the model + 50 um) with its variance, min(R, p_max) = R
+    assert gate_ok(0, p1t) and not gate_ok(40000, p1t)
+    reopen_bias = bias1 + nu2
     return {"VEC_MEAS_BIAS1": bias1, "VEC_MEAS_P1_NM2": (p1 + 128) // 256,
+            "VEC_MEAS_REOPEN_BIAS": reopen_bias,
+            "VEC_MEAS_REOPEN_P_NM2": (min(r, pmax) + 128) // 256,
             "VEC_MEAS_P1_TICK_NM2": (p1t + 128) // 256, "VEC_MEAS_P2_NM2": (p2 + 128) // 256,
             "VEC_MEAS_PMAX_NM2": pmax // 256, "VEC_MEAS_GATE_NU": nu2}
 
@@ -463,7 +470,7 @@ static const bool vec_zero_before[VEC_N] = {{{c_list(zero_before)}}};
 
 /* MEAS (docs/service.md): dx and dy run the estimator, dz has none; a reading +5 um above
  * the model at P = p_max, then +50 um (refused by the gate) */
-#define VEC_SVC_IDLE "0:-:0;0:-:0;-"
+#define VEC_SVC_IDLE "0:-:0:0;0:-:0:0;-"
 {meas}
 
 #endif

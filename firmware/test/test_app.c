@@ -616,7 +616,7 @@ static void test_App_ShouldApplyAReadingThroughTheStepLimit(void **state)
     assert_true(next.corr[0] - s.corr[0] <= 5000); /* within dx's 5 um step */
     status_words(payload, sizeof payload);
     char tail[64];
-    snprintf(tail, sizeof tail, ",-,%d:5000:0;0:-:0;-", VEC_MEAS_BIAS1);
+    snprintf(tail, sizeof tail, ",-,%d:5000:0:0;0:-:0:0;-", VEC_MEAS_BIAS1);
     assert_string_equal(payload + strlen(payload) - strlen(tail), tail);
     /* a reading of a sample 3 back is still remembered (against dx's model value then, plus
      * the bias now: innovation 0), 4 back is not, nor one not produced yet */
@@ -648,8 +648,42 @@ static void test_App_ShouldRefuseAChipOnTheArtifactAtTheGate(void **state)
     assert_int_equal(next.corr[0], s.corr[0]); /* never moves the tool */
     status_words(payload, sizeof payload);
     char tail[64];
-    snprintf(tail, sizeof tail, ",-,%d:%d:2;0:-:0;-", VEC_MEAS_BIAS1, VEC_MEAS_GATE_NU);
+    snprintf(tail, sizeof tail, ",-,%d:%d:2:0;0:-:0:0;-", VEC_MEAS_BIAS1, VEC_MEAS_GATE_NU);
     assert_string_equal(payload + strlen(payload) - strlen(tail), tail); /* 2 refusals */
+}
+
+/* The gate's lock-out (docs/service.md, "Re-opening"): the third refused reading in a row that
+ * agrees with the streak's first re-opens dx (REOPEN), also across a warm reset; one that does
+ * not agree starts the streak again. The output walks to it through dx's 5 um step limit. */
+static void test_App_ShouldReopenAfterRefusalsThatAgree(void **state)
+{
+    (void)state;
+    sample_line_t s, next;
+    char payload[300], tail[64];
+    uint32_t seq = settle(&s, 200);
+    meas(0, s.corr[0] + 5000, seq, payload, sizeof payload);
+    steady_sample(0, &s);
+    const int32_t base = (int32_t)(s.corr[0] - VEC_MEAS_BIAS1); /* dx's model value: bias 4.7 um in force */
+    const int32_t offsets[4] = {50000, 90000, 50000, 50000}; /* +90 um does not agree */
+    for (int i = 0; i < 4; i++) {
+        meas(0, base + offsets[i], s.seq, payload, sizeof payload);
+        expect_line(payload, "M,0,%u,R,GATE,%d,%d,%d", (unsigned)s.seq,
+                    offsets[i] - VEC_MEAS_BIAS1, VEC_MEAS_BIAS1, VEC_MEAS_P1_TICK_NM2);
+    }
+    fake_reset_by_watchdog = true; /* the streak (2 agreeing) is retained */
+    app_init();
+    (void)fake_uart_take();
+    steady_sample(0, &s);
+    meas(0, s.corr[0] - VEC_MEAS_BIAS1 + 50000, s.seq, payload, sizeof payload);
+    expect_line(payload, "M,0,%u,A,REOPEN,%d,%d,%d", (unsigned)s.seq, VEC_MEAS_GATE_NU,
+                VEC_MEAS_REOPEN_BIAS, VEC_MEAS_REOPEN_P_NM2);
+    steady_sample(0, &next);
+    assert_int_equal(next.corr[0] - s.corr[0], 5000); /* one step limit, no more */
+    assert_true((next.status & 0x0004u) != 0u);       /* SLEW: walking to the new estimate */
+    status_words(payload, sizeof payload);
+    snprintf(tail, sizeof tail, ",-,%d:%d:0:1;0:-:0:0;-", VEC_MEAS_REOPEN_BIAS,
+             VEC_MEAS_GATE_NU);
+    assert_string_equal(payload + strlen(payload) - strlen(tail), tail); /* 1 re-opening */
 }
 
 static void test_App_ShouldRefuseMeasWithAReason(void **state)
@@ -730,6 +764,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup(test_App_ShouldMatchHostVectorsBitForBit, boot),
+        cmocka_unit_test_setup(test_App_ShouldReopenAfterRefusalsThatAgree, boot),
         cmocka_unit_test_setup(test_App_ShouldResumeBitForBitAfterAWatchdogReset, boot),
         cmocka_unit_test_setup(test_App_ShouldBootColdWhenTheRetainedMemoryIsLost, boot),
         cmocka_unit_test_setup(test_App_ShouldRefuseResumeWhenThereIsNothingToContinue, boot),

@@ -172,7 +172,7 @@ def _one_term_crc() -> int:
     # degC, no training range (window = valid range), no max_step_c (default 1 degC = 128 codes
     # per 1 s sample), type K, no max_still_samples (no stuck check: 0)
     data += struct.pack("<BBqi", ONE_SHIFT, 1, ONE_INTERCEPT_Q, 1000)  # default 1 um/s x 1 s
-    data += struct.pack("<BBI4q", 0, 0, 0, 0, 0, 0, 0)  # no service block: estimator off
+    data += struct.pack("<BBIB4q", 0, 0, 0, 0, 0, 0, 0, 0)  # no service block: estimator off
     data += struct.pack("<BBBiq", 0, 0, 0, 0, ONE_COEF_Q)  # temp, channel 0, no state, no param
     return zlib.crc32(data)
 
@@ -185,7 +185,7 @@ GOLDEN = """\
  * Model {hash} (schema thermal-model/1), sample period 1000 ms.
  * Output: per axis, int32_t nanometres. Inputs: int32_t temperature codes, LSB 1/128 degC
  * (MAX31856 LTCB >> 5, sign-extended); a code outside its channel's range below is a fault.
- * Arithmetic: docs/fixed-point.md (runtime format 6); bounds: docs/codegen.md.
+ * Arithmetic: docs/fixed-point.md (runtime format 7); bounds: docs/codegen.md.
  * Include this file from exactly one firmware source file.
  */
 #ifndef TCM_GENERATED_MODEL_H
@@ -195,9 +195,9 @@ GOLDEN = """\
 
 #include "model_eval.h"
 
-#define TCM_HEADER_FORMAT 6
+#define TCM_HEADER_FORMAT 7
 #if TCM_HEADER_FORMAT != TCM_RUNTIME_FORMAT
-#error "model.h is header format 6 but model_eval.h is another runtime format: regenerate \
+#error "model.h is header format 7 but model_eval.h is another runtime format: regenerate \
 model.h with the codegen matching this firmware (host codegen)"
 #endif
 
@@ -264,6 +264,7 @@ max_step_c) */
 #define TCM_AXIS0_SVC_G2_Q8 0u
 #define TCM_AXIS0_SVC_ON 0u
 #define TCM_AXIS0_SVC_P0_PMAX 0u
+#define TCM_AXIS0_SVC_REOPEN_AFTER 0u
 _Static_assert(TCM_AXIS0_MAX_STEP_NM >= 1, "axis 0 (dz_um): output step limit must be at least \
 1 nm");
 _Static_assert(TCM_AXIS0_SHIFT <= TCM_MAX_SHIFT, "axis 0 (dz_um): shift out of range");
@@ -272,7 +273,8 @@ _Static_assert(TCM_AXIS0_ACC_MAX <= TCM_ACC_LIMIT,
 _Static_assert(TCM_RDIV_CONST(TCM_AXIS0_ACC_MAX, TCM_AXIS0_SHIFT) <= INT32_MAX,
                "axis 0 (dz_um): the output could overflow int32_t");
 _Static_assert(TCM_SVC_PARAMS_OK(TCM_AXIS0_SVC_ON, TCM_AXIS0_SVC_Q_Q8, TCM_AXIS0_SVC_R_Q8, \
-TCM_AXIS0_SVC_G2_Q8, TCM_AXIS0_SVC_FLOOR2_NM2, TCM_AXIS0_SVC_PMAX_Q8, TCM_AXIS0_SVC_P0_PMAX),
+TCM_AXIS0_SVC_G2_Q8, TCM_AXIS0_SVC_FLOOR2_NM2, TCM_AXIS0_SVC_PMAX_Q8, TCM_AXIS0_SVC_P0_PMAX, \
+TCM_AXIS0_SVC_REOPEN_AFTER),
                "axis 0 (dz_um): estimator parameters outside the ranges the fixed-point \
 arithmetic is proven for");
 
@@ -315,7 +317,8 @@ static const tcm_axis_t tcm_axes[] = {{
 .service = {{.q_q8 = TCM_AXIS0_SVC_Q_Q8, \
 .r_q8 = TCM_AXIS0_SVC_R_Q8, .floor2_nm2 = TCM_AXIS0_SVC_FLOOR2_NM2, \
 .pmax_q8 = TCM_AXIS0_SVC_PMAX_Q8, .g2_q8 = TCM_AXIS0_SVC_G2_Q8, .on = TCM_AXIS0_SVC_ON, \
-.p0_pmax = TCM_AXIS0_SVC_P0_PMAX}}, .name = "dz_um"}},
+.p0_pmax = TCM_AXIS0_SVC_P0_PMAX, .reopen_after = TCM_AXIS0_SVC_REOPEN_AFTER}}, \
+.name = "dz_um"}},
 }};
 _Static_assert(sizeof tcm_axes / sizeof tcm_axes[0] == TCM_N_AXES, "axis table size");
 

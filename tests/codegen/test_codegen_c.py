@@ -74,7 +74,7 @@ def test_header_compiles_warning_free_on_host_and_cortex_m4(name, tmp_path):
 @pytest.mark.skipif(GCC is None, reason="needs gcc")
 def test_stale_header_format_is_a_compile_error(tmp_path):
     gen = _write_header(tmp_path, "one_term")
-    stale = gen.text.replace("#define TCM_HEADER_FORMAT 6", "#define TCM_HEADER_FORMAT 5")
+    stale = gen.text.replace("#define TCM_HEADER_FORMAT 7", "#define TCM_HEADER_FORMAT 6")
     assert stale != gen.text
     (tmp_path / "model.h").write_text(stale)
     r = _compile(GCC, ["-c", "use.c", "-o", "/dev/null"], tmp_path)
@@ -163,7 +163,7 @@ def independent_serialisation(m: dict, fixed_point: dict) -> bytes:
 def _service_bytes(m: dict, sv: dict | None) -> bytes:
     """docs/fixed-point.md's estimator fields, from docs/service.md's table (issue 42)."""
     if sv is None:
-        return struct.pack("<BBI4q", 0, 0, 0, 0, 0, 0, 0)
+        return struct.pack("<BBIB4q", 0, 0, 0, 0, 0, 0, 0, 0)
 
     def q(x: Fraction) -> int:  # half away from zero (all non-negative here)
         return math.floor(x + Fraction(1, 2))
@@ -171,7 +171,8 @@ def _service_bytes(m: dict, sv: dict | None) -> bytes:
     start = (m.get("reference") or {}).get("kind") == "start"
     pmax = q(Fraction(sv["p_max_um2"]) * 10**6 * 256)
     return struct.pack(
-        "<BBI4q", 1, 0 if start else 1, q(Fraction(sv["gate_sigma"]) ** 2 * 256),
+        "<BBIB4q", 1, 0 if start else 1, q(Fraction(sv["gate_sigma"]) ** 2 * 256),
+        int(sv.get("reopen_after", 3)),  # contract.service.SERVICE_OPTIONAL's default
         q(Fraction(sv["q_um2_per_h"]) * 10**6 * 256 * Fraction(m["sample_period_s"]) / 3600),
         max(1, q(Fraction(sv["probe_noise_um"]) ** 2 * 10**6 * 256)),
         q(Fraction(sv["gate_floor_um"]) ** 2 * 10**6), pmax)

@@ -174,6 +174,15 @@ def test_meas_reply_and_status_service_field_round_trip():
     assert p.decode(p.encode(status)) == status
     # a box from before MEAS: no service field
     assert p.decode(framed("S,0800,9,1,0000,0")).service is None
+    # the gate's lock-out ended (docs/service.md, "Re-opening"): applied, reason REOPEN, and
+    # STATUS counts the re-openings in a fourth part
+    reopened = p.MeasReply(2, 180, True, "REOPEN", 60016, 60016, 340)
+    assert p.decode(p.encode(reopened)) == reopened
+    assert p.encode(reopened) == framed("M,2,180,A,REOPEN,60016,60016,340")
+    status = p.decode(framed("S,0800,9,1,0000,0,4706:5000:0:0;60016:60016:0:1;-"))
+    assert status.service == (p.AxisService(4706, 5000, 0, 0), p.AxisService(60016, 60016, 0, 1),
+                              None)
+    assert p.decode(p.encode(status)) == status
     assert p.encode_meas(1, -2500, 42) == b"MEAS 1 -2500 42\r\n"
     with pytest.raises(p.InputError):
         p.encode_meas(0, 2**31, 1)

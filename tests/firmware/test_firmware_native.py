@@ -87,7 +87,7 @@ def test_info_status_and_rate_over_the_pty(fw):
         tuple(p.Channel(c["channel"], c["sensor"], c["tc_type"])
               for c in fw["model"]["channels"]))
     # the estimator per axis (issue 42): '-' for an axis without a service block (MEAS OFF)
-    service = tuple(None if "service" not in ax else p.AxisService(0, None, 0)
+    service = tuple(None if "service" not in ax else p.AxisService(0, None, 0, 0)
                     for ax in fw["model"]["axes"].values())
     assert status == p.StatusReport(p.Status.NO_DATA, 0, 0, (0,) * 8, service=service)
 

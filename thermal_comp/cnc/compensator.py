@@ -423,7 +423,8 @@ class Compensator:
             a.p_nm2 = m.p_nm2
         self._meas_answer(m.applied, m.reason or "")
         self.log(f"MEAS {a.letter.upper()} seq {m.seq}: "
-                 + ("applied" if m.applied else f"refused ({m.reason})")
+                 + (f"applied{f' ({m.reason})' * bool(m.reason)}" if m.applied  # REOPEN
+                    else f"refused ({m.reason})")
                  + f", innovation {_show_nm(m.innovation_nm)}, bias {_show_nm(m.bias_nm)}"
                  + (f", {self.meas_refused_in_row} refused in a row"
                     if self.meas_refused_in_row > 1 else ""))

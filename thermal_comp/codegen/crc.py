@@ -25,8 +25,9 @@ def serialise(model: QModel) -> bytes:
     for ax in model.axes:
         out += struct.pack("<BBqi", ax.shift, len(ax.terms), ax.intercept_q, ax.max_step_nm)
         sv = ax.service
-        out += struct.pack("<BBI4q", sv is not None, bool(sv and sv.p0_q8), *(
-            (sv.g2_q8, sv.q_q8, sv.r_q8, sv.floor2_nm2, sv.pmax_q8) if sv else (0,) * 5))
+        out += struct.pack("<BBIB4q", sv is not None, bool(sv and sv.p0_q8), *(
+            (sv.g2_q8, sv.reopen_after, sv.q_q8, sv.r_q8, sv.floor2_nm2, sv.pmax_q8) if sv
+            else (0,) * 6))
         for t in ax.terms:
             out += struct.pack("<BBBiq", t.kind_code, t.input, t.state or 0, t.param, t.coef_q)
     return bytes(out)

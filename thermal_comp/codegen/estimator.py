@@ -12,6 +12,7 @@ contract/service.py holds the widths. Per axis:
             floor2   int64   gate_floor^2 in nm^2
             pmax_q8  int64   the variance's cap, 1/256 nm^2
             p0_q8    int64   its value at power-up / ZERO (0 for a start model, else pmax)
+            reopen   uint8   agreeing refusals in a row that re-open the axis (0: never)
 
 Every sample after the reference sample: ``p = min(p + q, pmax)``. The output is
 ``model_nm + bias_nm`` before the box's output stage (clamp, step limit). A reading ``z_nm`` of
@@ -26,7 +27,13 @@ a sample whose model output was ``model_nm`` (``measure``):
     p = p - rdiv(K * p, 16)                         K p < 2^54, the result >= 0
 
 ``rdiv`` is contract.fixed_point's: v / 2^f rounded half away from zero, never shifting a
-negative value. A refused reading changes nothing.
+negative value. A refused reading changes nothing but the re-opening streak (docs/service.md,
+"Re-opening"): with reopen > 0 and |nu| <= 2^22, it joins the streak if the streak is not
+empty and d = nu - anchor passes the same gate (d^2 * 2^16 <= g2 * S or d^2 <= floor2; |d| <=
+2^23, d^2 * 2^16 <= 2^62), else it starts a new one (anchor = nu, agree = 1); at agree ==
+reopen the reading re-opens the axis (REOPEN): bias = clamp(bias + nu, +-BIAS_MAX_NM), the
+reading as it is, and p = min(r, pmax), its variance. An accepted or re-opening reading, or
+one beyond 2^22, empties the streak (agree = 0).
 """
 
 from __future__ import annotations
@@ -47,10 +54,12 @@ from thermal_comp.contract.service import (
     P_FRAC_BITS,
     SERVICE_FALLBACKS,
     SERVICE_FIELDS,
+    service_value_problem,
 )
 
 INT64_MAX = (1 << 63) - 1
 REFUSED_IMPLAUSIBLE = "IMPLAUSIBLE"
+REOPENED = "REOPEN"  # accepted: the re-opening streak reached reopen_after (docs/service.md)
 
 
 def _q(value: float, scale: Fraction) -> int:
@@ -67,22 +76,22 @@ class FixedParams:
     floor2_nm2: int
     pmax_q8: int
     p0_q8: int
+    reopen_after: int = 0  # agreeing refusals in a row that re-open the axis (0: never)
 
     @staticmethod
     def of(q_um2_per_h: float, probe_noise_um: float, gate_sigma: float, gate_floor_um: float,
            p_max_um2: float, period_s: float, start: bool = True,
-           residual_noise_um: float = 0.0) -> FixedParams:
+           residual_noise_um: float = 0.0, reopen_after: float = 0.0) -> FixedParams:
         """Quantise float parameters (each within contract.service.SERVICE_FIELDS, the
         period within 0 .. MAX_PERIOD_S), exactly: the float's binary value, rounded half away
         from zero. CodegenError names a parameter out of its proven range."""
         given = {"q_um2_per_h": q_um2_per_h, "probe_noise_um": probe_noise_um,
                  "gate_sigma": gate_sigma, "gate_floor_um": gate_floor_um,
-                 "p_max_um2": p_max_um2, "residual_noise_um": residual_noise_um}
+                 "p_max_um2": p_max_um2, "residual_noise_um": residual_noise_um,
+                 "reopen_after": reopen_after}
         for k, v in given.items():
-            lo, hi, unit = SERVICE_FIELDS[k]
-            if not lo <= v <= hi:
-                raise CodegenError(f"service.{k}: {v!r} {unit} is outside {lo:g}..{hi:g}, the "
-                                   "range the fixed-point estimator is proven for")
+            if problem := service_value_problem(k, v):
+                raise CodegenError(f"service.{k}: {problem}")
         if not 0 < period_s <= MAX_PERIOD_S:
             raise CodegenError(f"sample_period_s {period_s!r}: the estimator's q per sample is "
                                f"proven for periods up to {MAX_PERIOD_S:g} s")
@@ -97,7 +106,7 @@ class FixedParams:
                            nm2 * q8)),
             g2_q8=_q(gate_sigma * gate_sigma, Fraction(1 << GATE_FRAC_BITS)),
             floor2_nm2=_q(gate_floor_um * gate_floor_um, nm2),
-            pmax_q8=pmax, p0_q8=0 if start else pmax)
+            pmax_q8=pmax, p0_q8=0 if start else pmax, reopen_after=int(reopen_after))
 
     @staticmethod
     def of_model(model: Mapping, axis: str) -> FixedParams:
@@ -116,6 +125,9 @@ class FixedState:
     p_q8: int = 0
     last_innovation_nm: int = 0
     refusals: int = 0  # readings refused since the last accepted one
+    anchor_nm: int = 0  # the innovation of the re-opening streak's first refusal
+    agree: int = 0  # refused readings in that streak (0: none)
+    reopens: int = 0  # re-openings since power-up or ZERO (saturating at 65535)
 
 
 @dataclass(frozen=True)
@@ -124,7 +136,7 @@ class Measured:
 
     innovation_nm: int  # saturated to int32
     accepted: bool
-    reason: str  # "" when accepted
+    reason: str  # "" when accepted, REOPENED when accepted by re-opening the axis
     bias_nm: int
     p_q8: int
 
@@ -143,22 +155,45 @@ def _sat32(v: int) -> int:
     return max(INT32_MIN, min(INT32_MAX, v))
 
 
+def _passes(v: int, s: int, params: FixedParams) -> bool:
+    """The gate's test of a value v (|v| <= 2^23) against S = P + R."""
+    return (v * v) << GAIN_FRAC_BITS <= params.g2_q8 * s or v * v <= params.floor2_nm2
+
+
+def _reopens(state: FixedState, params: FixedParams, nu: int, s: int) -> bool:
+    """A refused reading (|nu| <= 2^22) in the re-opening streak: True when it re-opens."""
+    if not params.reopen_after:
+        return False
+    if not state.agree or not _passes(nu - state.anchor_nm, s, params):
+        state.anchor_nm, state.agree = nu, 0
+    state.agree += 1
+    return state.agree >= params.reopen_after
+
+
 def measure(state: FixedState, params: FixedParams, reading_nm: int, model_nm: int
             ) -> Measured:
     """One probe reading of a sample whose model output (before the bias) was ``model_nm``."""
     nu = int(reading_nm) - (int(model_nm) + state.bias_nm)
     state.last_innovation_nm = _sat32(nu)
-    s = state.p_q8 + params.r_q8
-    ok = abs(nu) <= INNOVATION_MAX_NM and (
-        (nu * nu) << GAIN_FRAC_BITS <= params.g2_q8 * s or nu * nu <= params.floor2_nm2)
-    if not ok:
+    if abs(nu) > INNOVATION_MAX_NM:
         state.refusals += 1
+        state.agree = 0
         return Measured(_sat32(nu), False, REFUSED_IMPLAUSIBLE, state.bias_nm, state.p_q8)
+    s = state.p_q8 + params.r_q8
+    if not _passes(nu, s, params):
+        if not _reopens(state, params, nu, s):
+            state.refusals += 1
+            return Measured(nu, False, REFUSED_IMPLAUSIBLE, state.bias_nm, state.p_q8)
+        state.bias_nm = max(-BIAS_MAX_NM, min(BIAS_MAX_NM, state.bias_nm + nu))
+        state.p_q8 = min(params.r_q8, params.pmax_q8)
+        state.reopens = min(state.reopens + 1, 0xFFFF)
+        state.refusals = state.agree = 0
+        return Measured(nu, True, REOPENED, state.bias_nm, state.p_q8)
     k = ((state.p_q8 << GAIN_FRAC_BITS) + s // 2) // s
     state.bias_nm = max(-BIAS_MAX_NM, min(BIAS_MAX_NM,
                                            state.bias_nm + rdiv(k * nu, GAIN_FRAC_BITS)))
     state.p_q8 -= rdiv(k * state.p_q8, GAIN_FRAC_BITS)
-    state.refusals = 0
+    state.refusals = state.agree = 0
     return Measured(nu, True, "", state.bias_nm, state.p_q8)
 
 
@@ -185,3 +220,4 @@ def to_nm(um: float) -> int:
 # proven in docs/service.md ("Ranges"): the products above stay below 2^63
 assert (INNOVATION_MAX_NM ** 2) << GAIN_FRAC_BITS < INT64_MAX
 assert 2 * BIAS_MAX_NM < INT32_MAX
+assert ((2 * INNOVATION_MAX_NM) ** 2) << GAIN_FRAC_BITS <= 1 << 62  # the streak's difference

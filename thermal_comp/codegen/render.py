@@ -170,7 +170,8 @@ def _service_view(ax: QAxis) -> dict:
               ("pmax_q8", "PMAX_Q8", c_int64(sv.pmax_q8 if sv else 0)),
               ("g2_q8", "G2_Q8", f"{sv.g2_q8 if sv else 0}u"),
               ("on", "ON", f"{int(sv is not None)}u"),
-              ("p0_pmax", "P0_PMAX", f"{int(bool(sv and sv.p0_q8))}u")]
+              ("p0_pmax", "P0_PMAX", f"{int(bool(sv and sv.p0_q8))}u"),
+              ("reopen_after", "REOPEN_AFTER", f"{sv.reopen_after if sv else 0}u")]
     return {"on": int(sv is not None),
             "fields": [{"name": n, "macro": p + m, "lit": lit} for n, m, lit in fields]}
 

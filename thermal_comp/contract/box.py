@@ -22,8 +22,9 @@ RUNTIME_MAX_TERMS_PER_AXIS = 255
 # largest plausible step (IMPLAUSIBLE) and axes their output step limit, both CRC-covered; 4 a
 # lag/rate term names its filter state, shared by the terms of one channel and time constant; 5
 # channels carry their stuck limit (max_still_samples, STUCK), CRC-covered; 6 axes carry the
-# in-service estimator's parameters (issue 42, MEAS), CRC-covered
-RUNTIME_FORMAT = 6
+# in-service estimator's parameters (issue 42, MEAS), CRC-covered; 7 and its re-opening count
+# (reopen_after, the gate's lock-out), CRC-covered
+RUNTIME_FORMAT = 7
 HEADER_FORMAT = RUNTIME_FORMAT
 ZERO_SAMPLES = 8  # a ZERO's reference is the mean of this many samples (BOX_ZERO_SAMPLES)
 CHANNEL_MIN_C = -40.0  # default valid range of a thermocouple channel

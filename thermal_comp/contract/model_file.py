@@ -51,7 +51,7 @@ from thermal_comp.contract.box import (
 )
 from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.fixed_point import INT32_MAX
-from thermal_comp.contract.service import SERVICE_FIELDS, SERVICE_OPTIONAL
+from thermal_comp.contract.service import SERVICE_FIELDS, SERVICE_OPTIONAL, service_value_problem
 from thermal_comp.contract.terms import (
     AUX_KINDS,
     FILTER_KINDS,
@@ -591,15 +591,14 @@ def _check_service(c: _Checker, axis: str, block: object) -> None:
     where = f"axis '{axis}': service"
     if not isinstance(block, Mapping):
         c.fail(f"{where}: expected an object of {', '.join(SERVICE_FIELDS)}, got {block!r}")
-    for key, (lo, hi, unit) in SERVICE_FIELDS.items():
+    for key in SERVICE_FIELDS:
         if key not in block and key in SERVICE_OPTIONAL:
             continue
         if key not in block:
             c.fail(f"{where}.{key}: missing (one of {', '.join(SERVICE_FIELDS)})")
         v = c.number(block[key], f"{where}.{key}")
-        if not lo <= v <= hi:
-            c.fail(f"{where}.{key}: {v!r} {unit} is outside {lo:g}..{hi:g} (the range the "
-                   "box's fixed-point estimator is proven for, contract.service)")
+        if problem := service_value_problem(key, v):
+            c.fail(f"{where}.{key}: {problem}")
     why = block.get("why", "")
     if not isinstance(why, str):
         c.fail(f"{where}.why: expected text, got {why!r}")

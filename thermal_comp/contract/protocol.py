@@ -141,13 +141,14 @@ class Sample:
 @dataclass(frozen=True)
 class AxisService:
     """One axis of the STATUS line's service field: the in-service estimate (the bias added
-    to the model's output, nm), the last reading's innovation (nm; None: no reading since
-    the last reset or ZERO) and the readings the gate refused in a row since the last
-    accepted one (saturating at 65535)."""
+    to the model's output, nm), the last reading's innovation (nm; None: none since the last
+    reset or ZERO), the readings the gate refused in a row since the last accepted one and
+    the re-openings (REOPEN) since then, both up to 65535 (reopens None: an older box)."""
 
     bias_nm: int
     innovation_nm: int | None
     refusals: int
+    reopens: int | None = None
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,7 @@ class MeasReply:
     """``$M``: the answer to ``MEAS <axis> <nm> <seq>``.
 
     ``applied``: the reading moved the estimate (its effect reaches the output from the next
-    sample on, through the step limit); else ``reason`` is one of MEAS_REASONS.
+    sample on, through the step limit; reason None, or REOPEN); else one of MEAS_REASONS.
     ``innovation_nm``: reading - (model + bias) at that sample (None when the box refused
     before computing it); ``bias_nm`` / ``p_nm2``: the estimate and its variance afterwards
     (nm, nm^2; None for AXIS)."""
@@ -343,20 +344,19 @@ def _decode_status(f: _Fields) -> StatusReport:
 
 
 def _axis_service(f: _Fields, item: str) -> AxisService | None:
-    """``<bias_nm>:<innovation_nm or ->:<refusals>``, or ``-`` (the axis has no estimator)."""
+    """``<bias_nm>:<innovation_nm or ->:<refusals>[:<reopens>]``, or ``-`` (no estimator)."""
     if item == "-":
         return None
     parts = item.split(":")
-    if (len(parts) != 3 or not _DEC_RE.fullmatch(parts[0])
+    if (len(parts) not in (3, 4) or not _DEC_RE.fullmatch(parts[0])
             or not (parts[1] == "-" or _DEC_RE.fullmatch(parts[1]))
-            or not _UDEC_RE.fullmatch(parts[2])
-            or not -(2**31) <= int(parts[0]) < 2**31 or int(parts[2]) > 65535
-            or (parts[1] != "-" and not -(2**31) <= int(parts[1]) < 2**31)):
+            or not all(_UDEC_RE.fullmatch(x) and int(x) <= 65535 for x in parts[2:])
+            or not all(-(2**31) <= int(x) < 2**31 for x in parts[:2] if x != "-")):
         f.pos -= 1
-        raise f.fail(f"service entry {item!r} is not <bias_nm>:<innovation_nm|->:<refusals> "
-                     "or -")
+        raise f.fail(f"service entry {item!r} is not <bias_nm>:<innovation_nm|->:<refusals>"
+                     "[:<reopens>] or -")
     return AxisService(int(parts[0]), None if parts[1] == "-" else int(parts[1]),
-                       int(parts[2]))
+                       int(parts[2]), int(parts[3]) if len(parts) == 4 else None)
 
 
 def _decode_meas(f: _Fields) -> MeasReply:
@@ -367,12 +367,11 @@ def _decode_meas(f: _Fields) -> MeasReply:
         f.pos -= 1
         raise f.fail(f"verdict {verdict!r} is neither A nor R")
     reason_text = f.take("reason")
-    if verdict == "A" and reason_text != "-":
+    reasons = ("-", "REOPEN") if verdict == "A" else MEAS_REASONS  # REOPEN: lock-out ended
+    if reason_text not in reasons:
         f.pos -= 1
-        raise f.fail(f"an applied reading has reason {reason_text!r}, not -")
-    if verdict == "R" and reason_text not in MEAS_REASONS:
-        f.pos -= 1
-        raise f.fail(f"reason {reason_text!r} is not one of {', '.join(MEAS_REASONS)}")
+        raise f.fail(f"{'an applied reading: ' * (verdict == 'A')}reason {reason_text!r} is "
+                     f"not one of {', '.join(reasons)}")
     values: list[int | None] = []
     for name in ("innovation_nm", "bias_nm", "p_nm2"):
         if f.pos < len(f.fields) and f.fields[f.pos] == "-":
@@ -386,7 +385,7 @@ def _decode_meas(f: _Fields) -> MeasReply:
     if verdict == "A" and None in values:
         raise ProtocolError(f"$M line: an applied reading without innovation, bias or "
                             f"variance: {_show(f.raw)}")
-    return MeasReply(axis, seq, verdict == "A", None if verdict == "A" else reason_text,
+    return MeasReply(axis, seq, verdict == "A", None if reason_text == "-" else reason_text,
                      *values)
 
 
@@ -493,6 +492,7 @@ def encode_status(report: StatusReport) -> bytes:
         if report.service is not None:
             fields.append(";".join("-" if a is None else
                                    f"{a.bias_nm}:{_dash(a.innovation_nm)}:{a.refusals}"
+                                   + ("" if a.reopens is None else f":{a.reopens}")
                                    for a in report.service))
     return encode_line("S", fields)
 

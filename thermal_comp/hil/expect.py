@@ -172,7 +172,7 @@ def _meas_reply(axis: int, seq: int, nm: int, latest: int, ring_start: int, ring
     if ring[seq][1][axis] != _MEAS_OK or ring[latest][1][axis] != _MEAS_OK:
         return refuse("HOLDING")
     m = est.measure(st, pa, nm, ring[seq][0][axis])
-    return MeasReply(axis, box_seq, m.accepted, None if m.accepted else "GATE",
+    return MeasReply(axis, box_seq, m.accepted, (m.reason or None) if m.accepted else "GATE",
                      st.last_innovation_nm, st.bias_nm, (st.p_q8 + 128) >> 8)
 
 

@@ -227,7 +227,7 @@ def judge_service(report: ReplayReport, setup: ReplaySetup, capture: Capture,
             "probes": sum(1 for e in probes if e.axis == a),
             "applied": sum(1 for r in mine if r.applied),
             "refused": {k: sum(1 for r in mine if r.reason == k)
-                        for k in sorted({r.reason for r in mine if r.reason})},
+                        for k in sorted({r.reason for r in mine if r.reason and not r.applied})},
             "final_bias_um": (int(exp[-1].bias_nm[-1, a]) / 1000.0
                               if exp and exp[-1].bias_nm is not None
                               and exp[-1].bias_nm.size else 0.0),

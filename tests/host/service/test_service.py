@@ -184,3 +184,69 @@ def test_the_residual_noise_joins_the_probe_noise_in_r():
     assert old.r_q8 == 250_000 * 256  # 0.25 um^2 in 1/256 nm^2
     assert new.r_q8 == 340_000 * 256
     assert FixedParams.of(0.5, 0.5, 4.0, 3.0, 25.0, 60.0, residual_noise_um=0.0) == old
+
+
+# ---- the gate's lock-out (docs/service.md, "Re-opening") -----------------------------------
+
+def _miss_run(offset_um: float, chips: dict[int, float] | None = None):
+    """A day probed hourly whose model misses by ``offset_um`` from the start (a crash
+    re-clamp), plus chips (reading number -> um) on some readings."""
+    t, idx = hourly(60 * 24)
+    pred = np.sin(t / 7200.0)
+    z = pred[idx] + offset_um + np.random.default_rng(3).normal(0, 0.5, idx.size)
+    for j, um in (chips or {}).items():
+        z[j] += um
+    return t, idx, pred, z
+
+
+@pytest.mark.parametrize("after", [0, 3])
+def test_a_model_miss_beyond_the_gate_reopens_after_k_agreeing_refusals(after):
+    t, idx, pred, z = _miss_run(60.0)
+    trace = run_estimator(BiasKalman(0.5, 25.0, 0.0), Gate(4.0, 3.0), 0.25, pred, t, idx, z,
+                          reopen_after=after)
+    if not after:  # the lock-out: every honest reading refused, the output never moves
+        assert not trace.accepted.any() and np.all(trace.correction == 0.0)
+        return
+    assert list(trace.accepted[:4]) == [False, False, True, True]
+    assert list(np.flatnonzero(trace.reopened)) == [2] and trace.accepted[2:].all()
+    tail = slice(idx[3], None)  # from the reading after the re-opening on: the noise
+    assert np.sqrt(np.mean((pred[tail] + trace.correction[tail] - pred[tail] - 60.0) ** 2)) < 0.5
+
+
+def test_chips_that_do_not_agree_never_reopen():
+    """One chip, and chips two readings apart or of other sizes, are refused and change
+    nothing; three in a row that agree are the model's miss as far as any rule can tell."""
+    t, idx, pred, z = _miss_run(0.0, {4: 50.0, 6: 50.0, 7: 90.0, 8: 50.0, 10: 50.0})
+    trace = run_estimator(BiasKalman(0.5, 25.0, 0.0), Gate(4.0, 3.0), 0.25, pred, t, idx, z,
+                          reopen_after=3)
+    assert not trace.reopened.any()
+    refused = [4, 6, 7, 8, 10]
+    assert list(np.flatnonzero(~trace.accepted)) == refused
+    # as if those readings had never been taken
+    keep = np.setdiff1d(np.arange(idx.size), refused)
+    without = run_estimator(BiasKalman(0.5, 25.0, 0.0), Gate(4.0, 3.0), 0.25, pred, t,
+                            idx[keep], z[keep], reopen_after=3)
+    assert np.allclose(trace.correction, without.correction, rtol=0, atol=1e-12)
+
+
+def test_the_twin_reopens_where_the_float_does():
+    t, idx, pred, z = _miss_run(60.0, {10: 50.0})
+    trace = run_estimator(BiasKalman(0.5, 25.0, 0.0), Gate(4.0, 3.0), 0.25, pred, t, idx, z,
+                          reopen_after=3)
+    fixed = FixedParams.of(0.5, 0.5, 4.0, 3.0, 25.0, 60.0, reopen_after=3)
+    bias_nm, answers = run_twin(fixed, [to_nm(v) for v in pred],
+                                {int(k): to_nm(v) for k, v in zip(idx, z, strict=True)})
+    assert [a.accepted for a in answers] == list(trace.accepted)
+    assert [a.reason == "REOPEN" for a in answers] == list(trace.reopened)
+    assert np.abs(np.asarray(bias_nm) / 1000.0 - trace.correction).max() <= TWIN_BOUND_UM
+
+
+@pytest.mark.parametrize("value, needle", [(2.5, "whole number"), (256, "outside 0..255"),
+                                           (-1, "outside 0..255")])
+def test_reopen_after_is_a_whole_number_of_readings(value, needle):
+    m = {"schema": SCHEMA, "sample_period_s": 60.0, "channels": [], "axes": {"dz_um": {
+        "unit": "um", "intercept": 0.0, "terms": [], "service": {
+            "q_um2_per_h": 0.5, "probe_noise_um": 0.5, "gate_sigma": 4.0, "gate_floor_um": 3.0,
+            "p_max_um2": 25.0, "reopen_after": value}}}}
+    with pytest.raises(ModelFormatError, match=needle):
+        check_model(m)

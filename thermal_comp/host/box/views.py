@@ -33,6 +33,9 @@ def service_lines(state: MonitorState, colour: bool = False) -> list[str]:
         unit = unit_text(name)
         res = "-" if a.innovation_nm is None else f"{a.innovation_nm / 1000.0:+.3f} {unit}"
         line = f"  estimate   {name:>10}: {a.bias_nm / 1000.0:+10.3f} {unit}, last residual {res}"
+        if a.reopens:
+            line += (f", RE-OPENED {a.reopens}x (refusals in a row that agreed: the model "
+                     "missed beyond the gate, or a chip stuck on the artifact)")
         if a.refusals >= REFUSALS_WARN:
             line = (f"{red}{line}, {a.refusals} readings REFUSED in a row (beyond the gate: "
                     f"check the artifact, or ZERO){reset}")

@@ -15,7 +15,9 @@ k + 1 on (the box answers MEAS after it has output sample k).
 - ``DiscountedBias``: exponential smoothing of the innovation with a fixed gain ``alpha``
   (a Kalman filter frozen at one gain), gated with the same bookkeeping of P.
 
-``run_estimator`` runs one over a run; ``ESTIMATORS`` names them for the bench.
+``run_estimator`` runs one over a run, with the gate and its re-opening (``reopen_after``
+refused readings in a row that agree: the model, not the probe, is off; docs/service.md);
+``ESTIMATORS`` names them for the bench.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from thermal_comp.contract.service import INNOVATION_MAX_NM, NM_PER_UM
 from thermal_comp.host.service.gate import Gate
 from thermal_comp.host.service.parameters import ServiceParams
 
@@ -46,6 +49,11 @@ class Estimator:
         raise NotImplementedError
 
     def update(self, innovation: float, r: float) -> None:
+        raise NotImplementedError
+
+    def reopen(self, innovation: float, r: float) -> None:
+        """The gate's lock-out ended: the estimate takes the reading as it is, with the
+        reading's variance (capped as the estimate's)."""
         raise NotImplementedError
 
 
@@ -74,6 +82,10 @@ class BiasKalman(Estimator):
         k = self.p / (self.p + r)
         self.b += k * innovation
         self.p = (1.0 - k) * self.p
+
+    def reopen(self, innovation: float, r: float) -> None:
+        self.b += innovation
+        self.p = min(r, self.p_max)
 
 
 class BiasRateKalman(Estimator):
@@ -113,6 +125,10 @@ class BiasRateKalman(Estimator):
         self.x = self.x + k * innovation
         self.P = self.P - np.outer(k, self.P[0, :])
 
+    def reopen(self, innovation: float, r: float) -> None:
+        self.x = self.x + np.array([innovation, 0.0])
+        self.P = np.diag([min(r, self.p_max), self.p_max])
+
 
 class DiscountedBias(BiasKalman):
     """b += alpha * innovation: a fixed gain; P (propagated as the Kalman's) is kept only for
@@ -139,29 +155,59 @@ DEFAULT_ESTIMATOR = "bias"
 @dataclass
 class ServiceTrace:
     """What an estimator did over a run: the correction added at every sample, and per
-    reading its sample, innovation and whether the gate accepted it."""
+    reading its sample, innovation, whether the gate accepted it and whether that reading
+    re-opened the axis (accepted after ``reopen_after`` agreeing refusals)."""
 
     correction: np.ndarray
     index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     innovation: np.ndarray = field(default_factory=lambda: np.zeros(0))
     accepted: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    reopened: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def refused(self) -> int:
         return int(np.count_nonzero(~self.accepted))
 
 
+@dataclass
+class Reopening:
+    """The gate's lock-out rule (docs/service.md, "Re-opening"): refused readings in a row
+    whose innovations agree with the streak's first (their difference passes the gate) count;
+    at ``after`` of them (0: never) the estimate takes the reading as it is."""
+
+    after: int = 0
+    streak: int = 0
+    anchor: float = 0.0
+
+    def refused(self, gate: Gate, nu: float, variance: float) -> bool:
+        """A reading the gate refused: True when it re-opens the axis."""
+        if not self.after or abs(nu) * NM_PER_UM > INNOVATION_MAX_NM:
+            self.streak = 0
+            return False
+        if self.streak and gate.accepts(nu - self.anchor, variance):
+            self.streak += 1
+        else:
+            self.streak, self.anchor = 1, nu
+        if self.streak < self.after:
+            return False
+        self.streak = 0
+        return True
+
+
 def run_estimator(est: Estimator, gate: Gate, r_um2: float, prediction: np.ndarray,
-                  time_s: np.ndarray, index: np.ndarray, value: np.ndarray) -> ServiceTrace:
+                  time_s: np.ndarray, index: np.ndarray, value: np.ndarray,
+                  reopen_after: int = 0) -> ServiceTrace:
     """Run ``est`` over one run: ``prediction`` is the model's output (referenced as the box
-    outputs it), readings ``value`` at samples ``index`` (increasing)."""
+    outputs it), readings ``value`` at samples ``index`` (increasing); ``reopen_after``:
+    agreeing refusals in a row that re-open the axis (0: never)."""
     prediction = np.asarray(prediction, dtype=float)
     t_h = (np.asarray(time_s, dtype=float) - float(time_s[0])) / 3600.0
     n = prediction.size
     est.reset()
+    rule = Reopening(int(reopen_after))
     corr = np.zeros(n)
     t_state, start = 0.0, 0
-    nus, oks = [], []
+    nus, oks, reopens = [], [], []
     order = np.argsort(index, kind="stable")
     for k, z in zip(np.asarray(index)[order], np.asarray(value, dtype=float)[order],
                     strict=True):
@@ -171,11 +217,16 @@ def run_estimator(est: Estimator, gate: Gate, r_um2: float, prediction: np.ndarr
         t_state = t_h[k]
         nu = float(z - (prediction[k] + est.offset(np.zeros(1))[0]))
         ok = gate.accepts(nu, est.variance() + r_um2)
+        reopen = not ok and rule.refused(gate, nu, est.variance() + r_um2)
+        if reopen:
+            est.reopen(nu, r_um2)
         if ok:
+            rule.streak = 0
             est.update(nu, r_um2)
         nus.append(nu)
-        oks.append(ok)
+        oks.append(ok or reopen)
+        reopens.append(reopen)
         start = max(start, k + 1)
     corr[start:] = est.offset(t_h[start:] - t_state)
     return ServiceTrace(corr, np.asarray(index)[order].astype(int), np.asarray(nus, dtype=float),
-                        np.asarray(oks, dtype=bool))
+                        np.asarray(oks, dtype=bool), np.asarray(reopens, dtype=bool))

@@ -51,7 +51,8 @@ def updated(prediction: np.ndarray, time_s: np.ndarray, index: np.ndarray, value
     """The box's output with the estimator's correction, and what the estimator did."""
     trace = run_estimator(ESTIMATORS[estimator](params), Gate(params.gate_sigma,
                                                               params.gate_floor_um),
-                          params.r_um2, prediction, time_s, index, value)
+                          params.r_um2, prediction, time_s, index, value,
+                          int(params.reopen_after))
     return step_limited(prediction + trace.correction, max_step), trace
 
 
@@ -68,6 +69,7 @@ def service_axis(measured: np.ndarray, prediction: np.ndarray, time_s: np.ndarra
         "max_abs_um": float(np.max(np.abs(measured - y))) if n else 0.0,
         "probes": int(trace.index.size),
         "refused": trace.refused,
+        "reopened": int(np.count_nonzero(trace.reopened)),
         "final_correction_um": float(trace.correction[-1]) if n else 0.0,
         "estimator": estimator,
         "service": params.to_json(),

@@ -16,7 +16,8 @@ variance cap ``p_max_um2`` = (``P_MAX_FACTOR`` x out-of-fold RMSE)^2, clipped to
 ``P_MAX_CLIP_UM2``: the first reading is taken almost as it is, and the gate
 (``gate_sigma`` sqrt(p_max + R)) stays below a chip's +50 um even after a week unprobed.
 ``probe_noise_um`` is the probe's (default 0.5 um, a shop sets its own), ``gate_sigma`` 4 and
-``gate_floor_um`` 3 um (contract.service.SERVICE_DEFAULTS).
+``gate_floor_um`` 3 um (contract.service.SERVICE_DEFAULTS); ``reopen_after`` 3 (refusals in
+a row that agree re-open the axis: the gate's lock-out, docs/service.md).
 """
 
 from __future__ import annotations
@@ -27,7 +28,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from thermal_comp.contract.service import SERVICE_DEFAULTS, SERVICE_FALLBACKS, SERVICE_FIELDS
+from thermal_comp.contract.service import (
+    REOPEN_AFTER_DEFAULT,
+    SERVICE_DEFAULTS,
+    SERVICE_FALLBACKS,
+    SERVICE_FIELDS,
+)
 from thermal_comp.contract.terms import Term
 from thermal_comp.host.fitting import Reference, out_of_fold_predictions, stack
 from thermal_comp.host.fitting.reference import segment_bounds
@@ -51,6 +57,8 @@ class ServiceParams:
     # probe are both zero there by definition), p_max_um2 for ``none`` (an unknown offset)
     p0_um2: float = 0.0
     residual_noise_um: float = 0.0  # the model's non-persistent residual (module docstring)
+    # refused readings in a row that agree with each other before the axis re-opens (0: never)
+    reopen_after: float = float(REOPEN_AFTER_DEFAULT)
 
     @property
     def r_um2(self) -> float:
@@ -150,10 +158,13 @@ def derive_service(runs: list[Run], terms: list[Term], target: str, period_s: fl
            f"squared change D over dt ({lags}): s = {noise:.3g} um joins the probe's noise "
            f"in R; "
            f"p_max = ({P_MAX_FACTOR:g} x its RMSE {oof:.3g} um)^2 clipped to {lo:g}..{hi:g} "
-           f"um^2, so the gate refuses above {sigma * math.sqrt(p_max + r):.3g} um at most")
+           f"um^2, so the gate refuses above {sigma * math.sqrt(p_max + r):.3g} um at most; "
+           f"{REOPEN_AFTER_DEFAULT} refusals in a row that agree re-open the axis (a model "
+           "miss beyond the gate, not a chip)")
     return {"q_um2_per_h": round(q, 6), "probe_noise_um": float(probe_noise_um),
             "gate_sigma": sigma, "gate_floor_um": SERVICE_DEFAULTS["gate_floor_um"],
-            "p_max_um2": round(p_max, 6), "residual_noise_um": round(noise, 6), "why": why}
+            "p_max_um2": round(p_max, 6), "residual_noise_um": round(noise, 6),
+            "reopen_after": REOPEN_AFTER_DEFAULT, "why": why}
 
 
 def add_service(model: dict, runs: list[Run], n_blocks: int, reference: Reference,
