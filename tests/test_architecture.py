@@ -62,7 +62,7 @@ UNITS = sorted(BELOW, key=len, reverse=True)
 
 
 def module_name(path: Path) -> str:
-    """The module's name within the project: ``host.io.runs`` for host/io/runs.py."""
+    """The module's name within the project: ``host.io.load`` for host/io/load.py."""
     base = ROOT / PACKAGE if path.is_relative_to(ROOT / PACKAGE) else ROOT
     parts = list(path.relative_to(base).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)

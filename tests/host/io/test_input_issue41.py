@@ -18,8 +18,7 @@ from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.model_file import ModelFormatError, check_model
 from thermal_comp.hil.example_model import default_terms, fit_example_model
 from thermal_comp.host.cli import main
-from thermal_comp.host.io import load_run
-from thermal_comp.host.io.runs import RunFormatError
+from thermal_comp.host.io import RunFormatError, load_run
 
 REPO = Path(__file__).resolve().parents[3]
 EX = REPO / "examples"

@@ -16,8 +16,7 @@ import pytest
 from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.model_file import write_model
 from thermal_comp.host.cli import main as host_main
-from thermal_comp.host.io import CsvFormat, load_run, read_table
-from thermal_comp.host.io.runs import RunFormatError, write_run
+from thermal_comp.host.io import CsvFormat, RunFormatError, load_run, read_table, write_run
 
 ROOT = Path(__file__).resolve().parents[3]
 RUN = ROOT / "examples" / "sim_constant.csv"

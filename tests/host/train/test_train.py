@@ -217,15 +217,15 @@ def test_cli_errors_are_clear(runs, tmp_path, capsys):
 
 
 def test_fast_csv_path_reads_exactly_what_the_careful_reader_reads(tmp_path, monkeypatch):
-    import thermal_comp.host.io.runs as runs_module
+    import thermal_comp.host.io.table as table_module
 
     path = tmp_path / "r.csv"
     rng = np.random.default_rng(9)
     write_run(path, np.arange(50.0), {"T1": rng.normal(size=50) * 1e3, "T2": rng.normal(size=50),
                                       "dz_um": np.linspace(-1, 1, 50)}, precision=17)
-    fast = runs_module.read_table(path)
-    monkeypatch.setattr(runs_module, "_read_plain_table", lambda p: None)
-    slow = runs_module.read_table(path)
+    fast = table_module.read_table(path)
+    monkeypatch.setattr(table_module, "read_plain_table", lambda p: None)
+    slow = table_module.read_table(path)
     assert fast[0] == slow[0]
     np.testing.assert_array_equal(fast[1], slow[1])
     np.testing.assert_array_equal(fast[2], slow[2])

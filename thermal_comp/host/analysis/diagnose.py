@@ -52,8 +52,7 @@ from thermal_comp.host.effects import (
 )
 from thermal_comp.host.effects import candidate_row as _candidate_row
 from thermal_comp.host.fitting import DEFAULT_BLOCKS, axis_terms, fit_linear, fold_groups, rmse
-from thermal_comp.host.io import CsvFormat, Run, load_run, read_header
-from thermal_comp.host.io.runs import missing_sensors
+from thermal_comp.host.io import CsvFormat, Run, load_run, missing_sensors, read_header
 from thermal_comp.host.train import describe, outside_training
 
 DRIFT_MIN_C = 0.5  # a drift smaller than this over the run is not worth a technician's visit

@@ -18,8 +18,7 @@ from thermal_comp.contract.model_file import channel_ranges
 from thermal_comp.contract.terms import TEMPERATURE_KINDS, Term
 from thermal_comp.contract.tilt import available_axes, model_tilts
 from thermal_comp.host.fitting import NO_REFERENCE, Reference, design_matrix
-from thermal_comp.host.io import CsvFormat, Run, load_run, read_header
-from thermal_comp.host.io.runs import missing_sensors
+from thermal_comp.host.io import CsvFormat, Run, load_run, missing_sensors, read_header
 from thermal_comp.host.train import (
     dropped_reason,
     ridge_lags_note,

@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from thermal_comp.host.io import CsvFormat
-from thermal_comp.host.io.runs import DISP_UNITS, TEMP_UNITS, TIME_UNITS
+from thermal_comp.host.io import DISP_UNITS, TEMP_UNITS, TIME_UNITS, CsvFormat
 
 
 def non_negative_int(text: str) -> int:

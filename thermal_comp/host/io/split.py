@@ -13,14 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from thermal_comp.contract.errors import InputError
-from thermal_comp.host.io.runs import (
-    TIME_COLUMN,
-    CsvFormat,
-    Run,
-    RunFormatError,
-    read_table,
-    write_run,
-)
+from thermal_comp.host.io.csv_format import CsvFormat
+from thermal_comp.host.io.format_error import RunFormatError
+from thermal_comp.host.io.run import TIME_COLUMN, Run
+from thermal_comp.host.io.table import read_table
+from thermal_comp.host.io.write import write_run
 
 
 def _bounds(time_s: np.ndarray, at_s: list[float], where: str) -> list[tuple[int, int]]:

@@ -327,7 +327,7 @@ def truth_path(csv_path: str | Path) -> Path:
 
 
 def write_simulation(sim: Simulation, path: str | Path, precision: int = 6) -> Path:
-    """Write the run CSV (host.io.runs.write_run) and its truth sidecar, both atomically."""
+    """Write the run CSV (host.io.write_run) and its truth sidecar, both atomically."""
     path = Path(path)
     write_run(path, sim.time_s, sim.columns, precision=precision)
     tp = truth_path(path)

@@ -34,8 +34,7 @@ from thermal_comp.host.fitting import (
 )
 from thermal_comp.host.fitting.prefilter import PREFILTER_TAU_S
 from thermal_comp.host.fitting.step_limits import add_step_limits
-from thermal_comp.host.io import Run, load_runs
-from thermal_comp.host.io.runs import missing_sensors
+from thermal_comp.host.io import Run, load_runs, missing_sensors
 from thermal_comp.host.progress import progress
 from thermal_comp.host.selection import (
     DEFAULT_BLOCKS,
@@ -111,7 +110,7 @@ def _as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str 
     out = []
     for run in runs:
         if not isinstance(run, Run):
-            raise TrainingError("runs must be all paths or all host.io.runs.Run objects")
+            raise TrainingError("runs must be all paths or all host.io.Run objects")
         for t in targets:
             if t not in run.target_names:
                 raise TrainingError(f"{run.path}: no target column '{t}'")
