@@ -4,8 +4,8 @@
 from __future__ import annotations
 
 from thermal_comp.host.train.next_day import DEFAULT_FIT, FITS
+from thermal_comp.host.train.options import DEFAULT_REFERENCE, TrainOptions
 from thermal_comp.host.train.pipeline import (
-    DEFAULT_REFERENCE,
     TrainingError,
     axis_with_effects,
     train_model,
@@ -35,6 +35,7 @@ __all__ = [
     "FITS",
     "DEFAULT_REFERENCE",
     "TOLERANCE_SHARE",
+    "TrainOptions",
     "TrainingError",
     "axis_sensors",
     "axis_with_effects",

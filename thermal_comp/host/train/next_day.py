@@ -36,7 +36,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from thermal_comp.contract.box import BOX_STATES
-from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.terms import (
     FILTER_KINDS,
     KELVIN_KINDS,
@@ -398,11 +397,6 @@ def ridge_axis_dict(basis: list[Term], fit, st) -> dict:
                     st.scheme)
     del out["unit"]
     return out
-
-
-def check_fit(fit: str) -> None:
-    if fit not in FITS:
-        raise InputError(f"--fit must be one of {', '.join(FITS)} (got {fit!r})")
 
 
 def shared_lag_budget(axes_terms: Sequence[Sequence[Term]], read: Sequence[str],

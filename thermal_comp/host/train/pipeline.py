@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import copy
 import fnmatch
+import inspect
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import fields
 from functools import cache, wraps
 from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from thermal_comp.contract.box import BOX_CHANNELS, CHANNEL_MAX_C, CHANNEL_MIN_C
+from thermal_comp.contract.box import CHANNEL_MAX_C, CHANNEL_MIN_C
 from thermal_comp.contract.terms import AUX_KINDS, TEMPERATURE_KINDS, Term, term_sensors
 from thermal_comp.contract.tilt import Tilt, unit_of
 from thermal_comp.host.effects import search_effects, sensor_reference
@@ -39,16 +41,13 @@ from thermal_comp.host.io.runs import missing_sensors
 from thermal_comp.host.progress import progress
 from thermal_comp.host.selection import (
     DEFAULT_BLOCKS,
-    DEFAULT_GROUPS,
     DEFAULT_MAX_SENSORS,
-    METHODS,
     joint_l1_ranking,
 )
 from thermal_comp.host.service import add_service
 from thermal_comp.host.train.axis_fit import axis_dict
 from thermal_comp.host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from thermal_comp.host.train.next_day import (
-    DEFAULT_FIT,
     DEFAULT_RIDGE,
     EVEN_WARMING_PENALTY,
     FAMILIES,
@@ -56,7 +55,6 @@ from thermal_comp.host.train.next_day import (
     FoldTerms,
     RidgeOptions,
     channel_fill,
-    check_fit,
     fastest_lag_s,
     fill_rankings,
     lag_family_filters,
@@ -68,16 +66,15 @@ from thermal_comp.host.train.next_day import (
     ridge_start,
     shared_lag_budget,
 )
+from thermal_comp.host.train.options import TrainOptions
 from thermal_comp.host.train.ranges import add_training_ranges
 from thermal_comp.host.train.record import model_json
 from thermal_comp.host.train.summary import dropped_reason
 from thermal_comp.host.train.training_data import TrainingData, TrainingError
 
-DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
 # the promise's keys in an axis's metrics (fit_for_the_next_day)
 PROMISE_KEYS = ("promised_rmse_um", "promised_fold_rmse_um", "promised_coverage", "promise")
 AUX_HEADROOM = 2.0  # valid aux range: twice the training extremes (see _aux)
-DEFAULT_TC_TYPE = "K"
 # BLAS on one thread while training: its matrices have tens of columns, and OpenBLAS's threads
 # spin between calls. `host train` on 64 sensors x 86,400 rows used 10.9-14.6 s of CPU with two
 # threads and 7.3-9.1 s with one on the 2-core target (the same model; docs/selection.md
@@ -176,10 +173,10 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
 
 
 def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, nested: bool,
-                         options: dict, period_s: float, n_blocks: int, reference: Reference,
-                         max_states: int, fill: Sequence[str] = (), pool: Sequence[str] = (),
-                         box: Sequence[str] = (), ridge: RidgeOptions = DEFAULT_RIDGE,
-                         jobs: int | None = None, quiet: bool = True) -> dict:
+                         options: TrainOptions, period_s: float, n_blocks: int, reference:
+                         Reference, max_states: int, fill: Sequence[str] = (), pool:
+                         Sequence[str] = (), box: Sequence[str] = (), ridge: RidgeOptions =
+                         DEFAULT_RIDGE, jobs: int | None = None, quiet: bool = True) -> dict:
     """Judge the families by nested validation and keep the one for the next day
     (host.train.next_day); the axis gains ``fit`` and the promised error with its spread.
 
@@ -193,15 +190,15 @@ def fit_for_the_next_day(axis: dict, runs: list[Run], target: str, *, fit: str, 
     baseline = axis.get("baseline")
     baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
                       else final_terms)
-    aux = list(options["aux"])
+    aux = list(options.aux)
 
     def train_fold(sub: list[Run]) -> FoldTerms:
-        spec = train_model(sub, [target], **options, fit="ols", nested=False)["axes"][target]
+        spec = _train(sub, [target], options)["axes"][target]
         final = [Term.from_json(x) for x in spec["terms"]]
         base = spec.get("baseline")
         sub_period = common_period(sub)  # a long run's folds are thinned
         extra = channel_fill(sub, [target], term_sensors(final), pool,
-                             max_channels=options["max_channels"], period_s=sub_period,
+                             max_channels=options.max_channels, period_s=sub_period,
                              n_blocks=n_blocks, reference=reference) if fill else []
         return FoldTerms(final, [Term.from_json(x) for x in base["terms"]] if base else final,
                          ridge_start(final, spec.get("effects", []),
@@ -424,23 +421,23 @@ def _one_blas_thread(train: Callable[..., dict]) -> Callable[..., dict]:
     return limited
 
 
-@_one_blas_thread
-def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
-                sensors: str | list[str] = "T*", aux: Sequence[str] | None = None,
-                max_sensors: int = DEFAULT_MAX_SENSORS, groups: int = DEFAULT_GROUPS,
-                effects: bool = True, ambient: str | None = None,
-                channels: Mapping[str, int] | None = None,
-                selection: str = "validated", max_delay_s: float | None = None,
-                n_blocks: int = DEFAULT_BLOCKS, seed: int = 0, fill_gaps: int = 0,
-                tc_type: str = DEFAULT_TC_TYPE, max_channels: int = BOX_CHANNELS,
-                reference: str = DEFAULT_REFERENCE, fit: str = DEFAULT_FIT, nested: bool = True,
-                fill_channels: bool = True, tilts: Sequence[Tilt] = (),
-                fill_first: bool | None = None, bending: Sequence[str] = (),
-                prefilter_s: float = PREFILTER_TAU_S, jobs: int | None = None,
-                quiet: bool = True) -> dict:
+def _train_signature(train: Callable[..., dict]) -> Callable[..., dict]:
+    """``train`` with the signature ``train_model(runs, targets, *, <TrainOptions' fields>)``:
+    the options are declared once (host.train.options), and callers that look at the
+    keywords (bench.bench_accuracy.train_kwargs) still see each."""
+    keywords = [inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default,
+                                  annotation=f.type) for f in fields(TrainOptions)]
+    train.__signature__ = inspect.signature(train).replace(  # type: ignore[attr-defined]
+        parameters=[*list(inspect.signature(train).parameters.values())[:2], *keywords])
+    return train
+
+
+@_train_signature
+def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], **options) -> dict:
     """Select, fit and validate a model for every target; returns the model.json dict.
 
-    ``runs`` are CSV paths or loaded ``Run`` objects. ``selection`` is ``"validated"``
+    ``runs`` are CSV paths or loaded ``Run`` objects; ``options`` are host.train.options.
+    TrainOptions' fields. ``selection`` is ``"validated"``
     (representatives and EC subset by out-of-fold error, default) or ``"paper"`` (paper 000
     exactly: by training error). ``channels`` maps sensor -> box channel (others get the
     free indices in data-column order). ``max_delay_s`` limits the delay search.
@@ -459,57 +456,57 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     0: the raw rows). ``jobs``: at most this many processes train the nested folds (default:
     host.parallel.default_workers; 1: this process); the model does not depend on it.
     """
-    targets = list(targets)
-    aux = list(aux or [])
-    bending = list(bending)
-    _check_options(targets, fit=fit, selection=selection, n_blocks=n_blocks,
-                   max_channels=max_channels, max_sensors=max_sensors, tc_type=tc_type,
-                   tilts=tilts, bending=bending, nested=nested, prefilter_s=prefilter_s,
-                   jobs=jobs)
-    data = TrainingData.of(_as_runs(runs, targets, sensors, aux, fill_gaps, tilts), targets,
-                           n_blocks, Reference.of_kind(reference))
-    choose = dict(groups=groups, max_sensors=max_sensors, selection=selection,
-                  max_delay_s=max_delay_s, seed=seed)
+    return _train(runs, list(targets), TrainOptions.of(**options))
+
+
+@_one_blas_thread
+def _train(runs: Sequence[Run | str | Path], targets: list[str], o: TrainOptions) -> dict:
+    """train_model on its options, declared and checked (host.train.options)."""
+    o.check(targets)
+    fit, nested, max_channels, quiet = o.fit, o.nested, o.max_channels, o.quiet
+    data = TrainingData.of(_as_runs(runs, targets, o.sensors, list(o.aux), o.fill_gaps,
+                                    o.tilts), targets, o.n_blocks, Reference.of_kind(o.reference))
+    choose = dict(groups=o.groups, max_sensors=o.max_sensors, selection=o.selection,
+                  max_delay_s=o.max_delay_s, seed=o.seed)
     selected = _selected_within_budget(data, targets, max_channels, choose, quiet)
     data.done_selecting()
+    fill_first = o.fill_first
     if fill_first is None:  # the harm it prevents is between axes (_free_channel_fill)
-        fill_first = fill_channels and fit != "ols" and len(targets) > 1
+        fill_first = o.fill_channels and fit != "ols" and len(targets) > 1
     # the axes' L1 rankings for the free channels: once, for the fill before the effects and
     # again after them (they do not depend on what is wired)
     rankings = cache(lambda: fill_rankings(data.runs, targets, data.pool,
                                            period_s=data.period_s, n_blocks=data.n_blocks,
                                            reference=data.ref))
     fill = _free_channel_fill(data, selected, max_channels, rankings) if fill_first else []
-    axes = _axes_with_effects(data, selected, effects=effects, ambient=ambient,
-                              max_sensors=max_sensors, max_channels=max_channels, fill=fill,
+    axes = _axes_with_effects(data, selected, effects=o.effects, ambient=o.ambient,
+                              max_sensors=o.max_sensors, max_channels=max_channels, fill=fill,
                               quiet=quiet)
     _budget_after_effects(data, axes, max_channels)
     if nested or fit == "ridge":
-        options = dict(sensors=list(data.names), aux=aux, max_sensors=max_sensors,
-                       groups=groups, effects=effects, ambient=ambient, selection=selection,
-                       max_delay_s=max_delay_s, n_blocks=n_blocks, seed=seed, tc_type=tc_type,
-                       max_channels=max_channels, reference=reference,
-                       fill_first=fill_first)  # a fold of one axis fills as this model did
-        axes = _for_the_next_day(data, axes, options, fit=fit, nested=nested,
-                                 fill_channels=fill_channels, max_channels=max_channels,
-                                 rankings=rankings, bending=bending, prefilter_s=prefilter_s,
-                                 jobs=jobs, quiet=quiet)
+        axes = _for_the_next_day(data, axes, o.for_fold(data.names, fill_first), fit=fit,
+                                 nested=nested, fill_channels=o.fill_channels,
+                                 max_channels=max_channels, rankings=rankings,
+                                 bending=list(o.bending), prefilter_s=o.prefilter_s,
+                                 jobs=o.jobs, quiet=quiet)
     used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
     if len(used) > max_channels:  # a guarantee of the steps above, checked, never assumed
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
                             f"({', '.join(sorted(used))}), the box has {max_channels}")
     for name, axis in axes.items():  # µm, or µrad for a tilt axis: the name says which
         axis["unit"] = unit_of(name)
-    wired = _channels(axes, data.names, dict(channels or {}), tc_type)
+    wired = _channels(axes, data.names, dict(o.channels or {}), o.tc_type)
     aux_inputs = _aux(axes, data.runs)
     add_training_ranges(wired, aux_inputs, data.runs)
-    model = model_json(data, axes, wired, aux_inputs, tilts, dict(
+    sensors = o.sensors
+    model = model_json(data, axes, wired, aux_inputs, o.tilts, dict(
         targets=targets, sensors=sensors if isinstance(sensors, str) else list(sensors),
-        aux=aux, selection=selection, max_sensors=int(max_sensors), groups=int(groups),
-        max_delay_s=max_delay_s, validation=data.scheme, seed=int(seed), effects=bool(effects),
-        reference=data.ref.kind, fit=fit, nested=bool(nested),
-        fill_channels=bool(fill_channels), ambient=ambient, max_channels=int(max_channels),
-        bending=bending, prefilter_s=float(prefilter_s)))
+        aux=list(o.aux), selection=o.selection, max_sensors=int(o.max_sensors),
+        groups=int(o.groups), max_delay_s=o.max_delay_s, validation=data.scheme,
+        seed=int(o.seed), effects=bool(o.effects), reference=data.ref.kind, fit=fit,
+        nested=bool(nested), fill_channels=bool(o.fill_channels), ambient=o.ambient,
+        max_channels=int(max_channels), bending=list(o.bending),
+        prefilter_s=float(o.prefilter_s)))
     # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
     add_step_limits(model, data.runs)
     # the in-service estimator's parameters from the out-of-fold residual (issue 42)
@@ -517,7 +514,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], *,
     return model
 
 
-def _for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, *, fit: str,
+def _for_the_next_day(data: TrainingData, axes: dict[str, dict], options: TrainOptions, *, fit: str,
                       nested: bool, fill_channels: bool, max_channels: int, rankings,
                       bending: list[str], prefilter_s: float, jobs: int | None,
                       quiet: bool) -> dict[str, dict]:
@@ -536,46 +533,6 @@ def _for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, 
     if refill:
         axes = _refilled_without_dropped_effects(data, searched, axes, next_day)
     return axes
-
-
-def _check_options(targets: list[str], *, fit: str, selection: str, n_blocks: int,
-                   max_channels: int, max_sensors: int, tc_type: str,
-                   tilts: Sequence[Tilt], bending: Sequence[str] = (),
-                   nested: bool = True, prefilter_s: float = PREFILTER_TAU_S,
-                   jobs: int | None = None) -> None:
-    """Refuse inconsistent options before any data is read, each with its reason."""
-    if not targets:
-        raise TrainingError("give at least one --target")
-    if len(set(targets)) != len(targets):
-        raise TrainingError(f"a target is given twice: {targets}")
-    check_fit(fit)
-    if selection not in METHODS:
-        raise TrainingError(f"unknown --selection '{selection}' (known: {', '.join(METHODS)})")
-    if n_blocks < 2:
-        raise TrainingError(f"need at least 2 validation blocks (got {n_blocks})")
-    if not 1 <= max_channels <= BOX_CHANNELS:
-        raise TrainingError(f"--max-channels must be 1..{BOX_CHANNELS} (the box has "
-                            f"{BOX_CHANNELS} thermocouple inputs), got {max_channels}")
-    if max_sensors > max_channels:
-        raise TrainingError(f"--max-sensors {max_sensors} exceeds --max-channels {max_channels}")
-    if tc_type not in ("K", "J"):
-        raise TrainingError(f"thermocouple type must be K or J (got {tc_type!r})")
-    for tilt in tilts:
-        if tilt.name not in targets:
-            raise TrainingError(f"--tilt {tilt.name}: not among the targets "
-                                f"({', '.join(targets)})")
-    for name in bending:
-        if name not in targets:
-            raise TrainingError(f"--bending {name}: not among the targets "
-                                f"({', '.join(targets)})")
-    if not (math.isfinite(prefilter_s) and prefilter_s >= 0):
-        raise TrainingError(f"--prefilter-s must be 0 (off) or a time constant in seconds "
-                            f"(got {prefilter_s})")
-    if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
-        raise TrainingError(f"--jobs must be a number of processes, 1 or more (got {jobs!r})")
-    if bending and (fit == "ols" or (fit == "auto" and not nested)):  # auto is ols then
-        raise TrainingError("--bending shapes the ridge's penalty; least squares has none "
-                            "(--fit ols, or --fit auto with --no-nested: use --fit ridge)")
 
 
 def _selected_within_budget(data: TrainingData, targets: list[str], max_channels: int,
@@ -666,7 +623,8 @@ def _budget_after_effects(data: TrainingData, axes: dict[str, dict], max_channel
                     effect["dropped_for_channels"] = True
 
 
-def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: dict, *,
+def _axes_for_the_next_day(data: TrainingData, axes: dict[str, dict], options: TrainOptions,
+                           *,
                            fit: str, nested: bool, fill_channels: bool, max_channels: int,
                            rankings: Callable[[], list[list[str]]],
                            bending: Sequence[str] = (), prefilter_s: float = PREFILTER_TAU_S,
