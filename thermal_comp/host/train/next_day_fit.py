@@ -9,7 +9,6 @@ validation, the ridge's basis and fit, the free channels) live in host.train.nex
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
@@ -30,12 +29,12 @@ from thermal_comp.host.train.next_day import (
     lag_family_filters,
     nested_validation,
     ridge_axis,
-    ridge_axis_dict,
+    ridge_axis_fit,
     ridge_start,
     shared_lag_budget,
 )
 from thermal_comp.host.train.options import TrainOptions
-from thermal_comp.host.train.searched import fit_axis
+from thermal_comp.host.train.searched import EffectFlag, SearchedAxis, fit_axis
 from thermal_comp.host.train.summary import dropped_reason
 from thermal_comp.host.train.training_data import TrainingData
 
@@ -106,20 +105,19 @@ FAMILY_RULES = {  # what model.json says chose the family, per --fit
 }
 
 
-def fit_for_the_next_day(axis: dict, target: str, job: NextDayJob, reading: AxisReading, *,
-                         nested: bool) -> tuple[dict, NextDayFit]:
+def fit_for_the_next_day(axis: SearchedAxis, target: str, job: NextDayJob,
+                         reading: AxisReading, *, nested: bool
+                         ) -> tuple[SearchedAxis, NextDayFit]:
     """Judge the families by nested validation and keep the one for the next day
-    (host.train.next_day): the axis dict refitted for it, and the choice.
+    (host.train.next_day): the axis refitted for it, and the choice.
 
     The ridge also reads the sensors ``reading.fill`` (free channels); each nested fold fills
     its own from ``reading.pool`` when ``fill`` is not empty (the fold's ranking, not the final
     one). ``reading.box``: the sensors the box reads; a family without the effects is no
     candidate when its terms read another (an effect's re-selection gave that sensor's
     channel away)."""
-    final_terms = [Term.from_json(x) for x in axis["terms"]]
-    baseline = axis.get("baseline")
-    baseline_terms = ([Term.from_json(x) for x in baseline["terms"]] if baseline
-                      else final_terms)
+    final_terms = axis.fit.terms
+    baseline_terms = axis.baseline_terms or final_terms
     ridge = RidgeOptions(target in job.bending, job.prefilter_s)
     result = _nested(target, job, reading, ridge) if nested else None
     box = reading.box
@@ -131,9 +129,9 @@ def fit_for_the_next_day(axis: dict, target: str, job: NextDayJob, reading: Axis
     with_effects, shrunk = FAMILIES[family]
     data = job.data
     if not with_effects and final_terms != baseline_terms:
-        drop_effects(axis, data, target, baseline_terms, "dropped_by_nested_validation",
-                     "nested validation: the pipeline refitted without each fold predicted it "
-                     "better without the effects")
+        axis = drop_effects(axis, data, target, baseline_terms, "dropped_by_nested_validation",
+                            "nested validation: the pipeline refitted without each fold "
+                            "predicted it better without the effects")
     alpha, extra = None, []
     if shrunk:
         axis, family, alpha, extra = _ridge_for_the_box(
@@ -171,11 +169,12 @@ def _nested(target: str, job: NextDayJob, reading: AxisReading, ridge: RidgeOpti
                              jobs=job.jobs, quiet=job.quiet)
 
 
-def _ridge_for_the_box(axis: dict, target: str, family: str, data: TrainingData,
+def _ridge_for_the_box(axis: SearchedAxis, target: str, family: str, data: TrainingData,
                        reading: AxisReading, ridge: RidgeOptions, *, final_terms: list[Term],
                        baseline_terms: list[Term], with_effects: bool, unwired: Sequence[str],
-                       job_aux: Sequence[str]) -> tuple[dict, str, float | None, list[str]]:
-    """The ridge family fitted on all runs: the axis dict, the family (``ridge-baseline`` when
+                       job_aux: Sequence[str]
+                       ) -> tuple[SearchedAxis, str, float | None, list[str]]:
+    """The ridge family fitted on all runs: the axis, the family (``ridge-baseline`` when
     the box's ridge refuses the effects, least squares when no ridge keeps the fixed-point
     bound), its penalty and the free channels it reads."""
     fill, aux = reading.fill, list(job_aux)
@@ -189,7 +188,7 @@ def _ridge_for_the_box(axis: dict, target: str, family: str, data: TrainingData,
                                         also=also, ridge=ridge)
         return found
 
-    terms = (ridge_start(final_terms, axis.get("effects", []),
+    terms = (ridge_start(final_terms, axis.effects,
                          fastest_lag_s(data.runs, data.period_s)) if with_effects
              else baseline_terms)
     found = fit_shrunk(terms)
@@ -199,14 +198,15 @@ def _ridge_for_the_box(axis: dict, target: str, family: str, data: TrainingData,
         if refusal:  # the box's own model does not gain from the effects: run it without
             family = "ridge-baseline"
             with_effects, terms, found = False, baseline_terms, plain
-            drop_effects(axis, data, target, baseline_terms, "dropped_by_box_ridge", refusal)
+            axis = drop_effects(axis, data, target, baseline_terms, "dropped_by_box_ridge",
+                                refusal)
     if found is None:  # not even the terms alone keep the fixed-point bound: no ridge
         return axis, family.replace("ridge-", "").replace("ridge", "ols"), None, []
     basis, shrunk_fit, st = found
     extra = [s for s in term_sensors(basis) if s not in term_sensors(terms)]
-    axis = {**axis, **ridge_axis_dict(basis, shrunk_fit, st)}
+    axis = replace(axis, fit=ridge_axis_fit(basis, shrunk_fit, st))
     if with_effects:
-        mark_lags_in_basis(axis, basis)
+        axis = axis.flagged(lags_in_basis(axis.effects, basis))
     return axis, family, float(shrunk_fit.alpha), extra
 
 
@@ -231,47 +231,52 @@ def ridge_refusal(with_effects, without) -> str | None:
             f"must lower it by {100 * MIN_GAIN:.0f} %")
 
 
-def drop_effects(axis: dict, data: TrainingData, target: str, baseline_terms: list[Term],
-                 flag: str, why: str) -> None:
-    """Refit ``axis`` on its baseline terms; its effects stay listed, flagged ``flag``."""
-    axis.update(fit_axis(data.runs, target, baseline_terms, data.period_s, data.n_blocks,
-                         data.ref))
-    for effect in axis.get("effects", []):
-        effect[flag] = True
-    axis["effects_rejected"] = why
+def drop_effects(axis: SearchedAxis, data: TrainingData, target: str,
+                 baseline_terms: list[Term], flag: str, why: str) -> SearchedAxis:
+    """``axis`` refitted on its baseline terms; its effects stay listed, flagged ``flag``."""
+    fit = fit_axis(data.runs, target, baseline_terms, data.period_s, data.n_blocks, data.ref)
+    return replace(axis, fit=fit, effects_rejected=why).flagged(
+        [(i, flag, True) for i in range(len(axis.effects))])
 
 
-def mark_lags_in_basis(axis: dict, basis: Sequence[Term]) -> None:
-    """Flag the lag and rate effects whose filter the ridge left to its own lags of the
-    effect's sensor (next_day.ridge_start), with the lags that stand for it."""
-    for effect in axis.get("effects", []):
+def lags_in_basis(effects: Sequence[dict], basis: Sequence[Term]) -> list[EffectFlag]:
+    """The lag and rate effects whose filter the ridge left to its own lags of the effect's
+    sensor (next_day.ridge_start), flagged with the lags that stand for it."""
+    out: list[EffectFlag] = []
+    for i, effect in enumerate(effects):
         if dropped_reason(effect):
             continue  # the box does not run it
         own = lag_family_filters([effect])
         if all(t in basis for t in own):
             continue  # no effect of the lag family, or the box runs its own filter
         sensors = term_sensors(own)
-        effect["in_ridge_lags"] = [t.name for t in basis
-                                   if t.kind == "lag" and t.source in sensors]
+        out.append((i, "in_ridge_lags", [t.name for t in basis
+                                         if t.kind == "lag" and t.source in sensors]))
+    return out
 
 
-Judged = dict[str, tuple[dict, NextDayFit]]
+def mark_lags_in_basis(axis: dict, basis: Sequence[Term]) -> None:
+    """lags_in_basis on an axis dict's effects, flagged in place."""
+    effects = axis.get("effects", [])
+    for i, key, value in lags_in_basis(effects, basis):
+        effects[i][key] = value
 
 
-def for_the_next_day(job: NextDayJob, axes: dict[str, dict], *, nested: bool
-                     ) -> tuple[dict[str, dict], dict[str, NextDayFit]]:
+Judged = dict[str, tuple[SearchedAxis, NextDayFit]]
+
+
+def for_the_next_day(job: NextDayJob, axes: dict[str, SearchedAxis], *, nested: bool
+                     ) -> tuple[dict[str, SearchedAxis], dict[str, NextDayFit]]:
     """The box's model per axis (the next-day families, nested validation), and with the ridge
-    the free channels filled again without the effects it dropped: the axis dicts and each
-    axis's choice."""
-    refill = job.fit == "ridge" and job.fill_channels
-    searched = copy.deepcopy(axes) if refill else axes  # the judge updates what it drops
+    the free channels filled again without the effects it dropped: the axes and each axis's
+    choice."""
     judged = _axes_for_the_next_day(job, axes, nested)
-    if refill:
-        judged = _refilled_without_dropped_effects(job, searched, judged)
+    if job.fit == "ridge" and job.fill_channels:
+        judged = _refilled_without_dropped_effects(job, axes, judged)
     return {t: a for t, (a, _) in judged.items()}, {t: f for t, (_, f) in judged.items()}
 
 
-def _refilled_without_dropped_effects(job: NextDayJob, searched: dict[str, dict],
+def _refilled_without_dropped_effects(job: NextDayJob, searched: dict[str, SearchedAxis],
                                       judged: Judged) -> Judged:
     """The axes judged again when the box's ridge dropped an axis's effects (ridge_refusal)
     that had wired a sensor of their own: the free channels were filled around it, so the box
@@ -279,15 +284,14 @@ def _refilled_without_dropped_effects(job: NextDayJob, searched: dict[str, dict]
     those axes on their baseline, and every ridge refitted on them; the nested folds stand
     (each filled its own, whatever the final fill), so they are not run twice."""
     dropped = [t for t, (a, _) in judged.items()
-               if any(e.get("dropped_by_box_ridge") for e in a.get("effects", []))]
-    plain = {t: copy.deepcopy(a) for t, a in searched.items()}
+               if any(e.get("dropped_by_box_ridge") for e in a.effects)]
+    plain = dict(searched)
     for t in dropped:
-        base = [Term.from_json(x) for x in plain[t]["baseline"]["terms"]]
-        drop_effects(plain[t], job.data, t, base, "dropped_by_box_ridge",
-                     judged[t][0]["effects_rejected"])
+        plain[t] = drop_effects(plain[t], job.data, t, plain[t].baseline_terms or [],
+                                "dropped_by_box_ridge", judged[t][0].effects_rejected or "")
 
-    def wired(axes: dict[str, dict]) -> set[str]:
-        return channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
+    def wired(axes: dict[str, SearchedAxis]) -> set[str]:
+        return channels_of({t: a.fit.terms for t, a in axes.items()})
 
     if not dropped or wired(plain) == wired(searched):
         return judged
@@ -301,13 +305,13 @@ def _refilled_without_dropped_effects(job: NextDayJob, searched: dict[str, dict]
     return out
 
 
-def _axes_for_the_next_day(job: NextDayJob, axes: dict[str, dict], nested: bool) -> Judged:
+def _axes_for_the_next_day(job: NextDayJob, axes: dict[str, SearchedAxis], nested: bool
+                           ) -> Judged:
     """Every axis's family for the next day (fit_for_the_next_day), reading the free
     channels: every axis's ridge reads every wired sensor, and the free channels filled by
     the axes' L1 rankings (a nested fold, trained for one axis, fills its own)."""
     data = job.data
-    wired = [n for n in data.names if n in channels_of(
-        {t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})]
+    wired = [n for n in data.names if n in channels_of({t: a.fit.terms for t, a in axes.items()})]
     pool = data.pool
     # with fill_first this is the fill the effects were kept out of (plus any channel an
     # input family's re-selection gave up)
@@ -318,8 +322,7 @@ def _axes_for_the_next_day(job: NextDayJob, axes: dict[str, dict], nested: bool)
             ] if job.fill_channels and job.fit != "ols" else []
     targets = list(axes)
     fastest = fastest_lag_s(data.runs, data.period_s)
-    starts = [ridge_start([Term.from_json(x) for x in axes[t]["terms"]],
-                          axes[t].get("effects", []), fastest) for t in targets]
+    starts = [ridge_start(axes[t].fit.terms, axes[t].effects, fastest) for t in targets]
     budget = shared_lag_budget(starts, read or wired, data.runs, data.period_s)
     return {target: fit_for_the_next_day(axes[target], target, job,
                                          AxisReading(budget[i], read, pool, read or wired),

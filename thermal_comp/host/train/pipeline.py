@@ -19,7 +19,6 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
-from thermal_comp.contract.terms import Term
 from thermal_comp.host.fitting import Reference
 from thermal_comp.host.fitting.step_limits import add_step_limits
 from thermal_comp.host.io import Run
@@ -30,6 +29,7 @@ from thermal_comp.host.train.next_day_fit import NextDayFit, NextDayJob, for_the
 from thermal_comp.host.train.options import TrainOptions
 from thermal_comp.host.train.record import model_json
 from thermal_comp.host.train.searched import (
+    SearchedAxis,
     axes_with_effects,
     budget_after_effects,
     free_channel_fill,
@@ -120,7 +120,7 @@ def _train(runs: Sequence[Run | str | Path], targets: list[str], o: TrainOptions
     axes = axes_with_effects(data, selected, effects=o.effects, ambient=o.ambient,
                              max_sensors=o.max_sensors, max_channels=o.max_channels,
                              fill=fill, quiet=o.quiet)
-    budget_after_effects(data, axes, o.max_channels)
+    axes = budget_after_effects(data, axes, o.max_channels)
     fits: dict[str, NextDayFit] = {}
     if o.nested or o.fit == "ridge":
         job = NextDayJob(data, _train, o.for_fold(data.names, fill_first), o.fit,
@@ -136,10 +136,10 @@ def _train(runs: Sequence[Run | str | Path], targets: list[str], o: TrainOptions
     return model
 
 
-def _check_budget(axes: dict[str, dict], max_channels: int) -> None:
+def _check_budget(axes: dict[str, SearchedAxis], max_channels: int) -> None:
     """The box's channel budget over all axes: a guarantee of the stages, checked, never
     assumed."""
-    used = channels_of({t: [Term.from_json(x) for x in a["terms"]] for t, a in axes.items()})
+    used = channels_of({t: a.fit.terms for t, a in axes.items()})
     if len(used) > max_channels:
         raise TrainingError(f"model needs {len(used)} thermocouple channels "
                             f"({', '.join(sorted(used))}), the box has {max_channels}")

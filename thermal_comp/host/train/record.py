@@ -19,6 +19,7 @@ from thermal_comp.host.train.next_day import PROMISE_COVERAGE, promise_statement
 from thermal_comp.host.train.next_day_fit import FAMILY_RULES, NextDayFit
 from thermal_comp.host.train.options import TrainOptions
 from thermal_comp.host.train.ranges import add_training_ranges
+from thermal_comp.host.train.searched import SearchedAxis
 from thermal_comp.host.train.training_data import TrainingData, TrainingError
 
 TIME_MAX_S = 604800.0  # one week of `time` term before it saturates
@@ -26,9 +27,10 @@ AUX_HEADROOM = 2.0  # valid aux range: twice the training extremes (see aux_inpu
 
 
 def model_json(data: TrainingData, targets: list[str], options: TrainOptions,
-               axes: dict[str, dict], fits: Mapping[str, NextDayFit]) -> dict:
+               searched: Mapping[str, SearchedAxis], fits: Mapping[str, NextDayFit]) -> dict:
     """The model.json dict: the box's inputs and axes (each with its next-day ``fit`` and
     promise, from ``fits``), and how it was trained."""
+    axes = {name: axis.to_json() for name, axis in searched.items()}
     for name, axis in axes.items():  # µm, or µrad for a tilt axis: the name says which
         axis["unit"] = unit_of(name)
         if name in fits:
