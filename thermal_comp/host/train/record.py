@@ -30,7 +30,7 @@ def model_json(data: TrainingData, targets: list[str], options: TrainOptions,
                searched: Mapping[str, SearchedAxis], fits: Mapping[str, NextDayFit]) -> dict:
     """The model.json dict: the box's inputs and axes (each with its next-day ``fit`` and
     promise, from ``fits``), and how it was trained."""
-    axes = {name: axis.to_json() for name, axis in searched.items()}
+    axes = {name: axis_record(axis) for name, axis in searched.items()}
     for name, axis in axes.items():  # µm, or µrad for a tilt axis: the name says which
         axis["unit"] = unit_of(name)
         if name in fits:
@@ -52,6 +52,23 @@ def model_json(data: TrainingData, targets: list[str], options: TrainOptions,
         "training": {"runs": [r.path for r in data.runs],
                      **training_record(data, targets, options)},
     }
+
+
+def axis_record(axis: SearchedAxis) -> dict:
+    """An axis of model.json from the stages' typed result (add_fit adds the next day's)."""
+    out = axis.fit.to_json()
+    out["selection"] = axis.selection
+    # full-rate: on long runs the search's report scores a thinned-out copy
+    out["baseline_validation_rmse_um"] = axis.baseline_validation_rmse_um
+    out["effects"] = axis.effects
+    if axis.report:
+        out.update({k: v for k, v in axis.report.items() if k not in out})
+        out["sensor_reference"] = axis.sensor_reference
+    if axis.budget_after_effects is not None:
+        out["channel_budget_after_effects"] = axis.budget_after_effects
+    if axis.effects_rejected is not None:
+        out["effects_rejected"] = axis.effects_rejected
+    return out
 
 
 def training_record(data: TrainingData, targets: list[str], o: TrainOptions) -> dict:

@@ -4,7 +4,7 @@ fitted (eq. 4), and its residual searched for effects, with the budget settled a
 Each step reads the one ``TrainingData`` view of the runs (host.train.training_data) and
 returns each axis typed and immutable (``SearchedAxis``), so no later stage edits what an
 earlier one decided; the next day's choice (host.train.next_day_fit) starts from them, and
-host.train.record turns them into model.json's axes.
+host.train.record turns them into model.json's axes (record.axis_record).
 """
 
 from __future__ import annotations
@@ -65,22 +65,6 @@ class SearchedAxis:
     def flagged(self, flags: Sequence[EffectFlag]) -> SearchedAxis:
         """This axis with more flags on its effects."""
         return replace(self, effect_flags=(*self.effect_flags, *flags))
-
-    def to_json(self) -> dict:
-        """The axis dict model.json has (record.model_json adds ``fit`` and ``unit``)."""
-        out = self.fit.to_json()
-        out["selection"] = self.selection
-        # full-rate: on long runs the search's report scores a thinned-out copy
-        out["baseline_validation_rmse_um"] = self.baseline_validation_rmse_um
-        out["effects"] = self.effects
-        if self.report:
-            out.update({k: v for k, v in self.report.items() if k not in out})
-            out["sensor_reference"] = self.sensor_reference
-        if self.budget_after_effects is not None:
-            out["channel_budget_after_effects"] = self.budget_after_effects
-        if self.effects_rejected is not None:
-            out["effects_rejected"] = self.effects_rejected
-        return out
 
 
 def fit_axis(runs: list[Run], target: str, terms: list[Term], period_s: float,
