@@ -13,6 +13,7 @@ from dataclasses import dataclass, fields, replace
 
 from thermal_comp.contract.box import BOX_CHANNELS
 from thermal_comp.contract.errors import InputError
+from thermal_comp.contract.terms import TC_TYPES as BOX_TC_TYPES
 from thermal_comp.contract.tilt import Tilt
 from thermal_comp.host.fitting.prefilter import PREFILTER_TAU_S
 from thermal_comp.host.selection import (
@@ -25,7 +26,7 @@ from thermal_comp.host.train.next_day import DEFAULT_FIT, FITS
 from thermal_comp.host.train.training_data import TrainingError
 
 DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
-TC_TYPES = ("K", "J")  # the box's thermocouple types
+TC_TYPES = tuple(BOX_TC_TYPES)  # the thermocouple types the box linearises (contract.terms)
 DEFAULT_TC_TYPE = "K"
 # what a nested fold's own training keeps of the model's options (the rest stay default:
 # a fold trains one axis by least squares on runs already loaded)
