@@ -38,8 +38,8 @@ from thermal_comp.host.train.searched import EffectFlag, SearchedAxis, fit_axis
 from thermal_comp.host.train.summary import dropped_reason
 from thermal_comp.host.train.training_data import TrainingData
 
-# the pipeline's training (host.train.pipeline): runs, targets, options -> the model dict
-Train = Callable[[list[Run], list[str], TrainOptions], dict]
+# a nested fold's training of one axis (host.train.pipeline): runs, target, options -> the axis
+TrainFoldAxis = Callable[[list[Run], str, TrainOptions], SearchedAxis]
 Rankings = Callable[[], list[list[str]]]
 
 
@@ -67,7 +67,7 @@ class NextDayJob:
     fold's training (``train`` with ``fold_options``) and the ridge's settings."""
 
     data: TrainingData
-    train: Train
+    train: TrainFoldAxis
     fold_options: TrainOptions  # TrainOptions.for_fold
     fit: str
     fill_channels: bool
@@ -152,16 +152,14 @@ def _nested(target: str, job: NextDayJob, reading: AxisReading, ridge: RidgeOpti
     data, options = job.data, job.fold_options
 
     def train_fold(sub: list[Run]) -> FoldTerms:
-        spec = job.train(sub, [target], options)["axes"][target]
-        final = [Term.from_json(x) for x in spec["terms"]]
-        base = spec.get("baseline")
+        axis = job.train(sub, target, options)
+        final = axis.fit.terms
         sub_period = common_period(sub)  # a long run's folds are thinned
         extra = channel_fill(sub, [target], term_sensors(final), reading.pool,
                              max_channels=options.max_channels, period_s=sub_period,
                              n_blocks=data.n_blocks, reference=data.ref) if reading.fill else []
-        return FoldTerms(final, [Term.from_json(x) for x in base["terms"]] if base else final,
-                         ridge_start(final, spec.get("effects", []),
-                                     fastest_lag_s(sub, sub_period)), extra)
+        return FoldTerms(final, axis.baseline_terms or final,
+                         ridge_start(final, axis.effects, fastest_lag_s(sub, sub_period)), extra)
 
     return nested_validation(data.runs, target, train_fold, aux=list(options.aux),
                              period_s=data.period_s, n_blocks=data.n_blocks,

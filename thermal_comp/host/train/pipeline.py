@@ -98,8 +98,28 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], **opti
 
 @_one_blas_thread
 def _train(runs: Sequence[Run | str | Path], targets: list[str], o: TrainOptions) -> dict:
-    """train_model on its options: the stages in order, then the record (a nested fold trains
-    through here too, with TrainOptions.for_fold)."""
+    """train_model on its options: the stages in order, then the record, written once."""
+    data, axes, fits = _stages(runs, targets, o)
+    model = model_json(data, targets, o, axes, fits)
+    # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
+    add_step_limits(model, data.runs)
+    # the in-service estimator's parameters from the out-of-fold residual (issue 42)
+    add_service(model, data.runs, data.n_blocks, data.ref)
+    return model
+
+
+@_one_blas_thread
+def _fold_axis(runs: list[Run], target: str, o: TrainOptions) -> SearchedAxis:
+    """A nested fold's training of one axis (``o``: TrainOptions.for_fold): the stages alone,
+    typed; a fold reads the axis's terms and effects, never a record."""
+    return _stages(runs, [target], o)[1][target]
+
+
+def _stages(runs: Sequence[Run | str | Path], targets: list[str], o: TrainOptions
+            ) -> tuple[TrainingData, dict[str, SearchedAxis], dict[str, NextDayFit]]:
+    """The runs' path through training: the options checked, the runs' one view, the
+    selection within the channel budget, the fit and the effects, the model for the next day;
+    each axis and its choice typed."""
     o.check(targets)
     sensors = o.sensors if isinstance(o.sensors, str) else list(o.sensors)
     data = TrainingData.of(as_runs(runs, targets, sensors, list(o.aux), o.fill_gaps, o.tilts),
@@ -123,17 +143,12 @@ def _train(runs: Sequence[Run | str | Path], targets: list[str], o: TrainOptions
     axes = budget_after_effects(data, axes, o.max_channels)
     fits: dict[str, NextDayFit] = {}
     if o.nested or o.fit == "ridge":
-        job = NextDayJob(data, _train, o.for_fold(data.names, fill_first), o.fit,
+        job = NextDayJob(data, _fold_axis, o.for_fold(data.names, fill_first), o.fit,
                          o.fill_channels, o.max_channels, o.bending, o.prefilter_s, o.jobs,
                          o.quiet, rankings)
         axes, fits = for_the_next_day(job, axes, nested=o.nested)
     _check_budget(axes, o.max_channels)
-    model = model_json(data, targets, o, axes, fits)
-    # how fast each input and output may change on the box (IMPLAUSIBLE, step limit)
-    add_step_limits(model, data.runs)
-    # the in-service estimator's parameters from the out-of-fold residual (issue 42)
-    add_service(model, data.runs, data.n_blocks, data.ref)
-    return model
+    return data, axes, fits
 
 
 def _check_budget(axes: dict[str, SearchedAxis], max_channels: int) -> None:
