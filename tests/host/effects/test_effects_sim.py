@@ -261,9 +261,9 @@ def test_the_ridge_leaves_slow_lag_effects_to_its_own_lags(scenario, tmp_path):
 
 
 def test_a_slow_lag_effect_is_marked_as_the_ridges_own_lags():
-    """_mark_lags_in_basis: a lag effect whose filter is not in the ridge's basis names the
+    """mark_lags_in_basis: a lag effect whose filter is not in the ridge's basis names the
     ridge's lags of its sensor that stand for it; one whose filter the box runs is left as is."""
-    from thermal_comp.host.train.pipeline import _mark_lags_in_basis
+    from thermal_comp.host.train.next_day_fit import mark_lags_in_basis
 
     slow = Term("lag", "T03", {"tau_s": 7200.0})
     fast = Term("lag", "T05", {"tau_s": 300.0})
@@ -271,6 +271,6 @@ def test_a_slow_lag_effect_is_marked_as_the_ridges_own_lags():
              Term("lag", "T03", {"tau_s": 3600.0}), Term("temp", "T05"), fast]
     axis = {"effects": [{"kind": "lag", "added": [slow.to_json()]},
                         {"kind": "lag", "added": [fast.to_json()]}]}
-    _mark_lags_in_basis(axis, basis)
+    mark_lags_in_basis(axis, basis)
     assert axis["effects"][0]["in_ridge_lags"] == [basis[1].name, basis[2].name]
     assert "in_ridge_lags" not in axis["effects"][1]

@@ -108,7 +108,7 @@ def test_auto_gives_up_the_baseline_when_an_effect_rewired_its_sensors():
     gave one of their channels away (once: FL_THERMAL's first two cycles, ch3, the speed family
     swapped T15 and T03 for T14 and T01) that family would read ten sensors on eight inputs, and
     `--fit auto` once chose it so that training failed its own channel check."""
-    from thermal_comp.host.train.pipeline import auto_candidates
+    from thermal_comp.host.train.next_day_fit import auto_candidates
 
     assert auto_candidates(True, ["T15", "T03"]) == ["ols", "ridge"]
     assert auto_candidates(True, []) == ["ols", "baseline", "ridge", "ridge-baseline"]

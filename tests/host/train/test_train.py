@@ -309,6 +309,7 @@ def test_training_runs_blas_on_one_thread_and_gives_the_callers_threads_back(run
                                                                             monkeypatch):
     from threadpoolctl import threadpool_info, threadpool_limits
 
+    import thermal_comp.host.train.next_day_fit as next_day_fit
     import thermal_comp.host.train.pipeline as pipeline
 
     def blas() -> dict[str, int]:
@@ -318,13 +319,13 @@ def test_training_runs_blas_on_one_thread_and_gives_the_callers_threads_back(run
     if not blas():
         pytest.skip("no BLAS library that threadpoolctl controls")
     inside = []
-    fit = pipeline.fit_for_the_next_day  # late in training: scipy and scikit-learn at work
+    fit = next_day_fit.fit_for_the_next_day  # late in training: scipy and scikit-learn at work
 
     def record(*args, **kwargs):
         inside.append(blas())
         return fit(*args, **kwargs)
 
-    monkeypatch.setattr(pipeline, "fit_for_the_next_day", record)
+    monkeypatch.setattr(next_day_fit, "fit_for_the_next_day", record)
     with threadpool_limits(limits=2, user_api="blas"):  # the caller's setting, on any machine
         before = blas()
         train_model(runs, ["dz_um"], effects=False, nested=False, reference="none")

@@ -12,18 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-from thermal_comp.contract.box import BOX_CHANNELS, BOX_STATES
+from thermal_comp.contract.box import BOX_STATES
 from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.model_file import jsonable, write_model, write_text_atomic
 from thermal_comp.contract.terms import FILTER_KINDS, Term, filter_states
 from thermal_comp.contract.tilt import Tilt, unit_of
 from thermal_comp.host.commands._arguments import add_reference_argument, seed_arg
 from thermal_comp.host.commands._options import add_fill_gaps, csv_format
-from thermal_comp.host.fitting.prefilter import PREFILTER_TAU_S
 from thermal_comp.host.io import load_runs
-from thermal_comp.host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS, METHODS
+from thermal_comp.host.selection import METHODS
 from thermal_comp.host.train import (
-    DEFAULT_FIT,
     FITS,
     dropped_reason,
     ridge_lags_note,
@@ -31,6 +29,7 @@ from thermal_comp.host.train import (
     train_model,
 )
 from thermal_comp.host.train.next_day import promise_rule
+from thermal_comp.host.train.options import TC_TYPES, TrainOptions
 from thermal_comp.host.train.service_refit import load_service_logs, refit_on_probes
 
 NAME = "train"
@@ -70,7 +69,7 @@ def add_data_arguments(parser: argparse.ArgumentParser, tilts: bool = False) -> 
                              "its back: Y of a vertical machining center); its ridge then "
                              "penalises the response to an even warming (repeatable; "
                              "docs/training.md)")
-    parser.add_argument("--sensors", default="T*", metavar="GLOB",
+    parser.add_argument("--sensors", default=TrainOptions.sensors, metavar="GLOB",
                         help="temperature columns (glob, default %(default)s)")
     parser.add_argument("--aux", action="append", default=[], metavar="COL",
                         help="auxiliary input column, e.g. spindle_rpm (repeatable)")
@@ -79,21 +78,23 @@ def add_data_arguments(parser: argparse.ArgumentParser, tilts: bool = False) -> 
 
 
 def add_selection_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--max-sensors", type=int, default=DEFAULT_MAX_SENSORS, metavar="N",
+    parser.add_argument("--max-sensors", type=int, default=TrainOptions.max_sensors,
+                        metavar="N",
                         help="most sensors per axis (default %(default)s, the firmware budget)")
-    parser.add_argument("--groups", type=int, default=DEFAULT_GROUPS, metavar="C",
+    parser.add_argument("--groups", type=int, default=TrainOptions.groups, metavar="C",
                         help="c-means groups (default %(default)s, capped by the sensor count)")
-    parser.add_argument("--selection", choices=METHODS, default="validated",
+    parser.add_argument("--selection", choices=METHODS, default=TrainOptions.selection,
                         help="'validated' (default): representatives and EC subset by "
                         "out-of-fold error; 'paper': paper 000 exactly (training error); "
                         "'validated-refined': plus swaps within a group; 'validated-ec': "
                         "out-of-fold error, EC count (docs/selection.md)")
     parser.add_argument("--max-delay-h", type=float, default=None, metavar="H",
                         help="limit of the delay search (default a quarter of the shortest run)")
-    parser.add_argument("--blocks", type=int, default=DEFAULT_BLOCKS, metavar="N",
+    parser.add_argument("--blocks", type=int, default=TrainOptions.n_blocks, metavar="N",
                         help="time blocks for validation when there is one run (default "
                         "%(default)s)")
-    parser.add_argument("--seed", type=seed_arg, default=0, help="c-means seed (default 0)")
+    parser.add_argument("--seed", type=seed_arg, default=TrainOptions.seed,
+                        help="c-means seed (default %(default)s)")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -103,12 +104,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channel", action="append", type=parse_channel, default=[],
                         metavar="SENSOR=INDEX", help="wire a sensor to a box channel "
                         "(default 0..k-1 in column order)")
-    parser.add_argument("--max-channels", type=int, default=BOX_CHANNELS, metavar="N",
+    parser.add_argument("--max-channels", type=int, default=TrainOptions.max_channels,
+                        metavar="N",
                         help="thermocouple channels the box has, shared by all axes (default "
                         "%(default)s); when the axes' choices exceed it, every axis is "
                         "re-selected from the sensors most axes chose")
-    parser.add_argument("--tc-type", choices=("K", "J"), default="K",
-                        help="thermocouple type of every channel (default K)")
+    parser.add_argument("--tc-type", choices=TC_TYPES, default=TrainOptions.tc_type,
+                        help="thermocouple type of every channel (default %(default)s)")
     parser.add_argument("--out", default="build", metavar="DIR",
                         help="output directory (default %(default)s)")
     parser.add_argument("--no-codegen", action="store_true",
@@ -119,13 +121,14 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ambient", metavar="COL", default=None,
                         help="ambient temperature column for the ambient effect (one of the "
                         "--sensors; default: a sensor named like *amb*, if any)")
-    parser.add_argument("--fit", choices=FITS, default=DEFAULT_FIT,
+    parser.add_argument("--fit", choices=FITS, default=TrainOptions.fit,
                         help="ridge (default): the selected terms and effects plus the speed "
                              "and lags of every sensor the box reads, shrunk (every um/K "
                              "alike); ols: least squares on "
                              "the selected terms and effects (paper 000's eq. 4); auto: the "
                              "family with the lowest nested error (docs/training.md)")
-    parser.add_argument("--prefilter-s", type=float, default=PREFILTER_TAU_S, metavar="S",
+    parser.add_argument("--prefilter-s", type=float, default=TrainOptions.prefilter_s,
+                        metavar="S",
                         help="the ridge is fitted to its rows low-passed by this time constant "
                              "(the probes' and thermocouples' noise out of the fit; the box "
                              "runs the same coefficients on raw readings); 0: the raw rows "

@@ -4,12 +4,8 @@
 from __future__ import annotations
 
 from thermal_comp.host.train.next_day import DEFAULT_FIT, FITS
-from thermal_comp.host.train.pipeline import (
-    DEFAULT_REFERENCE,
-    TrainingError,
-    axis_with_effects,
-    train_model,
-)
+from thermal_comp.host.train.options import DEFAULT_REFERENCE, TrainOptions
+from thermal_comp.host.train.pipeline import train_model
 from thermal_comp.host.train.ranges import (
     TOLERANCE_SHARE,
     describe,
@@ -17,6 +13,7 @@ from thermal_comp.host.train.ranges import (
     outside_training,
     training_ranges,
 )
+from thermal_comp.host.train.searched import axis_with_effects
 from thermal_comp.host.train.summary import (
     axis_sensors,
     box_effects_evidence,
@@ -25,6 +22,7 @@ from thermal_comp.host.train.summary import (
     ridge_lags_note,
     summary,
 )
+from thermal_comp.host.train.training_data import TrainingError
 
 __all__ = [
     "box_effects_evidence",
@@ -35,6 +33,7 @@ __all__ = [
     "FITS",
     "DEFAULT_REFERENCE",
     "TOLERANCE_SHARE",
+    "TrainOptions",
     "TrainingError",
     "axis_sensors",
     "axis_with_effects",

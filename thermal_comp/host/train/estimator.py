@@ -38,14 +38,11 @@ import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from thermal_comp.contract.box import BOX_CHANNELS
 from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.terms import Term
 from thermal_comp.host.fitting import Reference, design_matrix
-from thermal_comp.host.fitting.prefilter import PREFILTER_TAU_S
 from thermal_comp.host.io import Run
-from thermal_comp.host.selection import DEFAULT_BLOCKS, DEFAULT_GROUPS, DEFAULT_MAX_SENSORS
-from thermal_comp.host.train.next_day import DEFAULT_FIT
+from thermal_comp.host.train.options import TrainOptions
 from thermal_comp.host.train.pipeline import train_model
 
 MIN_SAMPLES = 4  # host train's least (the nested folds and the filters need a few samples)
@@ -107,6 +104,8 @@ class ThermalModel(RegressorMixin, BaseEstimator):
     -1: the default, this process alone, host.parallel.default_workers; the model does not
     depend on it).
 
+    Its defaults are host train's (host.train.options.TrainOptions), checked there.
+
     Fitted attributes: ``model_`` (the model.json dict), ``axes_`` (target names),
     ``sensors_`` (the thermocouples the box reads), ``columns_`` (the name of each column of
     X), ``n_features_in_``, ``feature_names_in_`` (from a DataFrame), ``inputs_scaled_`` (how
@@ -115,13 +114,15 @@ class ThermalModel(RegressorMixin, BaseEstimator):
 
     def __init__(self, sensor_names: Sequence[str] | None = None,
                  aux_names: Sequence[str] = (), target_names: Sequence[str] | None = None,
-                 period_s: float = 1.0, max_sensors: int = DEFAULT_MAX_SENSORS,
-                 n_groups: int = DEFAULT_GROUPS, selection: str = "validated",
-                 effects: bool = True, max_channels: int = BOX_CHANNELS,
-                 n_blocks: int = DEFAULT_BLOCKS, reference: str | None = None,
-                 family: str = DEFAULT_FIT, fill_channels: bool = True,
-                 bending: Sequence[str] = (), prefilter_s: float = PREFILTER_TAU_S,
-                 random_state: int = 0, n_jobs: int | None = None) -> None:
+                 period_s: float = 1.0, max_sensors: int = TrainOptions.max_sensors,
+                 n_groups: int = TrainOptions.groups, selection: str = TrainOptions.selection,
+                 effects: bool = TrainOptions.effects,
+                 max_channels: int = TrainOptions.max_channels,
+                 n_blocks: int = TrainOptions.n_blocks, reference: str | None = None,
+                 family: str = TrainOptions.fit,
+                 fill_channels: bool = TrainOptions.fill_channels,
+                 bending: Sequence[str] = (), prefilter_s: float = TrainOptions.prefilter_s,
+                 random_state: int = TrainOptions.seed, n_jobs: int | None = None) -> None:
         self.sensor_names = sensor_names
         self.aux_names = aux_names
         self.target_names = target_names

@@ -36,7 +36,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from thermal_comp.contract.box import BOX_STATES
-from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.terms import (
     FILTER_KINDS,
     KELVIN_KINDS,
@@ -63,7 +62,7 @@ from thermal_comp.host.fitting.prefilter import PREFILTER_TAU_S, prefiltered
 from thermal_comp.host.io import Run
 from thermal_comp.host.parallel import forked_map
 from thermal_comp.host.selection import fill_free_channels, l1_ranking
-from thermal_comp.host.train.axis_fit import axis_dict
+from thermal_comp.host.train.axis_fit import AxisFit
 
 FITS = ("auto", "ols", "ridge")
 DEFAULT_FIT = "ridge"  # measured best on unseen runs of every source (docs/training.md)
@@ -392,17 +391,10 @@ def ridge_axis(runs: Sequence[Run], target: str, terms: Sequence[Term], *, aux: 
     return None
 
 
-def ridge_axis_dict(basis: list[Term], fit, st) -> dict:
-    """The axis dict fields of a ridge fit (the same metrics as a least-squares axis)."""
-    out = axis_dict(basis, fit.coef, fit.intercept, st.X, st.y, fit.validation_rmse_um,
-                    st.scheme)
-    del out["unit"]
-    return out
-
-
-def check_fit(fit: str) -> None:
-    if fit not in FITS:
-        raise InputError(f"--fit must be one of {', '.join(FITS)} (got {fit!r})")
+def ridge_axis_fit(basis: list[Term], fit, st) -> AxisFit:
+    """The axis fit of a ridge (the same metrics as a least-squares axis)."""
+    return AxisFit.of(basis, fit.coef, fit.intercept, st.X, st.y, fit.validation_rmse_um,
+                      st.scheme)
 
 
 def shared_lag_budget(axes_terms: Sequence[Sequence[Term]], read: Sequence[str],

@@ -1,5 +1,7 @@
 """The training runs as every step of ``host train`` sees them (host.train.pipeline).
 
+The runs are loaded (or, given loaded, restricted to the requested sensors) once: as_runs.
+
 Temperatures and targets stacked and referenced once (the change since each run's start with
 the ``start`` reference), the validation folds, and the sensors that carry no signal; the
 selection and the channel budget's cost both work on this one view.
@@ -7,14 +9,18 @@ selection and the channel budget's cost both work on this one view.
 
 from __future__ import annotations
 
+import fnmatch
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.terms import Term, make_temp
+from thermal_comp.contract.tilt import Tilt
 from thermal_comp.host.fitting import Reference, common_period, fold_groups, stack, validation_rmse
-from thermal_comp.host.io import Run, check_variation
+from thermal_comp.host.io import Run, check_variation, load_runs, missing_sensors
 from thermal_comp.host.selection import select_sensors
 
 
@@ -90,3 +96,50 @@ class TrainingData:
         return validation_rmse(st.X, st.y, st.groups)
 
 
+def _sensor_columns(temperatures: np.ndarray, idx: list[int]) -> np.ndarray:
+    """``temperatures[:, idx]``: a copy, column-major (numpy lays out a gather along the
+    second axis so, and every later sum over a run follows that layout). Already
+    column-major with every column in order (``host train`` hands its runs so), the array is
+    that copy's twin and is used as it is: 44 MB less for 64 sensors x 86,400 rows."""
+    if (temperatures.ndim == 2 and temperatures.shape[1] >= 2
+            and temperatures.flags.f_contiguous and idx == list(range(temperatures.shape[1]))):
+        return temperatures
+    return temperatures[:, idx]
+
+
+def as_runs(runs: Sequence[Run | str | Path], targets: list[str], sensors: str | list[str],
+            aux: list[str], fill_gaps: int, tilts: Sequence[Tilt] = ()) -> list[Run]:
+    """Load paths (tilt targets computed from their probes); restrict already-loaded runs to
+    the requested sensors."""
+    if not runs:
+        raise TrainingError("no training runs given")
+    if all(isinstance(r, (str, Path)) for r in runs):
+        return load_runs(list(runs), targets, sensors, aux, fill_gaps, min_samples=4,
+                         tilts=tilts)
+    out = []
+    for run in runs:
+        if not isinstance(run, Run):
+            raise TrainingError("runs must be all paths or all host.io.Run objects")
+        for t in targets:
+            if t not in run.target_names:
+                raise TrainingError(f"{run.path}: no target column '{t}'")
+        if isinstance(sensors, str):
+            names = [n for n in run.sensor_names if fnmatch.fnmatchcase(n, sensors)]
+        else:
+            names = list(sensors)
+        missing = [n for n in names if n not in run.sensor_names]
+        if missing:
+            raise TrainingError(f"{run.path}: " + missing_sensors(missing, run.sensor_names,
+                                                                   "given by sensors"))
+        if not names:
+            raise TrainingError(f"{run.path}: no sensor column matches {sensors!r}; the run's "
+                                f"columns: {', '.join(run.sensor_names)}")
+        idx = [run.sensor_names.index(n) for n in names]
+        out.append(Run(run.path, run.time_s, names, _sensor_columns(run.temperatures, idx),
+                       list(run.target_names), run.displacements, list(run.aux_names), run.aux,
+                       run.filled_cells))
+    first = out[0].sensor_names
+    for run in out[1:]:
+        if run.sensor_names != first:
+            raise TrainingError(f"{run.path}: sensor columns differ from {out[0].path}")
+    return out
