@@ -103,3 +103,16 @@ def test_a_log_without_readings_is_refused_by_name(trained, tmp_path):
     write_log(log, t1, t2, y, every=10 * N, rng=rng)  # no touch in the whole log
     with pytest.raises(ServiceLogError, match=r"quiet\.csv: no probe readings.*probe_<axis>"):
         load_service_logs([log], model)
+
+
+def test_a_log_at_another_sample_period_is_refused(trained, tmp_path):
+    model, _, rng = trained
+    log = tmp_path / "fast.csv"
+    t1, t2, y = day(rng, together=False)
+    write_log(log, t1, t2, y, every=60, rng=rng)
+    text = log.read_text().splitlines()
+    rows = [text[0]] + [f"{k * PERIOD / 2:g}," + line.split(",", 1)[1]
+                        for k, line in enumerate(text[1:])]
+    log.write_text("\n".join(rows) + "\n")
+    with pytest.raises(ServiceLogError, match=r"fast\.csv: sample period 30 s, the model's is 60"):
+        load_service_logs([log], model)

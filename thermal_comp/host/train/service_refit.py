@@ -62,6 +62,10 @@ def load_service_logs(paths: Sequence[str | Path], model: dict, fill_gaps: int =
     for path in paths:
         run = load_run(path, [], sensors, aux, fill_gaps, fmt=fmt,
                        sensors_from="the model's channels", aux_from="an input the model reads")
+        period = float(model["sample_period_s"])
+        if run.n_samples > 1 and abs(run.period_s - period) > 0.01 * period:
+            raise ServiceLogError(f"{path}: sample period {run.period_s:g} s, the model's is "
+                                  f"{period:g} s (its lags are per sample): resample the log")
         readings = logged_probes(path, run, axes, fmt)
         if not any(readings.count(a) for a in axes):
             raise ServiceLogError(f"{path}: no probe readings (a column probe_<axis> for "
