@@ -28,6 +28,10 @@ from thermal_comp.contract import (
     model_hash,
     model_spec,
     protocol,
+    protocol_decode,
+    protocol_encode,
+    protocol_frame,
+    protocol_messages,
     terms,
 )
 
@@ -119,7 +123,8 @@ def test_the_parser_reads_what_it_claims(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("mod", [contract, box, checkout, fixed_point, model_file, protocol,
                                  terms, model_errors, model_hash, json_text, atomic_file,
-                                 model_spec, model_checker, model_axis])
+                                 model_spec, model_checker, model_axis, protocol_messages,
+                                 protocol_frame, protocol_decode, protocol_encode])
 def test_contract_is_stdlib_only(mod):
     """The contract imports no third-party package (the LinuxCNC side runs it on Debian's
     /usr/bin/python3 without the venv) and nothing of host, codegen or hil."""
