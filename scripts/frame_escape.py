@@ -108,7 +108,7 @@ def measure(kind: str, trials: int, seed: int) -> dict:
     escape_any = escape_value = 0
     largest_nm = 0
     examples: list[str] = []
-    line_re, crc16 = protocol._LINE_RE, protocol.crc16
+    line_re, crc16 = protocol.LINE_RE, protocol.crc16
     t0 = time.monotonic()
     for t in range(trials):
         line, original = lines[pick[t]]

@@ -15,7 +15,25 @@ from pathlib import Path
 import pytest
 
 from thermal_comp import contract
-from thermal_comp.contract import box, checkout, fixed_point, model_file, protocol, terms
+from thermal_comp.contract import (
+    atomic_file,
+    box,
+    checkout,
+    fixed_point,
+    json_text,
+    model_axis,
+    model_checker,
+    model_errors,
+    model_file,
+    model_hash,
+    model_spec,
+    protocol,
+    protocol_decode,
+    protocol_encode,
+    protocol_frame,
+    protocol_messages,
+    terms,
+)
 
 INCLUDE = Path(__file__).resolve().parents[2] / "firmware" / "include"
 DEFINE = re.compile(r"^\s*#\s*define\s+([A-Z0-9_]+)\s+(.+?)\s*(?:/\*.*)?$")
@@ -104,7 +122,9 @@ def test_the_parser_reads_what_it_claims(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("mod", [contract, box, checkout, fixed_point, model_file, protocol,
-                                 terms])
+                                 terms, model_errors, model_hash, json_text, atomic_file,
+                                 model_spec, model_checker, model_axis, protocol_messages,
+                                 protocol_frame, protocol_decode, protocol_encode])
 def test_contract_is_stdlib_only(mod):
     """The contract imports no third-party package (the LinuxCNC side runs it on Debian's
     /usr/bin/python3 without the venv) and nothing of host, codegen or hil."""

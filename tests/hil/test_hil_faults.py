@@ -36,8 +36,8 @@ from thermal_comp.hil.expect import (
     SLEW,
     TC_FAULT,
     WDT_RESET,
-    output_stage,
 )
+from thermal_comp.hil.output_stage import output_stage
 from thermal_comp.hil.runner import ChipFault, CodeOverride, Restart, SerialNoise
 
 pytestmark = pytest.mark.skipif(

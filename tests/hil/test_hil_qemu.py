@@ -16,7 +16,7 @@ import pytest
 from firmware_support import prepare_fl_head
 
 from thermal_comp.hil import replay as hil_replay
-from thermal_comp.hil.checks import capture_differences, sample_lines
+from thermal_comp.hil.capture_compare import capture_differences, sample_lines
 from thermal_comp.hil.expect import HOLD, OPEN
 from thermal_comp.hil.runner import ChipFault
 

@@ -11,8 +11,9 @@ import json
 import sys
 
 from thermal_comp.contract.tilt import unit_of
+from thermal_comp.hil.box_csv import write_box_csv
 from thermal_comp.hil.build import BuildError, firmware_dir
-from thermal_comp.hil.checks import Judging, ReplayReport, write_box_csv
+from thermal_comp.hil.checks import Judging, ReplayReport
 from thermal_comp.hil.link import LinkTimeout
 from thermal_comp.hil.native import BoxStartError
 from thermal_comp.host.fitting import REFERENCE_KINDS
@@ -192,7 +193,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     events += probe_events(setup, args)
     if args.target == "qemu":
         from thermal_comp.hil import qemu
-        from thermal_comp.hil.checks import capture_differences
+        from thermal_comp.hil.capture_compare import capture_differences
 
         start_box = qemu.box_factory(setup, args.build_dir, args.box_cflags)
         report, capture = hil_replay.run(setup, events, quiet=args.json, window=args.window,

@@ -10,28 +10,24 @@ in a row: a channel fault), which status bits that raises, and the output stage 
 walk back at the slew limit, clamp) -- the guard and the output stage are the sample-by-sample
 twins ``codegen.fixed.ChannelGuard`` / ``AxisOutput``. Configuration is read from
 ``box_config.h`` (the defaults the firmware is built with) plus any ``-D`` overrides passed
-to the build. Nothing here looks at what the firmware sent.
+to the build (``hil.box_config``); the output stage itself is ``hil.output_stage``. Nothing
+here looks at what the firmware sent.
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from thermal_comp.codegen import estimator as est
 from thermal_comp.codegen.fixed import (
     GUARD_FAULT,
     GUARD_HELD,
     GUARD_RUNAWAY_SAMPLES,
-    AxisOutput,
     ChannelGuard,
     FixedModel,
 )
-from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.protocol import (
     STATUS_BITS,
     ChannelFault,
@@ -40,7 +36,8 @@ from thermal_comp.contract.protocol import (
     status_names,
 )
 from thermal_comp.contract.terms import AUX_KINDS, TEMPERATURE_KINDS
-from thermal_comp.hil.build import firmware_dir
+from thermal_comp.hil.box_config import OutputConfig
+from thermal_comp.hil.output_stage import ServiceOut, output_stage_ref
 
 # The status word has one home, contract.protocol (docs/protocol.md); short names here.
 MODEL_BAD, HOLD, SLEW, CLAMP = Status.MODEL_BAD, Status.HOLD, Status.SLEW, Status.CLAMP
@@ -58,66 +55,6 @@ def status_text(status: int) -> str:
     return "|".join(names) if names else "-"
 
 
-@dataclass(frozen=True)
-class OutputConfig:
-    """The output stage's build-time configuration (box_config.h)."""
-
-    slew_nm_per_s: int
-    max_abs_nm: int
-    cold_start_slew: bool
-    max_channels: int = 8
-    max_axes: int = 6
-    max_aux: int = 2
-    implausible_after: int = 3  # BOX_IMPLAUSIBLE_FAULT_SAMPLES
-    zero_samples: int = 8  # BOX_ZERO_SAMPLES
-    beyond_span_percent: int = 50  # BOX_BEYOND_SPAN_PERCENT
-    beyond_min_codes: int = 640  # BOX_BEYOND_MIN_CODES
-    meas_samples: int = 4  # BOX_MEAS_SAMPLES: samples the box remembers for MEAS
-
-    def beyond_limits(self, wlo: np.ndarray, whi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per channel, the codes beyond which a reading is BEYOND (box_config.h)."""
-        margin = np.maximum((whi - wlo) * self.beyond_span_percent // 100, self.beyond_min_codes)
-        return wlo - margin, whi + margin
-
-    def step_nm(self, period_ms: int) -> int:
-        """Slew step per sample period, as axis_output_step_nm: rounded, at least 1 nm."""
-        return max(1, min((self.slew_nm_per_s * period_ms + 500) // 1000, 2**31 - 1))
-
-    @classmethod
-    def from_build(cls, cflags: str = "", config_h: Path | None = None) -> OutputConfig:
-        """Defaults from box_config.h (the checkout's, unless given), overridden by
-        ``-DNAME=value`` in the build's cflags."""
-        config_h = config_h or firmware_dir() / "include" / "box_config.h"
-        text = config_h.read_text(encoding="utf-8")
-        values: dict[str, int] = {}
-        for name in ("BOX_SLEW_NM_PER_S", "BOX_MAX_CORRECTION_NM", "BOX_COLD_START_SLEW",
-                     "BOX_MAX_CHANNELS", "BOX_MAX_AXES", "BOX_MAX_AUX",
-                     "BOX_IMPLAUSIBLE_FAULT_SAMPLES", "BOX_ZERO_SAMPLES",
-                     "BOX_BEYOND_SPAN_PERCENT", "BOX_BEYOND_MIN_CODES", "BOX_MEAS_SAMPLES"):
-            m = re.search(rf"^#define {name} (\d+)\s*$", text, re.M)
-            if m is None:
-                raise InputError(f"{config_h}: no '#define {name} <number>' default")
-            values[name] = int(m.group(1))
-        for m in re.finditer(r"-D(BOX_\w+)=(\d+)", cflags):
-            if m.group(1) in values:
-                values[m.group(1)] = int(m.group(2))
-        return cls(values["BOX_SLEW_NM_PER_S"], values["BOX_MAX_CORRECTION_NM"],
-                   bool(values["BOX_COLD_START_SLEW"]), values["BOX_MAX_CHANNELS"],
-                   values["BOX_MAX_AXES"], values["BOX_MAX_AUX"],
-                   values["BOX_IMPLAUSIBLE_FAULT_SAMPLES"], values["BOX_ZERO_SAMPLES"],
-                   values["BOX_BEYOND_SPAN_PERCENT"], values["BOX_BEYOND_MIN_CODES"],
-                   values["BOX_MEAS_SAMPLES"])
-
-    def check_fits(self, n_channels: int, n_axes: int, n_aux: int, what: str) -> None:
-        """The firmware refuses (MODEL_BAD) a model larger than its build-time capacity."""
-        for count, limit, name in ((n_channels, self.max_channels, "channels"),
-                                   (n_axes, self.max_axes, "axes"), (n_aux, self.max_aux, "aux")):
-            if count > limit:
-                raise InputError(f"{what}: {count} {name}, the firmware is built for at most "
-                                 f"{limit} (BOX_MAX_{name.upper()} in firmware/include/"
-                                 f"box_config.h); the box would report MODEL_BAD")
-
-
 @dataclass
 class Expected:
     """Per-sample expectation for one power-up of the box."""
@@ -133,47 +70,6 @@ class Expected:
     meas_replies: tuple[MeasReply, ...] = ()  # the $M answers to MEAS, in order
     bias_nm: np.ndarray | None = None  # (n, axes): the estimate added at each sample
 
-
-@dataclass
-class ServiceOut:
-    """What the in-service estimator twin produced over a session (output_stage_ref)."""
-
-    replies: list[MeasReply]
-    bias_nm: np.ndarray
-
-
-# MEAS (issue 42): a reading of a sample with an incomplete reference / a held axis
-_MEAS_OK, _MEAS_NO_REF, _MEAS_HOLDING = 0, 1, 2
-
-
-def _sat32(v: int) -> int:
-    return max(-(2**31), min(2**31 - 1, v))
-
-
-def _meas_reply(axis: int, seq: int, nm: int, latest: int, ring_start: int, ring: dict,
-                states: list, params: Sequence, no_reference: bool, window: int
-                ) -> MeasReply:
-    """The box's answer to ``MEAS axis nm seq`` before sample ``latest + 1`` (app.c
-    handle_meas; the reasons in contract.protocol.MEAS_REASONS' order)."""
-    box_seq = seq % 2**32
-    if axis >= len(params) or params[axis] is None:
-        return MeasReply(axis, box_seq, False, "AXIS" if axis >= len(params) else "OFF",
-                         None, None, None)
-    st, pa = states[axis], params[axis]
-
-    def refuse(reason: str) -> MeasReply:
-        return MeasReply(axis, box_seq, False, reason, None, st.bias_nm, (st.p_q8 + 128) >> 8)
-
-    held = max(ring_start, latest - window + 1) <= seq <= latest
-    if no_reference or (held and ring[seq][1][axis] == _MEAS_NO_REF):
-        return refuse("NO_REF")
-    if not held:
-        return refuse("SEQ")
-    if ring[seq][1][axis] != _MEAS_OK or ring[latest][1][axis] != _MEAS_OK:
-        return refuse("HOLDING")
-    m = est.measure(st, pa, nm, ring[seq][0][axis])
-    return MeasReply(axis, box_seq, m.accepted, (m.reason or None) if m.accepted else "GATE",
-                     st.last_innovation_nm, st.bias_nm, (st.p_q8 + 128) >> 8)
 
 
 def aux_fault_value(aux) -> int:
@@ -264,98 +160,41 @@ def guard_channels(codes: np.ndarray, in_range: np.ndarray, max_step: Sequence[i
     return model_codes, valid, implausible
 
 
-def output_stage_ref(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
-                     step: int, track: Sequence[int] | None = None,
-                     zero_before: Sequence[int] = (), needs_ref: bool = False,
-                     resets: Sequence[int] = (), service: Sequence | None = None,
-                     meas: dict[int, list[tuple[int, int, int, bool]]] | None = None,
-                     meas_samples: int = 4, svc_out: ServiceOut | None = None
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
-    """The axis output stage over a session (codegen.fixed.AxisOutput per axis):
-    (out_nm [n, axes], status bits [n], reference [n, axes], accepted ZEROs).
-
-    ``step``: the walk-back step (BOX_SLEW_NM_PER_S per period); ``track``: each axis's
-    step limit from the header (None: unlimited while tracking); ``zero_before``: samples
-    before which ZERO is sent (0 = before the first); the box refuses one (HOLDING) when an
-    axis's inputs were faulted, or an axis walked (SLEW), at the sample before it (not after
-    a reset: nothing sampled).
-    ``needs_ref``: a start-referenced model after a cold power-up: until the first accepted
-    ZERO every axis holds (NO_REF). ``resets``: samples before which a warm reset happened.
-    ``service``: per axis its estimator parameters (codegen.estimator.FixedParams, None: no
-    service block); ``meas``: sample -> the readings sent before it, (axis, nm, seq,
-    after_zero: sent after a ZERO at the same point); the answers and the bias per sample go
-    to ``svc_out`` (docs/service.md, "On the box")."""
-    n, n_axes = computed_nm.shape
-    out = np.zeros((n, n_axes), dtype=np.int64)
-    ref = np.zeros((n, n_axes), dtype=np.int64)
-    bits = np.zeros(n, dtype=np.int64)
-    zeros, warm = set(zero_before), set(resets)
-    axes = [AxisOutput(cfg.max_abs_nm, step, (2**31 - 1) if track is None else int(track[a]),
-                       cfg.zero_samples, cfg.cold_start_slew) for a in range(n_axes)]
-    accepted: list[int] = []
-    referenced = False
-    ok_rows = computed.tolist()
-    val_rows = computed_nm.tolist()
-    params = list(service) if service is not None else [None] * n_axes
-    states = [est.reset(p) if p is not None else est.FixedState() for p in params]
-    bias = np.zeros((n, n_axes), dtype=np.int64)
-    ring: dict[int, tuple[list[int], list[int]]] = {}
-    ring_start = 0
-    replies: list[MeasReply] = []
-    meas = meas or {}
-    for i in range(n):
-        zero_now = i in zeros and (i == 0 or i in warm or (
-            all(ok_rows[i - 1]) and not bits[i - 1] & int(Status.SLEW)))
-        if i in warm:
-            ring_start = i  # the box forgets its samples over a reset (not retained)
-        for axis, nm, seq, after_zero in meas.get(i, []):
-            replies.append(_meas_reply(axis, seq, nm, i - 1, ring_start, ring, states, params,
-                                       (needs_ref and not referenced) or
-                                       (after_zero and zero_now), meas_samples))
-        ticks = i > 0
-        if zero_now:
-            accepted.append(i)
-            referenced = True
-            for a, ax in enumerate(axes):
-                if ax.has_output and states[a].bias_nm:  # the datum takes the bias too
-                    moved = ax.out_nm - states[a].bias_nm
-                    if abs(moved) > cfg.max_abs_nm:
-                        bits[i] |= CLAMP
-                        moved = cfg.max_abs_nm if moved > 0 else -cfg.max_abs_nm
-                    ax.out_nm = moved
-                ax.zero()
-            states = [est.reset(p) if p is not None else est.FixedState() for p in params]
-            ticks = False
-            ring_start = i
-        no_ref = needs_ref and not referenced
-        if no_ref:
-            bits[i] |= NO_REF
-        entry: tuple[list[int], list[int]] = ([0] * n_axes, [0] * n_axes)
-        for a, ax in enumerate(axes):
-            if params[a] is not None and ticks:
-                est.tick(states[a], params[a])
-            valid = bool(ok_rows[i][a])
-            value = int(val_rows[i][a])
-            bias[i, a] = states[a].bias_nm
-            for name in ax.update(valid and not no_ref, _sat32(value + states[a].bias_nm)):
-                bits[i] |= Status[name]
-            out[i, a], ref[i, a] = ax.out_nm, ax.ref_nm
-            entry[0][a] = _sat32(value - ax.ref_nm)
-            entry[1][a] = (_MEAS_NO_REF if no_ref or ax.zeroing else
-                           _MEAS_HOLDING if not valid or ax.walking else _MEAS_OK)
-        ring[i] = entry
-        ring.pop(i - meas_samples, None)
-    if svc_out is not None:
-        svc_out.replies, svc_out.bias_nm = replies, bias
-    return out, bits, ref, accepted
+def _input_bits(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.ndarray,
+                wdt_reset: bool, model_bad: bool, warm_resets: Sequence[int]
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(in range [n, ch], status bits [n]) before the guard: chip faults, valid ranges, the
+    aux inputs' ranges, and the sticky bits of the power-up (WDT_RESET, MODEL_BAD)."""
+    m = twin.model
+    n = codes.shape[0]
+    lo = np.array([c.min_code for c in m.channels], dtype=np.int64)
+    hi = np.array([c.max_code for c in m.channels], dtype=np.int64)
+    in_range, bits = channel_faults(codes, sr, lo, hi)
+    if m.aux:
+        alo = np.array([a.min for a in m.aux], dtype=np.int64)
+        ahi = np.array([a.max for a in m.aux], dtype=np.int64)
+        bits |= np.where(((aux < alo) | (aux > ahi)).any(axis=1), AUX_FAULT, 0)
+    sticky = (WDT_RESET if wdt_reset else 0) | (MODEL_BAD if model_bad else 0)
+    bits |= sticky
+    if warm_resets:
+        bits |= np.where(np.arange(n) >= min(warm_resets), int(WDT_RESET), 0)
+    return in_range, bits
 
 
-def output_stage(computed_nm: np.ndarray, computed: np.ndarray, cfg: OutputConfig,
-                 step: int, track: Sequence[int] | None = None,
-                 zero_before: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray]:
-    """The axis output logic over a session: (out_nm [n, axes], status bits [n])."""
-    out, bits, _, _ = output_stage_ref(computed_nm, computed, cfg, step, track, zero_before)
-    return out, bits
+def _model_bad_expected(codes: np.ndarray, in_range: np.ndarray, bits: np.ndarray,
+                        wlo: np.ndarray, whi: np.ndarray, zeros: list[int],
+                        meas: dict[int, list[tuple[int, int, int, bool]]] | None) -> Expected:
+    """A box that refused its model (MODEL_BAD): no corrections at all, no guard, the
+    temperatures still reported, every MEAS answered OFF."""
+    n = codes.shape[0]
+    if zeros:  # REFERENCED from the first sample of the first reference on
+        bits |= np.where(np.arange(n) >= zeros[0], int(REFERENCED), 0)
+    bits |= np.where((in_range & ((codes < wlo) | (codes > whi))).any(axis=1), EXTRAP, 0)
+    empty = np.zeros((n, 0), dtype=np.int64)
+    off = tuple(MeasReply(a, s % 2**32, False, "OFF", None, None, None)
+                for i in sorted(meas or {}) for a, _, s, _ in (meas or {})[i])
+    return Expected(empty, empty, empty.astype(bool), bits, codes, codes, empty,
+                    meas_replies=off)
 
 
 def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.ndarray,
@@ -376,29 +215,12 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
     """
     m = twin.model
     n = codes.shape[0]
-    lo = np.array([c.min_code for c in m.channels], dtype=np.int64)
-    hi = np.array([c.max_code for c in m.channels], dtype=np.int64)
     wlo = np.array([c.window_lo_code for c in m.channels], dtype=np.int64)
     whi = np.array([c.window_hi_code for c in m.channels], dtype=np.int64)
-    in_range, bits = channel_faults(codes, sr, lo, hi)
+    in_range, bits = _input_bits(twin, codes, aux, sr, wdt_reset, model_bad, warm_resets)
     zeros = sorted(set(zero_before))
-    if m.aux:
-        alo = np.array([a.min for a in m.aux], dtype=np.int64)
-        ahi = np.array([a.max for a in m.aux], dtype=np.int64)
-        bits |= np.where(((aux < alo) | (aux > ahi)).any(axis=1), AUX_FAULT, 0)
-    sticky = (WDT_RESET if wdt_reset else 0) | (MODEL_BAD if model_bad else 0)
-    bits |= sticky
-    if warm_resets:
-        bits |= np.where(np.arange(n) >= min(warm_resets), int(WDT_RESET), 0)
     if model_bad:  # no corrections at all, no guard, temperatures still reported
-        if zeros:  # REFERENCED from the first sample of the first reference on
-            bits |= np.where(np.arange(n) >= zeros[0], int(REFERENCED), 0)
-        bits |= np.where((in_range & ((codes < wlo) | (codes > whi))).any(axis=1), EXTRAP, 0)
-        empty = np.zeros((n, 0), dtype=np.int64)
-        off = tuple(MeasReply(a, s % 2**32, False, "OFF", None, None, None)
-                    for i in sorted(meas or {}) for a, _, s, _ in (meas or {})[i])
-        return Expected(empty, empty, empty.astype(bool), bits, codes, codes, empty,
-                        meas_replies=off)
+        return _model_bad_expected(codes, in_range, bits, wlo, whi, zeros, meas)
     # stuck: a channel fault like a chip fault (its axes hold, HOLD); the guard counts the
     # sample as lost, so the first reading that moves again is judged
     stuck = stuck_channels(codes, in_range, [c.max_still_samples for c in m.channels])
