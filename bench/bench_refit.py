@@ -53,7 +53,7 @@ def simulate_day(d: Path, machine: int, day: int) -> Path:
 def service_log(run_csv: Path, model_json: Path, seed: int) -> Path:
     """What the box and the probe would have logged that day: the model's channels and
     aux inputs, and every 60 min each axis's displacement since the reference plus noise."""
-    from thermal_comp.host.analysis.evaluate import measured, model_reference
+    from thermal_comp.host.analysis.evaluate import measured
     from thermal_comp.host.io import load_run
     from thermal_comp.host.service import ProbePlan, probe_column, synthesise_probes
 
@@ -61,8 +61,7 @@ def service_log(run_csv: Path, model_json: Path, seed: int) -> Path:
     sensors = [c["sensor"] for c in model["channels"]]
     aux = [a["name"] for a in model.get("aux", [])]
     run = load_run(run_csv, list(model["axes"]), sensors, aux)
-    model_reference(model)  # the readings are referenced as the model is
-    truth = {a: measured(model, run, a) for a in model["axes"]}
+    truth = {a: measured(model, run, a) for a in model["axes"]}  # referenced as the model is
     readings = synthesise_probes(run, truth, ProbePlan(PROBE_EVERY_S, PROBE_NOISE_UM, seed))
     out = run_csv.with_name(run_csv.stem + "_service.csv")
     cols = run.columns()

@@ -116,3 +116,17 @@ def test_a_log_at_another_sample_period_is_refused(trained, tmp_path):
     log.write_text("\n".join(rows) + "\n")
     with pytest.raises(ServiceLogError, match=r"fast\.csv: sample period 30 s, the model's is 60"):
         load_service_logs([log], model)
+
+
+def test_one_log_cannot_be_judged_so_the_trained_model_stays(trained, tmp_path):
+    import json
+
+    model, run, rng = trained
+    t1, t2, y = day(rng, together=False)  # a day that would teach the split
+    write_log(tmp_path / "only.csv", t1, t2, y, every=60, rng=rng)
+    before = gains(model).copy()
+    refit = refit_on_probes(model, [run], load_service_logs([tmp_path / "only.csv"], model))
+    record = refit["axes"]["dz_um"]["service_refit"]
+    assert not record["refitted"] and record["why"].startswith("one log only")
+    assert np.array_equal(gains(refit), before)
+    json.dumps(record, allow_nan=False)  # model.json holds it: no inf, no nan

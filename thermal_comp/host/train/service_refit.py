@@ -9,16 +9,17 @@ touch, the axis's displacement since the reference as the probe saw it.
 The refit keeps the trained terms (the box's channels, filters and effects: nothing new to
 read) and moves their coefficients and intercept θ as little as the training runs allow:
 
-    min  |A_train (θ - θ0)|²  +  Σ_logs  w_log · |A_probe θ - z|²
+    min  |A_train (θ - θ0)|²  +  Σ_logs  w_log · |A_log θ - z_log|²
 
 ``A`` holds the terms' float features and a column of ones, referenced as the model is (with
 ``start``: the change since each run's or log's first samples; the readings are taken the same
 way), ``θ0`` the trained values. The first part is exactly how much worse the training runs
 fit (for least squares; for a ridge, the same curvature about its solution), so a direction
-the training pinned down stays put and a direction it left loose follows the probes. A log's
-readings stand for its whole length: ``w_log`` = its samples / its readings, so a day of
-hourly touches weighs like a day of training rows. The fixed-point bound is checked again by
-codegen after the refit, as for any model.
+the training pinned down stays put and a direction it left loose follows the probes. A reading
+is worth as many training rows as its noise allows (``reading_weight``), at most its log's
+length over its readings. The refit is kept only if it predicts held-out logs better
+(``refit_axis``). The fixed-point bound is checked again by codegen after the refit, as for
+any model.
 """
 
 from __future__ import annotations
@@ -149,21 +150,24 @@ def refit_axis(model: dict, axis: str, runs: Sequence[Run], logs: Sequence[Servi
         held_out_before.append(g.z - g.A @ theta0)
         held_out_after.append(g.z - g.A @ theta_j)
     before = _rms(np.concatenate(held_out_before))
-    after = _rms(np.concatenate(held_out_after)) if len(readings) > 1 else math.inf
+    after = _rms(np.concatenate(held_out_after)) if len(readings) > 1 else None
     theta = _solve(train_rows, readings, theta0)
-    kept = after <= KEEP_GAIN * before
+    kept = after is not None and after <= KEEP_GAIN * before
     delta = theta - theta0 if kept else np.zeros_like(theta0)
     e_after = np.concatenate([e - A @ delta for e, A in zip(train_e, train_rows, strict=True)])
-    why = (f"each log held out in turn, the refit on the others predicts its readings at "
-           f"{after:.3g} um against the trained model's {before:.3g} um")
-    why += (": refitted on all logs" if kept else
-            f", not {1 - KEEP_GAIN:.0%} better: the trained model kept")
+    if after is None:
+        why = "one log only: none can be held out to judge a refit, the trained model kept"
+    else:
+        why = (f"each log held out in turn, the refit on the others predicts its readings at "
+               f"{after:.3g} um against the trained model's {before:.3g} um")
+        why += (": refitted on all logs" if kept else
+                f", not {1 - KEEP_GAIN:.0%} better: the trained model kept")
     final = theta if kept else theta0
     return {"intercept": float(final[0]), "coefs": final[1:].tolist(), "record": {
         "logs": [str(log.run.path) for log in logs if log.index.get(axis) is not None],
         "readings": int(n_readings), "refitted": bool(kept),
         "held_out_rmse_before_um": before, "held_out_rmse_after_um": after,
-        "rows_per_reading": min(rows_per_reading, max(log.run.n_samples for log in logs)),
+        "training_rows_per_reading": [g.sqrt_w ** 2 for g in readings],
         "training_rmse_before_um": _rms(np.concatenate(train_e)),
         "training_rmse_after_um": _rms(e_after), "why": why}}
 
