@@ -32,16 +32,22 @@ def service_lines(state: MonitorState, colour: bool = False) -> list[str]:
             continue
         unit = unit_text(name)
         res = "-" if a.innovation_nm is None else f"{a.innovation_nm / 1000.0:+.3f} {unit}"
-        line = f"  estimate   {name:>10}: {a.bias_nm / 1000.0:+10.3f} {unit}, last residual {res}"
-        if a.reopens:
-            line += (f", RE-OPENED {a.reopens}x (refusals in a row that agreed: the model "
-                     "missed beyond the gate, or a chip stuck on the artifact)")
+        line = f"  estimate {name:>5}: {a.bias_nm / 1000.0:+8.3f} {unit}, last residual {res}"
+        # short marks first (the alarm before the history), their explanations after: the
+        # screen clips a line at 79 columns, and the marks still fit there
+        marks, why = [], []
         if a.refusals >= REFUSALS_WARN:
-            line = (f"{red}{line}, {a.refusals} readings REFUSED in a row (beyond the gate: "
-                    f"check the artifact, or ZERO){reset}")
+            marks.append(f"{a.refusals} REFUSED")
+            why.append(f"({a.refusals} readings refused in a row, beyond the gate: check the "
+                       "artifact, or ZERO)")
         elif a.refusals:
-            line += f", {a.refusals} refused"
-        out.append(line)
+            marks.append(f"{a.refusals} refused")
+        if a.reopens:
+            marks.append(f"REOPENED {a.reopens}x")
+            why.append("(re-opened: refusals in a row that agreed: the model missed beyond "
+                       "the gate, or a chip stuck on the artifact)")
+        line = ", ".join([line, *marks]) + "".join(f" {w}" for w in why)
+        out.append(f"{red}{line}{reset}" if a.refusals >= REFUSALS_WARN else line)
     return out
 
 
