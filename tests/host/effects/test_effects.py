@@ -112,31 +112,31 @@ def baseline_held_out(train: Run, test: Run) -> float:
 def test_hidden_effect_is_named_and_cuts_held_out_error(effect, kinds):
     train, test = synth_run(effect, 1), synth_run(effect, 2)
     res = search_effects([train], "dz_um", BASELINE, DT)
-    added = res.report["effects"]
-    assert added, res.report["effects_search"]["steps"][0]["best"][:2]
-    assert added[0]["kind"] in kinds
+    added = res.report.effects
+    assert added, res.report.search["steps"][0]["best"][:2]
+    assert added[0].kind in kinds
     before = baseline_held_out(train, test)
     after = held_out_rmse(test, res.terms, res.coefs, res.intercept)
     assert after <= 0.6 * before, (before, after)
     # the report's numbers are the out-of-fold RMSEs before and after, and consistent
-    assert res.report["baseline_validation_rmse_um"] == pytest.approx(added[0]["rmse_before_um"],
+    assert res.report.baseline_validation_rmse_um == pytest.approx(added[0].rmse_before_um,
                                                                       rel=1e-3)
-    assert res.report["validation_rmse_um"] < 0.6 * res.report["baseline_validation_rmse_um"]
-    ev = added[0]["evidence"]
+    assert res.report.validation_rmse_um < 0.6 * res.report.baseline_validation_rmse_um
+    ev = added[0].evidence
     assert ev["folds_improved"] == "3/3" or ev["folds_exercised"] != "3/3"
     assert abs(ev["residual_corr"]) > 0.3
-    assert res.report["unexplained"] is None
+    assert res.report.unexplained is None
 
 
 def test_lag_effect_finds_the_hidden_time_constant():
     res = search_effects([synth_run("lag", 3)], "dz_um", BASELINE, DT)
-    first = res.report["effects"][0]
-    assert first["added"][0]["tau_s"] == 7200.0  # the grid point equal to the hidden 2 h
+    first = res.report.effects[0]
+    assert first.added[0].params["tau_s"] == 7200.0  # the grid point equal to the hidden 2 h
 
 
 def test_no_effect_nothing_added_on_ten_seeds():
     added = [bool(search_effects([synth_run("none", s, hours=8.0)], "dz_um", BASELINE,
-                                 DT).report["effects"]) for s in range(10)]
+                                 DT).report.effects) for s in range(10)]
     assert sum(added) <= 2, added
 
 
@@ -144,10 +144,10 @@ def test_unexpressible_effect_is_reported_unexplained_without_a_large_claim():
     train, test = synth_run("hidden", 1), synth_run("hidden", 2)
     res = search_effects([train], "dz_um", BASELINE, DT)
     rep = res.report
-    assert rep["unexplained"] is not None
-    assert rep["unexplained"]["lag1_autocorr"] > 0.5
-    assert "no candidate effect explains it" in rep["unexplained"]["message"]
-    claimed = 1 - rep["validation_rmse_um"] / rep["baseline_validation_rmse_um"]
+    assert rep.unexplained is not None
+    assert rep.unexplained["lag1_autocorr"] > 0.5
+    assert "no candidate effect explains it" in rep.unexplained["message"]
+    claimed = 1 - rep.validation_rmse_um / rep.baseline_validation_rmse_um
     assert claimed < 0.4
     assert held_out_rmse(test, res.terms, res.coefs, res.intercept) <= 1.1 * baseline_held_out(
         train, test)
@@ -157,22 +157,22 @@ def test_at_most_three_effects_and_each_step_lowers_validation_rmse():
     run = synth_run("lag", 4)
     run.displacements[:, 0] += 0.0015 * run.aux[:, 0]  # a second hidden effect: speed growth
     res = search_effects([run], "dz_um", BASELINE, DT)
-    effects = res.report["effects"]
+    effects = res.report.effects
     assert 2 <= len(effects) <= 3
     for e in effects:
-        assert e["rmse_after_um"] <= 0.9 * e["rmse_before_um"]
-    assert "speed" in {e["kind"] for e in effects}
-    assert {e["kind"] for e in effects} & {"lag", "rate"}
-    assert res.report["validation_rmse_um"] < 0.2 * res.report["baseline_validation_rmse_um"]
-    assert len(search_effects([run], "dz_um", BASELINE, DT, max_effects=1).report["effects"]) == 1
+        assert e.rmse_after_um <= 0.9 * e.rmse_before_um
+    assert "speed" in {e.kind for e in effects}
+    assert {e.kind for e in effects} & {"lag", "rate"}
+    assert res.report.validation_rmse_um < 0.2 * res.report.baseline_validation_rmse_um
+    assert len(search_effects([run], "dz_um", BASELINE, DT, max_effects=1).report.effects) == 1
 
 
 def test_leave_one_run_out_with_two_runs():
     runs = [synth_run("speed", 5, hours=8.0), synth_run("speed", 6, hours=8.0)]
     res = search_effects(runs, "dz_um", BASELINE, DT)
-    assert res.report["effects"][0]["kind"] == "speed"
-    assert res.report["effects"][0]["evidence"]["folds_improved"] == "2/2"
-    assert "leave-one-run-out" in res.report["effects_search"]["validation"]
+    assert res.report.effects[0].kind == "speed"
+    assert res.report.effects[0].evidence["folds_improved"] == "2/2"
+    assert "leave-one-run-out" in res.report.search["validation"]
 
 
 # ------------------------------------------------------------------ inputs: re-selection
@@ -198,8 +198,8 @@ def test_input_family_reselects_the_sensors_and_drops_the_stand_in():
     train, test = with_stand_in(synth_run("speed", 1), 1), with_stand_in(synth_run("speed", 2), 2)
     stand_in = [make_temp("T1"), make_temp("T5")]  # what a static selection could pick
     res = search_effects([train], "dz_um", stand_in, DT)
-    first = res.report["effects"][0]
-    assert first["kind"] == "speed" and first["reselected"] is True
+    first = res.report.effects[0]
+    assert first.kind == "speed" and first.reselected is True
     sources = {t.source for t in res.terms if t.kind == "temp"}
     assert "T5" not in sources and "T3" in sources  # the column is in the truth, T5 is not
     # independent check: speed added to the stand-in model (numpy) does far worse on another day
@@ -230,8 +230,8 @@ def test_reselected_input_is_not_credited_with_a_better_sensor_choice():
     the sensors, so the speed family must also beat the re-selected sensors alone."""
     run = with_stand_in(synth_run("none", 1), 1)
     res = search_effects([run], "dz_um", [make_temp("T1")], DT)
-    assert "speed" not in {e["kind"] for e in res.report["effects"]}
-    row = next(r for r in res.report["effects_search"]["steps"][0]["best"]
+    assert "speed" not in {e.kind for e in res.report.effects}
+    row = next(r for r in res.report.search["steps"][0]["best"]
                if r["kind"] == "speed" and "re-selected" in r["feature"])
     assert row["improvement_pct"] > 50 and row["passes"] is False
     sensors = ["T1", *(m.group(1) for m in re.finditer(r"\+(\w+)", row["feature"]))]
@@ -246,7 +246,7 @@ def test_reselection_keeps_to_the_new_sensor_budget():
     for budget in (0, 1):
         res = search_effects([run], "dz_um", base, DT, max_new_sensors=budget)
         new = {t.source for t in res.terms if t.source in run.sensor_names} - {"T1", "T5"}
-        assert len(new) <= budget, res.report["effects"]
+        assert len(new) <= budget, res.report.effects
     # sensors another axis already wires cost no channel: the column sensor may come in
     res = search_effects([run], "dz_um", base, DT, max_new_sensors=0,
                          channels_in_use=["T2", "T3", "T4"])
@@ -268,15 +268,15 @@ def test_state_quantisation_matches_the_contract_by_hand():
 def test_codegen_refusal_takes_the_next_candidate():
     run = synth_run("lag", 7)
     strict = search_effects([run], "dz_um", BASELINE, DT, max_error_um=0.00055)
-    steps = strict.report["effects_search"]["steps"]
+    steps = strict.report.search["steps"]
     refused = [c for c in steps[0]["best"] if "codegen_refused" in c]
     assert refused and "filter-state quantisation bound" in refused[0]["codegen_refused"]
     budget = 0.75 * (0.00055 - 0.0005)
     assert state_quantisation_um(strict.terms, strict.coefs) <= budget
     assert fixed_point_refusal(strict.terms, strict.coefs, 0.00055) is None
     default = search_effects([run], "dz_um", BASELINE, DT)
-    assert default.report["effects"][0]["feature"] != (strict.report["effects"] or [{}])[0].get(
-        "feature")
+    first_strict = strict.report.effects[0].feature if strict.report.effects else None
+    assert default.report.effects[0].feature != first_strict
 
 
 # ------------------------------------------------------------------ building blocks

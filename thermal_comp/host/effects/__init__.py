@@ -14,6 +14,7 @@ from thermal_comp.host.effects.candidates import (
     generate_candidates,
     tau_grid,
 )
+from thermal_comp.host.effects.report import AddedEffect, EffectsReport
 from thermal_comp.host.effects.residual import lag1_autocorrelation, noise_floor, residual_structure
 from thermal_comp.host.effects.scoring import (
     FeatureCache,
@@ -25,12 +26,15 @@ from thermal_comp.host.effects.scoring import (
     preferred,
     score_candidates,
 )
-from thermal_comp.host.effects.search import search_effects
+from thermal_comp.host.effects.search import EffectsResult, search_effects
 from thermal_comp.host.effects.sensor_reference import sensor_reference
 
 __all__ = [
+    "AddedEffect",
     "Candidate",
     "EffectsError",
+    "EffectsReport",
+    "EffectsResult",
     "FeatureCache",
     "GramScorer",
     "Rule",

@@ -28,7 +28,7 @@ above white noise *and* RMSE well above the measurement noise floor), the report
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -43,6 +43,7 @@ from thermal_comp.host.effects.candidates import (
     start_reference,
     tau_grid,
 )
+from thermal_comp.host.effects.report import AddedEffect, EffectsReport
 from thermal_comp.host.effects.reselection import Reselection, reselected_candidates
 from thermal_comp.host.effects.residual import (
     NOISE_MULTIPLE,
@@ -77,16 +78,12 @@ TOP_RECORDED = 5  # candidates kept per step in the report
 
 @dataclass
 class EffectsResult:
-    """Final terms and fit, and the report that goes into model.json's axis."""
+    """Final terms and fit, and the search's report (model.json's axis keeps its JSON)."""
 
     terms: list[Term]
     coefs: np.ndarray
     intercept: float
-    report: dict = field(default_factory=dict)
-
-
-def _terms_json(terms: Sequence[Term], coefs: Sequence[float]) -> list[dict]:
-    return [{**t.to_json(), "coef": float(c)} for t, c in zip(terms, coefs, strict=True)]
+    report: EffectsReport
 
 
 def _unexplained_message(structure: dict, n_added: int, best: dict | None,
@@ -152,7 +149,7 @@ class _Outcome:
     """Where the loop stopped: the terms, what it added, and its last scores."""
 
     terms: list[Term]
-    added: list[dict]
+    added: list[AddedEffect]
     steps: list[dict]
     n_tested: int
     last_best: dict | None
@@ -191,7 +188,7 @@ def _loop(space: _Space, baseline: Sequence[Term], kinds: set[str], rule: Rule,
     """Steps 1-5: score every candidate on the current residual, add the first the box can
     run that passes the rule, refit, repeat."""
     terms = list(baseline)
-    added: list[dict] = []
+    added: list[AddedEffect] = []
     steps: list[dict] = []
     n_tested = 0
     last_best: dict | None = None
@@ -261,14 +258,15 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
                                                   "residual_rmse_um", "noise_floor_um")}
         unexplained["message"] = _unexplained_message(structure, len(out.added),
                                                       out.last_best, out.max_reached, rule)
-    report = {
-        "baseline_validation_rmse_um": rounded(out.baseline_score.validation_rmse_um, 6),
-        "validation_rmse_um": rounded(out.ref.validation_rmse_um, 6),
-        "effects": out.added,
-        "unexplained": unexplained,
-        "baseline": {"intercept": float(base_fit.intercept),
-                     "terms": _terms_json(baseline, base_fit.coef)},
-        "effects_search": {
+    report = EffectsReport(
+        baseline_validation_rmse_um=rounded(out.baseline_score.validation_rmse_um, 6),
+        validation_rmse_um=rounded(out.ref.validation_rmse_um, 6),
+        effects=tuple(out.added),
+        baseline_terms=tuple(baseline),
+        baseline_coefs=tuple(float(c) for c in base_fit.coef),
+        baseline_intercept=float(base_fit.intercept),
+        unexplained=unexplained,
+        search={
             "rule": _rule_text(rule, max_effects, max_error_um),
             "validation": space.scheme,
             "kinds": [k for k in EFFECT_KINDS if k in kinds],
@@ -279,7 +277,7 @@ def search_effects(runs: Sequence[Run], target: str, baseline: Sequence[Term], p
             "residual": structure,
             "steps": out.steps,
         },
-    }
+    )
     return EffectsResult(out.terms, final.coef, float(final.intercept), report)
 
 
@@ -317,23 +315,16 @@ def _first_the_box_runs(scored: Sequence[Scored], ref: Scored, rule: Rule, terms
 
 
 def _added_entry(chosen: Scored, ref: Scored, terms: list[Term], coefs: np.ndarray,
-                 intercept: float) -> dict:
+                 intercept: float) -> AddedEffect:
     """The report's record of an added effect, with the model's terms after it."""
     cand = chosen.candidate
     assert cand is not None
-    return {
-        "kind": cand.kind,
-        "feature": cand.feature,
-        "name": cand.feature,
-        "added": [t.to_json() for t in cand.add],
-        **({"reselected": True} if cand.family else {}),
-        **({"removed": [t.to_json() for t in cand.remove]} if cand.remove else {}),
-        "evidence": chosen.evidence(ref),
-        "rmse_before_um": rounded(ref.validation_rmse_um, 4),
-        "rmse_after_um": rounded(chosen.validation_rmse_um, 4),
-        "intercept": float(intercept),
-        "terms": _terms_json(terms, coefs),
-    }
+    return AddedEffect(
+        kind=cand.kind, feature=cand.feature, added=tuple(cand.add),
+        removed=tuple(cand.remove or ()), reselected=bool(cand.family),
+        evidence=chosen.evidence(ref), rmse_before_um=rounded(ref.validation_rmse_um, 4),
+        rmse_after_um=rounded(chosen.validation_rmse_um, 4), intercept=float(intercept),
+        terms=tuple(terms), coefs=tuple(float(c) for c in coefs))
 
 
 def _rule_text(rule: Rule, max_effects: int, max_error_um: float) -> str:

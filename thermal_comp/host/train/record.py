@@ -62,7 +62,7 @@ def axis_record(axis: SearchedAxis) -> dict:
     out["baseline_validation_rmse_um"] = axis.baseline_validation_rmse_um
     out["effects"] = axis.effects
     if axis.report:
-        out.update({k: v for k, v in axis.report.items() if k not in out})
+        out.update({k: v for k, v in axis.report.to_json().items() if k not in out})
         out["sensor_reference"] = axis.sensor_reference
     if axis.budget_after_effects is not None:
         out["channel_budget_after_effects"] = axis.budget_after_effects

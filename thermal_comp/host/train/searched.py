@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 from thermal_comp.contract.terms import Term, term_sensors
-from thermal_comp.host.effects import search_effects, sensor_reference
+from thermal_comp.host.effects import EffectsReport, search_effects, sensor_reference
 from thermal_comp.host.fitting import NO_REFERENCE, Reference, fit_linear, stack, validation_rmse
 from thermal_comp.host.io import Run
 from thermal_comp.host.progress import progress
@@ -42,7 +42,7 @@ class SearchedAxis:
     fit: AxisFit
     selection: Mapping[str, Any]
     baseline_validation_rmse_um: float
-    report: Mapping[str, Any] = field(default_factory=dict)
+    report: EffectsReport | None = None
     sensor_reference: Mapping[str, Any] | None = None
     budget_after_effects: Mapping[str, Any] | None = None
     effects_rejected: str | None = None
@@ -51,7 +51,7 @@ class SearchedAxis:
     @property
     def effects(self) -> list[dict]:
         """The effects the search accepted, each with its flags (in the order they were set)."""
-        out = [dict(e) for e in self.report.get("effects", [])]
+        out = [e.to_json() for e in self.report.effects] if self.report else []
         for i, key, value in self.effect_flags:
             out[i][key] = value
         return out
@@ -59,8 +59,7 @@ class SearchedAxis:
     @property
     def baseline_terms(self) -> list[Term] | None:
         """The terms before the effects (None without the search)."""
-        baseline = self.report.get("baseline")
-        return [Term.from_json(x) for x in baseline["terms"]] if baseline else None
+        return list(self.report.baseline_terms) if self.report else None
 
     def flagged(self, flags: Sequence[EffectFlag]) -> SearchedAxis:
         """This axis with more flags on its effects."""
@@ -84,7 +83,7 @@ def search_axis(runs: list[Run], target: str, baseline: list[Term], selection: M
                 *, period_s: float, n_blocks: int = DEFAULT_BLOCKS, ambient: str | None = None,
                 max_sensors: int = DEFAULT_MAX_SENSORS, channels_in_use: Sequence[str] = (),
                 reference: Reference = NO_REFERENCE, max_new_sensors: int | None = None
-                ) -> tuple[AxisFit, dict, dict]:
+                ) -> tuple[AxisFit, EffectsReport, dict]:
     """The validated effects on ``baseline`` (host.effects.search_effects): the final terms
     fitted once, at the full rate; the search's report; the sensors' references (used by
     ``host diagnose``)."""
@@ -110,7 +109,7 @@ def axis_with_effects(axis: dict, *, runs: list[Run], target: str, period_s: flo
         runs, target, [Term.from_json(t) for t in axis["terms"]], axis.get("selection"),
         period_s=period_s, n_blocks=n_blocks, ambient=ambient, max_sensors=max_sensors,
         channels_in_use=channels_in_use, reference=reference, max_new_sensors=max_new_sensors)
-    return {**axis, **fit.to_json(), **report, "sensor_reference": references}
+    return {**axis, **fit.to_json(), **report.to_json(), "sensor_reference": references}
 
 
 def selected_within_budget(data: TrainingData, targets: list[str], max_channels: int,
