@@ -21,7 +21,8 @@ sensors, the 4 sensors of largest |r| and ridge over the sensors and their lags:
 seeing the test run, in the peer's favour).
 
 The choice of the estimator: at 60 min and 0.5 um, bias Kalman (the default, q from train),
-the same with q / 4 and q x 4, bias + rate, and a discounted bias (fixed gain 0.7), each as
+the same with q / 4 and q x 4, bias + rate, a discounted bias (fixed gain 0.7), and a bias
+with a correction of the model's gain or of its timing (host.service.BiasGainKalman), each as
 a geometric mean of updated / static per source.
 The gate's lock-out (``STRESS``, same scheme): a +60 um model miss on the test day (RMSE
 over its second half) and a +50 um chip on 10 % of the readings, for reopen_after 0 (never
@@ -64,7 +65,8 @@ NOISES = (0.25, 0.5, 1.0)
 SEEDS = (0, 1)
 CHOICE = ("60min", 0.5)
 VARIANTS = {"bias": ("bias", 1.0), "bias q/4": ("bias", 0.25), "bias q*4": ("bias", 4.0),
-            "bias+rate": ("bias+rate", 1.0), "discounted": ("discounted", 1.0)}
+            "bias+rate": ("bias+rate", 1.0), "discounted": ("discounted", 1.0),
+            "bias+gain": ("bias+gain", 1.0), "bias+timing": ("bias+timing", 1.0)}
 # The gate's lock-out (docs/service.md, "Re-opening"), at the choice's scheme: name ->
 # (a constant added to the measured displacement and to every reading: a model miss beyond
 # the gate; the fraction of readings with a +50 um chip; reopen_after). A miss's row is the

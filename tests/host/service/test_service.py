@@ -12,6 +12,7 @@ from thermal_comp.codegen.estimator import FixedParams, measure, reset, run_twin
 from thermal_comp.contract.model_file import SCHEMA, ModelFormatError, check_model
 from thermal_comp.host.io import RunFormatError, load_run
 from thermal_comp.host.service import (
+    BiasGainKalman,
     BiasKalman,
     Gate,
     ProbePlan,
@@ -250,3 +251,21 @@ def test_reopen_after_is_a_whole_number_of_readings(value, needle):
             "p_max_um2": 25.0, "reopen_after": value}}}}
     with pytest.raises(ModelFormatError, match=needle):
         check_model(m)
+
+
+def test_gain_estimator_follows_a_model_whose_gain_is_off_where_a_bias_cannot():
+    """A model 20 % short of a growing drift: readings every hour, exact. Between readings the
+    bias stays while the drift grows; the gain correction grows with the model's output."""
+    t = np.arange(0.0, 8 * 3600.0, 60.0)
+    true = 30.0 * (1.0 - np.exp(-t / 7200.0))  # um, the axis's drift from the reference
+    pred = 0.8 * true
+    idx = np.arange(60, t.size, 60)
+    gate = Gate(4.0, 3.0)
+    bias = run_estimator(BiasKalman(0.5, 25.0, 0.0), gate, 0.25, pred, t, idx, true[idx])
+    gain = run_estimator(BiasGainKalman(0.5, 25.0, 0.0, "gain", s_sd=0.3), gate, 0.25, pred, t,
+                         idx, true[idx])
+    late = slice(4 * 60, None)  # after a few readings
+    err_bias = np.sqrt(np.mean((true - pred - bias.correction)[late] ** 2))
+    err_gain = np.sqrt(np.mean((true - pred - gain.correction)[late] ** 2))
+    assert err_gain < 0.5 * err_bias, (err_gain, err_bias)
+    assert gain.refused == 0

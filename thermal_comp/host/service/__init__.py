@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from thermal_comp.host.service.estimators import (
     ESTIMATORS,
+    BiasGainKalman,
     BiasKalman,
     BiasRateKalman,
     DiscountedBias,
@@ -47,6 +48,7 @@ from thermal_comp.host.service.probes import (
 __all__ = [
     "ESTIMATORS",
     "PROBE_WHEN",
+    "BiasGainKalman",
     "BiasKalman",
     "BiasRateKalman",
     "DiscountedBias",

@@ -14,6 +14,13 @@ k + 1 on (the box answers MEAS after it has output sample k).
   with ``q / 1 h^2``); the correction between readings extrapolates the rate.
 - ``DiscountedBias``: exponential smoothing of the innovation with a fixed gain ``alpha``
   (a Kalman filter frozen at one gain), gated with the same bookkeeping of P.
+- ``BiasGainKalman``: a bias and a correction of the model's gain (the correction is
+  b + s * model output), or, with ``regressor="rate"``, of its timing (b + s * the model's
+  rate over the last 15 min: a time shift of its curve). Measured, not the default
+  (docs/service.md): it pays on FL_THERMAL and costs on both simulators.
+
+Every estimator sees a regressor per sample (``regressor``: zeros for the bias kinds), so the
+correction may follow the model's output between readings.
 
 ``run_estimator`` runs one over a run, with the gate and its re-opening (``reopen_after``
 refused readings in a row that agree: the model, not the probe, is off; docs/service.md);
@@ -33,8 +40,13 @@ from thermal_comp.host.service.parameters import ServiceParams
 
 
 class Estimator:
-    """The interface: reset, propagate by dt hours, the correction dt hours ahead, the
-    variance of the current correction, and an update by an accepted innovation."""
+    """The interface: reset, propagate by dt hours, the correction dt hours ahead (``g``: the
+    regressor at those samples), the variance of the current correction at a sample of
+    regressor ``g``, and an update by an accepted innovation."""
+
+    def regressor(self, prediction: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+        """What the correction may scale per sample (none for a bias)."""
+        return np.zeros_like(prediction)
 
     def reset(self) -> None:
         raise NotImplementedError
@@ -42,13 +54,13 @@ class Estimator:
     def propagate(self, dt_h: float) -> None:
         raise NotImplementedError
 
-    def offset(self, dt_h: np.ndarray) -> np.ndarray:
+    def offset(self, dt_h: np.ndarray, g: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
-    def variance(self) -> float:
+    def variance(self, g: float = 0.0) -> float:
         raise NotImplementedError
 
-    def update(self, innovation: float, r: float) -> None:
+    def update(self, innovation: float, r: float, g: float = 0.0) -> None:
         raise NotImplementedError
 
     def reopen(self, innovation: float, r: float) -> None:
@@ -72,13 +84,13 @@ class BiasKalman(Estimator):
     def propagate(self, dt_h: float) -> None:
         self.p = min(self.p + self.q * dt_h, self.p_max)
 
-    def offset(self, dt_h: np.ndarray) -> np.ndarray:
+    def offset(self, dt_h: np.ndarray, g: np.ndarray) -> np.ndarray:
         return np.full(np.shape(dt_h), self.b)
 
-    def variance(self) -> float:
+    def variance(self, g: float = 0.0) -> float:
         return self.p
 
-    def update(self, innovation: float, r: float) -> None:
+    def update(self, innovation: float, r: float, g: float = 0.0) -> None:
         k = self.p / (self.p + r)
         self.b += k * innovation
         self.p = (1.0 - k) * self.p
@@ -113,13 +125,13 @@ class BiasRateKalman(Estimator):
         if self.P[0, 0] > self.p_max:  # the same cap as the bias alone, both states scaled
             self.P *= self.p_max / self.P[0, 0]
 
-    def offset(self, dt_h: np.ndarray) -> np.ndarray:
+    def offset(self, dt_h: np.ndarray, g: np.ndarray) -> np.ndarray:
         return self.x[0] + self.x[1] * np.asarray(dt_h, dtype=float)
 
-    def variance(self) -> float:
+    def variance(self, g: float = 0.0) -> float:
         return float(self.P[0, 0])
 
-    def update(self, innovation: float, r: float) -> None:
+    def update(self, innovation: float, r: float, g: float = 0.0) -> None:
         s = self.P[0, 0] + r
         k = self.P[:, 0] / s
         self.x = self.x + k * innovation
@@ -139,15 +151,70 @@ class DiscountedBias(BiasKalman):
         self.alpha = alpha
         super().__init__(q_um2_per_h, p_max_um2, p0_um2)
 
-    def update(self, innovation: float, r: float) -> None:
+    def update(self, innovation: float, r: float, g: float = 0.0) -> None:
         self.b += self.alpha * innovation
         self.p = (1.0 - self.alpha) ** 2 * self.p + self.alpha ** 2 * r
+
+
+RATE_WINDOW_S = 900.0  # the model's rate for the timing correction: its change over 15 min
+
+
+class BiasGainKalman(Estimator):
+    """x = [b, s], correction b + s * g, g the model's output (``"gain"``: its gain is off by
+    s) or its rate in um/h (``"rate"``: its curve is late by s hours). s starts at 0 with
+    standard deviation ``s_sd`` and walks with ``q_s`` per hour, capped at ``s_sd``."""
+
+    def __init__(self, q_um2_per_h: float, p_max_um2: float, p0_um2: float | None = None,
+                 regressor: str = "gain", s_sd: float = 0.05, q_s: float = 0.01) -> None:
+        self.q, self.p_max = q_um2_per_h, p_max_um2
+        self.p0 = p_max_um2 if p0_um2 is None else min(p0_um2, p_max_um2)
+        self.kind, self.s_var, self.q_s = regressor, s_sd ** 2, q_s
+        self.reset()
+
+    def regressor(self, prediction: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+        m = np.asarray(prediction, dtype=float)
+        if self.kind == "gain":
+            return m
+        t_h = (np.asarray(time_s, dtype=float) - float(time_s[0])) / 3600.0
+        n = max(1, round(RATE_WINDOW_S / max(float(np.median(np.diff(time_s))), 1e-9)))
+        rate = np.zeros_like(m)
+        rate[n:] = (m[n:] - m[:-n]) / (t_h[n:] - t_h[:-n])
+        return rate
+
+    def reset(self) -> None:
+        self.x = np.zeros(2)
+        self.P = np.diag([self.p0, self.s_var])
+
+    def propagate(self, dt_h: float) -> None:
+        self.P = self.P + np.diag([self.q * dt_h, self.q_s * dt_h])
+        self.P[0, 0] = min(self.P[0, 0], self.p_max)
+        self.P[1, 1] = min(self.P[1, 1], self.s_var)
+
+    def offset(self, dt_h: np.ndarray, g: np.ndarray) -> np.ndarray:
+        return self.x[0] + self.x[1] * np.asarray(g, dtype=float)
+
+    def variance(self, g: float = 0.0) -> float:
+        h = np.array([1.0, g])
+        return float(h @ self.P @ h)
+
+    def update(self, innovation: float, r: float, g: float = 0.0) -> None:
+        h = np.array([1.0, g])
+        k = self.P @ h / (float(h @ self.P @ h) + r)
+        self.x = self.x + k * innovation
+        self.P = self.P - np.outer(k, h @ self.P)
+
+    def reopen(self, innovation: float, r: float) -> None:
+        self.x = self.x + np.array([innovation, 0.0])
+        self.P = np.diag([min(r, self.p_max), self.P[1, 1]])
 
 
 ESTIMATORS: dict[str, Callable[[ServiceParams], Estimator]] = {
     "bias": lambda p: BiasKalman(p.q_um2_per_h, p.p_max_um2, p.p0_um2),
     "bias+rate": lambda p: BiasRateKalman(p.q_um2_per_h, p.p_max_um2, p.p0_um2),
     "discounted": lambda p: DiscountedBias(p.q_um2_per_h, p.p_max_um2, p.p0_um2),
+    "bias+gain": lambda p: BiasGainKalman(p.q_um2_per_h, p.p_max_um2, p.p0_um2, "gain"),
+    "bias+timing": lambda p: BiasGainKalman(p.q_um2_per_h, p.p_max_um2, p.p0_um2, "rate",
+                                            s_sd=0.1),
 }
 DEFAULT_ESTIMATOR = "bias"
 
@@ -201,6 +268,7 @@ def run_estimator(est: Estimator, gate: Gate, r_um2: float, prediction: np.ndarr
     outputs it), readings ``value`` at samples ``index`` (increasing); ``reopen_after``:
     agreeing refusals in a row that re-open the axis (0: never)."""
     prediction = np.asarray(prediction, dtype=float)
+    g = est.regressor(prediction, np.asarray(time_s, dtype=float))
     t_h = (np.asarray(time_s, dtype=float) - float(time_s[0])) / 3600.0
     n = prediction.size
     est.reset()
@@ -212,21 +280,22 @@ def run_estimator(est: Estimator, gate: Gate, r_um2: float, prediction: np.ndarr
     for k, z in zip(np.asarray(index)[order], np.asarray(value, dtype=float)[order],
                     strict=True):
         k = int(k)
-        corr[start:k + 1] = est.offset(t_h[start:k + 1] - t_state)
+        corr[start:k + 1] = est.offset(t_h[start:k + 1] - t_state, g[start:k + 1])
         est.propagate(t_h[k] - t_state)
         t_state = t_h[k]
-        nu = float(z - (prediction[k] + est.offset(np.zeros(1))[0]))
-        ok = gate.accepts(nu, est.variance() + r_um2)
-        reopen = not ok and rule.refused(gate, nu, est.variance() + r_um2)
+        nu = float(z - (prediction[k] + est.offset(np.zeros(1), g[k:k + 1])[0]))
+        v = est.variance(float(g[k])) + r_um2
+        ok = gate.accepts(nu, v)
+        reopen = not ok and rule.refused(gate, nu, v)
         if reopen:
             est.reopen(nu, r_um2)
         if ok:
             rule.streak = 0
-            est.update(nu, r_um2)
+            est.update(nu, r_um2, float(g[k]))
         nus.append(nu)
         oks.append(ok or reopen)
         reopens.append(reopen)
         start = max(start, k + 1)
-    corr[start:] = est.offset(t_h[start:] - t_state)
+    corr[start:] = est.offset(t_h[start:] - t_state, g[start:])
     return ServiceTrace(corr, np.asarray(index)[order].astype(int), np.asarray(nus, dtype=float),
                         np.asarray(oks, dtype=bool), np.asarray(reopens, dtype=bool))
