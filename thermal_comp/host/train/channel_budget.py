@@ -11,8 +11,7 @@ import math
 from collections.abc import Callable, Mapping
 
 from thermal_comp.contract.terms import TEMPERATURE_KINDS, Term
-
-Selected = dict[str, tuple[list[Term], dict]]  # per axis: terms and selection trace
+from thermal_comp.host.train.training_data import Selections
 
 
 def channels_of(sel: Mapping[str, list[Term]]) -> set[str]:
@@ -50,10 +49,10 @@ def drop_to_budget(current: Mapping[str, list[Term]], vrmse: Callable[[str, list
     return current, dropped
 
 
-def fit_channel_budget(selected: Selected, max_channels: int,
+def fit_channel_budget(selected: Selections, max_channels: int,
                         rank: Callable[[list[str]], list[str]],
-                        reselect: Callable[[list[str]], Selected],
-                        ) -> tuple[Selected, dict | None]:
+                        reselect: Callable[[list[str]], Selections],
+                        ) -> tuple[Selections, dict | None]:
     """Make all axes' selected sensors together fit the box's thermocouple channels.
 
     Returns the per-axis selection that fits and a note for the trace (None when the axes'
@@ -65,7 +64,7 @@ def fit_channel_budget(selected: Selected, max_channels: int,
     chose; the pool by the joint lasso was lower on unseen runs of every source
     (docs/training.md).
     """
-    terms_of = {t: terms for t, (terms, _) in selected.items()}
+    terms_of = {t: s.terms for t, s in selected.items()}
     union = channels_of(terms_of)
     if len(union) <= max_channels:
         return selected, None
@@ -77,9 +76,9 @@ def fit_channel_budget(selected: Selected, max_channels: int,
             "dropped": sorted(union - set(pool)), "pool": pool,
             # the pool's traces show only its sensors: keep the rest
             "outside_pool": {
-                t: {k: {n: v for n, v in trace[k].items() if n not in pool}
+                t: {k: {n: v for n, v in s.trace[k].items() if n not in pool}
                     for k in ("correlations", "delays_s")}
-                for t, (_, trace) in selected.items()}}
-    if len(channels_of({t: terms for t, (terms, _) in chosen.items()})) > max_channels:
+                for t, s in selected.items()}}
+    if len(channels_of({t: s.terms for t, s in chosen.items()})) > max_channels:
         raise AssertionError("channel budget not met")  # the pool guarantees it
     return chosen, note

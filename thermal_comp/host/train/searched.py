@@ -23,10 +23,8 @@ from thermal_comp.host.selection import DEFAULT_BLOCKS, DEFAULT_MAX_SENSORS, joi
 from thermal_comp.host.train.axis_fit import AxisFit
 from thermal_comp.host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
 from thermal_comp.host.train.next_day import channel_fill, lag_taus
-from thermal_comp.host.train.training_data import TrainingData
+from thermal_comp.host.train.training_data import Selections, TrainingData
 
-# each axis's selection: its terms and the selection's trace (model.json ``selection``)
-Selections = dict[str, tuple[list[Term], dict]]
 # an effect's flag: its index in the search's report, the key and the value model.json gives it
 EffectFlag = tuple[int, str, Any]
 
@@ -125,9 +123,9 @@ def selected_within_budget(data: TrainingData, targets: list[str], max_channels:
     selected, budget = fit_channel_budget(
         selected, max_channels, rank,
         reselect=lambda pool: {t: data.select(t, pool, **choose) for t in targets})
-    for _terms, trace in selected.values():
+    for chosen in selected.values():
         if budget:  # the axes together wanted more channels than the box has
-            trace["channel_budget"] = budget
+            chosen.trace["channel_budget"] = budget
     return selected
 
 
@@ -139,7 +137,7 @@ def free_channel_fill(data: TrainingData, selected: Selections,
     every axis's ridge reads: axes without an effect of their own got worse on unseen runs
     (docs/training.md). With one axis there is no other axis to harm, and its effects
     (the shop-air family above all) keep the first claim on the free channels."""
-    wired = [n for n in data.names if n in channels_of({t: terms for t, (terms, _)
+    wired = [n for n in data.names if n in channels_of({t: s.terms for t, s
                                                         in selected.items()})]
     return channel_fill(data.runs, list(selected), wired, data.pool, max_channels=max_channels,
                         period_s=data.period_s, n_blocks=data.n_blocks, reference=data.ref,
@@ -161,7 +159,7 @@ def axes_with_effects(data: TrainingData, selected: Selections, *,
         # wire (or will: their selections) cost no channel, and an effect may bring in only as
         # many new sensors as channels are left, so no budget step removes it afterwards.
         others = channels_of({k: a.fit.terms for k, a in axes.items()})
-        others |= channels_of({k: t for k, (t, _) in selected.items() if k not in axes})
+        others |= channels_of({k: s.terms for k, s in selected.items() if k not in axes})
         others |= set(fill)
         free = max(0, max_channels - len(others | channels_of({target: terms})))
         if effects:

@@ -13,6 +13,7 @@ import fnmatch
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -26,6 +27,16 @@ from thermal_comp.host.selection import select_sensors
 
 class TrainingError(InputError):
     """Training inputs are inconsistent (unknown target, bad channel map, ...)."""
+
+
+class Selected(NamedTuple):
+    """One axis's selection: its terms, and the selection's trace (model.json ``selection``)."""
+
+    terms: list[Term]
+    trace: dict
+
+
+Selections = dict[str, Selected]  # every axis's selection, by target
 
 
 @dataclass
@@ -70,8 +81,7 @@ class TrainingData:
         """The sensors that carry a signal."""
         return [n for i, n in enumerate(self.names) if i not in self.dead]
 
-    def select(self, target: str, pool: list[str] | None = None, **choose
-               ) -> tuple[list[Term], dict]:
+    def select(self, target: str, pool: list[str] | None = None, **choose) -> Selected:
         """host.selection on the live sensors of ``pool`` (default all): terms and trace."""
         if self.X is None:
             raise AssertionError("select() after done_selecting()")
@@ -83,7 +93,8 @@ class TrainingData:
                                 max_delay_s=choose["max_delay_s"], seed=choose["seed"],
                                 scheme=self.folds_scheme)
         pool_names = [self.names[i] for i in cols]
-        return [make_temp(pool_names[i]) for i in result.sensors], result.trace(pool_names)
+        return Selected([make_temp(pool_names[i]) for i in result.sensors],
+                        result.trace(pool_names))
 
     def done_selecting(self) -> None:
         """Free the stacked temperatures only the selection reads (a day of 64 sensors at 1 s
