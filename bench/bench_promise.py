@@ -2,8 +2,8 @@
 what the unseen day gave, per source, and the inflation that makes the promise keep its word.
 
 ``host train`` promises ``metrics.promised_rmse_um`` with a stated coverage ("RMS on an unseen
-day <= X um on 80 % of days"; host.train.next_day.PROMISE_COVERAGE). X is computed from the
-nested folds' held-out errors (host.train.next_day.promise_from_folds); the factor that
+day <= X um on 80 % of days"; host.train.nested.PROMISE_COVERAGE). X is computed from the
+nested folds' held-out errors (host.train.nested.promise_from_folds); the factor that
 inflates them is fitted here. For every case of the accuracy bench's sources
 (bench.bench_accuracy: sim, sim_dev, fl, fl_next, sim_other) this trains the default model
 (nested validation on: the folds are what a promise can be built from), scores it on the
@@ -44,7 +44,7 @@ import numpy as np
 
 from bench import bench_accuracy as acc
 from bench.goal import goal
-from thermal_comp.host.train.next_day import PROMISE_COVERAGE, PROMISE_TAIL
+from thermal_comp.host.train.nested import PROMISE_COVERAGE, PROMISE_TAIL
 
 RESULTS = acc.ROOT / "bench" / "results" / "promise.json"
 # the cases the promise (docs/training.md) was calibrated on (tracked; --quick reads them)
@@ -234,8 +234,8 @@ def calibrate(cases: Sequence[PromiseCase]) -> dict:
 
 
 def held_out_text(cases: Sequence[PromiseCase]) -> str:
-    """How host train's promise (next_day.promise_from_folds) held on ``cases``."""
-    from thermal_comp.host.train.next_day import promise_from_folds
+    """How host train's promise (nested.promise_from_folds) held on ``cases``."""
+    from thermal_comp.host.train.nested import promise_from_folds
 
     cs = usable(cases)
     cov = coverage(cs, [promise_from_folds(c.folds_um) for c in cs])
@@ -284,8 +284,8 @@ def table(cal: dict) -> str:
 
 
 def shipped_coverage(cases: Sequence[PromiseCase]) -> dict[str, dict]:
-    """Per source, how host train's promise (next_day.promise_from_folds) held."""
-    from thermal_comp.host.train.next_day import promise_from_folds
+    """Per source, how host train's promise (nested.promise_from_folds) held."""
+    from thermal_comp.host.train.nested import promise_from_folds
 
     cs = usable(cases)
     out = {}
@@ -297,10 +297,10 @@ def shipped_coverage(cases: Sequence[PromiseCase]) -> dict[str, dict]:
 
 def report(cases: Sequence[PromiseCase], out: Path) -> dict:
     """Calibrate, print the table and write ``out``; the calibration back."""
-    from thermal_comp.host.train import next_day
+    from thermal_comp.host.train import nested
 
     cal = calibrate(cases)
-    cal["shipped"] = {"stat": "geometric mean", "factor": next_day.PROMISE_FACTOR,
+    cal["shipped"] = {"stat": "geometric mean", "factor": nested.PROMISE_FACTOR,
                       "per source": shipped_coverage(cases)}
     print(table(cal), flush=True)
     out.parent.mkdir(parents=True, exist_ok=True)

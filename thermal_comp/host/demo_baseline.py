@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 
 from thermal_comp.host.train import DEFAULT_FIT, dropped_reason
 
-FAMILY_WORDS = {  # host.train.next_day.FAMILIES, in words
+FAMILY_WORDS = {  # host.train.nested.FAMILIES, in words
     "ols": "least squares on the selected terms with the effects",
     "baseline": "least squares on the selected sensors' temperatures (the table's baseline)",
     "ridge": "a ridge over the selected terms, their lags, speed and the free channels, with "

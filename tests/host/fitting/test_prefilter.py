@@ -132,9 +132,9 @@ def test_the_prefilter_is_a_training_option_recorded_and_checked(tmp_path):
 
 def test_an_axis_kept_as_least_squares_does_not_claim_the_prefilter(monkeypatch):
     """`--fit auto` may keep least squares, which fits the raw rows: the axis says 0."""
-    import thermal_comp.host.train.next_day as next_day
+    import thermal_comp.host.train.nested as nested
 
-    monkeypatch.setattr(next_day.NestedResult, "rms",
+    monkeypatch.setattr(nested.NestedResult, "rms",
                         lambda self, family: 0.0 if family == "ols" else 1.0)
     X, y, _ = _slow_and_noisy(8)
     t = np.arange(len(y)) * 60.0

@@ -1,5 +1,5 @@
 """The ridge reads the box's free channels: an L1 ranking of the sensors the selection left out
-(host.selection.screening), filled up to the channel budget (host.train.next_day)."""
+(host.selection.screening), filled up to the channel budget (host.train.free_channels)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Nested validation and the ridge family (host.train.next_day, host.fitting.ridge).
+"""Nested validation and the ridge family (host.train.nested, .ridge_family; host.fitting.ridge).
 
 Expectations are recomputed here with numpy and scikit-learn, never read back from the code.
 """
@@ -18,17 +18,15 @@ from thermal_comp.contract.terms import make_lag, make_rate, make_speed, make_te
 from thermal_comp.host.fitting import NO_REFERENCE, Reference, fit_ridge, fold_groups
 from thermal_comp.host.io import Run
 from thermal_comp.host.train import train_model
-from thermal_comp.host.train.next_day import (
+from thermal_comp.host.train.nested import (
     FoldTerms,
     NestedResult,
     fold_training,
     nested_validation,
     promise_from_folds,
-    ridge_basis,
-    ridge_start,
-    shared_lag_budget,
     thinned,
 )
+from thermal_comp.host.train.ridge_family import ridge_basis, ridge_start, shared_lag_budget
 
 PERIOD = 60.0
 
@@ -124,9 +122,9 @@ def test_long_runs_are_judged_on_every_kth_sample():
 
 
 def test_nested_folds_of_long_runs_train_on_the_thinned_runs(monkeypatch):
-    import thermal_comp.host.train.next_day as next_day
+    import thermal_comp.host.train.nested as nested
 
-    monkeypatch.setattr(next_day, "NESTED_MAX_ROWS", 1000)
+    monkeypatch.setattr(nested, "NESTED_MAX_ROWS", 1000)
     runs = [_run("a", 1), _run("b", 2), _run("c", 3)]
     terms = [make_temp("T1"), make_temp("T2")]
     seen = []
@@ -149,12 +147,12 @@ def test_nested_folds_of_long_runs_train_on_the_thinned_runs(monkeypatch):
 
 
 def test_nested_folds_in_forked_processes_give_the_serial_folds_errors(monkeypatch):
-    import thermal_comp.host.train.next_day as next_day
+    import thermal_comp.host.train.nested as nested
 
     runs = [_run("a", 1), _run("b", 2), _run("c", 3)]  # 1,440 samples in all
     terms = [make_temp("T1"), make_temp("T2")]
     asked = []
-    real = next_day.forked_map
+    real = nested.forked_map
 
     def recorded(work, items, desc, *, workers=None, quiet=True):
         asked.append(workers)
@@ -163,14 +161,14 @@ def test_nested_folds_in_forked_processes_give_the_serial_folds_errors(monkeypat
     def train_fold(sub):
         return FoldTerms(terms + [make_lag("T1", 1800.0, PERIOD)], terms, terms, [])
 
-    monkeypatch.setattr(next_day, "forked_map", recorded)
+    monkeypatch.setattr(nested, "forked_map", recorded)
     kwargs = dict(aux=["spindle_rpm"], period_s=PERIOD, n_blocks=3, reference=NO_REFERENCE,
                   max_states=4)
-    monkeypatch.setattr(next_day, "PARALLEL_MIN_ROWS", 1441)  # too short: this process
+    monkeypatch.setattr(nested, "PARALLEL_MIN_ROWS", 1441)  # too short: this process
     serial = nested_validation(runs, "dz_um", train_fold, **kwargs)
-    monkeypatch.setattr(next_day, "PARALLEL_MIN_ROWS", 1440)  # long enough: the usable cores
-    forked = next_day.nested_validation(runs, "dz_um", train_fold, **kwargs)
-    one = next_day.nested_validation(runs, "dz_um", train_fold, jobs=1, **kwargs)  # --jobs 1
+    monkeypatch.setattr(nested, "PARALLEL_MIN_ROWS", 1440)  # long enough: the usable cores
+    forked = nested.nested_validation(runs, "dz_um", train_fold, **kwargs)
+    one = nested.nested_validation(runs, "dz_um", train_fold, jobs=1, **kwargs)  # --jobs 1
     assert asked == [1, None, 1]
     assert forked.fold_rmse_um == serial.fold_rmse_um == one.fold_rmse_um
     assert all(len(v) == 3 and all(math.isfinite(x) for x in v)
@@ -179,21 +177,21 @@ def test_nested_folds_in_forked_processes_give_the_serial_folds_errors(monkeypat
 
 def test_jobs_reach_the_nested_folds_from_every_entry_and_do_not_change_the_model(
         monkeypatch, tmp_path, capsys):
-    import thermal_comp.host.train.next_day as next_day
+    import thermal_comp.host.train.nested as nested
     from thermal_comp.host.cli import main
     from thermal_comp.host.io import write_run
     from thermal_comp.host.train import TrainingError
     from thermal_comp.host.train.estimator import ThermalModel
 
     asked = []
-    real = next_day.forked_map
+    real = nested.forked_map
 
     def recorded(work, items, desc, *, workers=None, quiet=True):
         asked.append(workers)
         return real(work, items, desc, workers=workers, quiet=quiet)
 
-    monkeypatch.setattr(next_day, "forked_map", recorded)
-    monkeypatch.setattr(next_day, "PARALLEL_MIN_ROWS", 1)  # every run is long enough
+    monkeypatch.setattr(nested, "forked_map", recorded)
+    monkeypatch.setattr(nested, "PARALLEL_MIN_ROWS", 1)  # every run is long enough
     runs = [_run("a", 1), _run("b", 2)]
     kw = dict(aux=["spindle_rpm"], effects=False, groups=2, max_sensors=2)
     default = train_model(runs, ["dz_um"], **kw)
@@ -373,7 +371,7 @@ def test_the_even_warming_penalty_shrinks_the_response_to_an_even_warming_as_it_
 
 def test_train_shapes_only_the_bending_axis_ridge_and_says_so():
     from thermal_comp.host.train import TrainingError
-    from thermal_comp.host.train.next_day import EVEN_WARMING_PENALTY
+    from thermal_comp.host.train.ridge_family import EVEN_WARMING_PENALTY
 
     base = _run("a", 1)
     t1, t2 = base.temperatures[:, 0], base.temperatures[:, 1]
@@ -402,9 +400,9 @@ def test_train_shapes_only_the_bending_axis_ridge_and_says_so():
 
 
 def test_a_bending_axis_kept_as_least_squares_does_not_claim_the_penalty(monkeypatch):
-    import thermal_comp.host.train.next_day as next_day
+    import thermal_comp.host.train.nested as nested
 
-    monkeypatch.setattr(next_day.NestedResult, "rms",
+    monkeypatch.setattr(nested.NestedResult, "rms",
                         lambda self, family: 0.0 if family == "ols" else 1.0)
     model = train_model([_run("a", 1), _run("b", 2)], ["dz_um"], aux=["spindle_rpm"],
                         effects=False, groups=3, max_sensors=2, fit="auto", bending=["dz_um"])

@@ -16,7 +16,7 @@ from test_next_day import _run  # the same two-sensor runs the nested validation
 from bench import bench_promise as bp
 from thermal_comp.host.io import write_run
 from thermal_comp.host.train import summary, train_model
-from thermal_comp.host.train.next_day import (
+from thermal_comp.host.train.nested import (
     PROMISE_COVERAGE,
     PROMISE_FACTOR,
     PROMISE_TAIL,

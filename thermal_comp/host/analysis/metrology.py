@@ -80,7 +80,7 @@ def term_symbol(term: Term) -> str:
     return "t"
 
 
-# fit families fitted by plain least squares (host.train.next_day.FAMILIES); a model without a
+# fit families fitted by plain least squares (host.train.nested.FAMILIES); a model without a
 # ``fit`` record predates the ridge and is least squares too
 LEAST_SQUARES_FAMILIES = ("ols", "baseline")
 # a VIF this large: the term's variance is a thousand times what it would be alone, so the data

@@ -28,7 +28,7 @@ from thermal_comp.host.train import (
     summary,
     train_model,
 )
-from thermal_comp.host.train.next_day import promise_rule
+from thermal_comp.host.train.nested import promise_rule
 from thermal_comp.host.train.options import TC_TYPES, TrainOptions
 from thermal_comp.host.train.service_refit import load_service_logs, refit_on_probes
 

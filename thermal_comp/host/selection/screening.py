@@ -5,7 +5,7 @@ inputs and shrinkage copes with more. A lasso over every sensor's temperature an
 first-order lags (referenced as the model is, columns standardised, penalty chosen on the
 training folds) ranks the sensors by the weight it gives each one's group of features; the
 next-day ridge then reads the selected sensors plus the best-ranked others up to the channel
-budget (host.train.next_day). Measured on unseen runs of three sources in docs/training.md.
+budget (host.train.free_channels). Measured on unseen runs of three sources in docs/training.md.
 """
 
 from __future__ import annotations

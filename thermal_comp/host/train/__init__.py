@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from thermal_comp.host.train.next_day import DEFAULT_FIT, FITS
+from thermal_comp.host.train.nested import DEFAULT_FIT, FITS
 from thermal_comp.host.train.options import DEFAULT_REFERENCE, TrainOptions
 from thermal_comp.host.train.pipeline import train_model
 from thermal_comp.host.train.ranges import (

@@ -1,10 +1,11 @@
 """Stage 3 of ``host train``: choose the model each axis runs the next day.
 
-The families (host.train.next_day.FAMILIES) are judged by nested validation, the chosen one is
+The families (host.train.nested.FAMILIES) are judged by nested validation, the chosen one is
 fitted on all runs (the ridge over every wired sensor and the free channels, within the box's
 filter states), and each axis's choice comes back typed (``NextDayFit``); host.train.record
-writes it into model.json (``fit``, the promise in ``metrics``). The tools it uses (nested
-validation, the ridge's basis and fit, the free channels) live in host.train.next_day.
+writes it into model.json (``fit``, the promise in ``metrics``). Its tools each have a room:
+the families' nested validation and the promise (host.train.nested), the ridge's basis and
+fit (host.train.ridge_family) and the free channels (host.train.free_channels).
 """
 
 from __future__ import annotations
@@ -18,22 +19,19 @@ from thermal_comp.host.fitting import common_period
 from thermal_comp.host.io import Run
 from thermal_comp.host.progress import progress
 from thermal_comp.host.train.channel_budget import channels_of
-from thermal_comp.host.train.next_day import (
+from thermal_comp.host.train.free_channels import channel_fill
+from thermal_comp.host.train.nested import FAMILIES, FoldTerms, NestedResult, nested_validation
+from thermal_comp.host.train.options import TrainOptions
+from thermal_comp.host.train.ridge_family import (
     EVEN_WARMING_PENALTY,
-    FAMILIES,
-    FoldTerms,
-    NestedResult,
     RidgeOptions,
-    channel_fill,
     fastest_lag_s,
     lag_family_filters,
-    nested_validation,
     ridge_axis,
     ridge_axis_fit,
     ridge_start,
     shared_lag_budget,
 )
-from thermal_comp.host.train.options import TrainOptions
 from thermal_comp.host.train.searched import EffectFlag, SearchedAxis, fit_axis
 from thermal_comp.host.train.summary import dropped_reason
 from thermal_comp.host.train.training_data import TrainingData
@@ -83,7 +81,7 @@ class NextDayJob:
 class AxisReading:
     """What one axis's ridge may read: ``fill`` (the free channels), ``pool`` (a nested fold
     fills its own from it), ``box`` (every sensor the box reads) and its ``max_states``
-    distinct filters (next_day.shared_lag_budget)."""
+    distinct filters (ridge_family.shared_lag_budget)."""
 
     max_states: int
     fill: Sequence[str] = ()
@@ -109,7 +107,7 @@ def fit_for_the_next_day(axis: SearchedAxis, target: str, job: NextDayJob,
                          reading: AxisReading, *, nested: bool
                          ) -> tuple[SearchedAxis, NextDayFit]:
     """Judge the families by nested validation and keep the one for the next day
-    (host.train.next_day): the axis refitted for it, and the choice.
+    (host.train.nested): the axis refitted for it, and the choice.
 
     The ridge also reads the sensors ``reading.fill`` (free channels); each nested fold fills
     its own from ``reading.pool`` when ``fill`` is not empty (the fold's ranking, not the final
@@ -239,7 +237,7 @@ def drop_effects(axis: SearchedAxis, data: TrainingData, target: str,
 
 def lags_in_basis(effects: Sequence[dict], basis: Sequence[Term]) -> list[EffectFlag]:
     """The lag and rate effects whose filter the ridge left to its own lags of the effect's
-    sensor (next_day.ridge_start), flagged with the lags that stand for it."""
+    sensor (ridge_family.ridge_start), flagged with the lags that stand for it."""
     out: list[EffectFlag] = []
     for i, effect in enumerate(effects):
         if dropped_reason(effect):

@@ -22,7 +22,7 @@ from thermal_comp.host.selection import (
     DEFAULT_MAX_SENSORS,
     METHODS,
 )
-from thermal_comp.host.train.next_day import DEFAULT_FIT, FITS
+from thermal_comp.host.train.nested import DEFAULT_FIT, FITS
 from thermal_comp.host.train.training_data import TrainingError
 
 DEFAULT_REFERENCE = "start"  # ISO 230-3: the probes are zeroed when a test (a day) starts
@@ -55,7 +55,7 @@ class TrainOptions:
     tc_type: str = DEFAULT_TC_TYPE  # one of TC_TYPES
     max_channels: int = BOX_CHANNELS  # 1..BOX_CHANNELS
     reference: str = DEFAULT_REFERENCE
-    fit: str = DEFAULT_FIT  # one of next_day.FITS
+    fit: str = DEFAULT_FIT  # one of nested.FITS
     nested: bool = True
     fill_channels: bool = True
     tilts: tuple[Tilt, ...] = ()  # each a target

@@ -24,7 +24,7 @@ from thermal_comp.host.fitting.step_limits import add_step_limits
 from thermal_comp.host.io import Run
 from thermal_comp.host.service import add_service
 from thermal_comp.host.train.channel_budget import channels_of
-from thermal_comp.host.train.next_day import fill_rankings
+from thermal_comp.host.train.free_channels import fill_rankings
 from thermal_comp.host.train.next_day_fit import NextDayFit, NextDayJob, for_the_next_day
 from thermal_comp.host.train.options import TrainOptions
 from thermal_comp.host.train.record import model_json
@@ -79,7 +79,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], **opti
     exactly: by training error). ``channels`` maps sensor -> box channel (others get the
     free indices in data-column order). ``max_delay_s`` limits the delay search.
     ``fill_channels``: the ridge also reads the best-ranked other sensors on the box's free
-    channels (host.train.next_day.channel_fill). ``tilts``: targets that are tilt axes (µrad)
+    channels (host.train.free_channels.channel_fill). ``tilts``: targets that are tilt axes (µrad)
     computed from two gap probes of each run (contract/tilt.py); each must be a target.
     ``max_channels`` is the box's thermocouple budget shared by all axes
     (see fit_channel_budget). ``fill_first``: the free channels are filled before the effects
@@ -88,7 +88,7 @@ def train_model(runs: Sequence[Run | str | Path], targets: Sequence[str], **opti
     keep the first claim on them; see searched.free_channel_fill). ``bending``: targets that a
     temperature difference across the structure moves rather than an even warming (a
     column's bending: Y of a vertical machining center); their ridge penalises the response
-    to an even warming (host.train.next_day.EVEN_WARMING_PENALTY). ``prefilter_s``: the time
+    to an even warming (host.train.ridge_family.EVEN_WARMING_PENALTY). ``prefilter_s``: the time
     constant (s) of the low-pass the ridge's rows are fitted through (host.fitting.prefilter;
     0: the raw rows). ``jobs``: at most this many processes train the nested folds (default:
     host.parallel.default_workers; 1: this process); the model does not depend on it.

@@ -15,7 +15,7 @@ from thermal_comp.contract.model_file import SCHEMA
 from thermal_comp.contract.terms import AUX_KINDS, TEMPERATURE_KINDS
 from thermal_comp.contract.tilt import unit_of
 from thermal_comp.host.io import Run
-from thermal_comp.host.train.next_day import PROMISE_COVERAGE, promise_statement
+from thermal_comp.host.train.nested import PROMISE_COVERAGE, promise_statement
 from thermal_comp.host.train.next_day_fit import FAMILY_RULES, NextDayFit
 from thermal_comp.host.train.options import TrainOptions
 from thermal_comp.host.train.ranges import add_training_ranges

@@ -22,7 +22,8 @@ from thermal_comp.host.progress import progress
 from thermal_comp.host.selection import DEFAULT_BLOCKS, DEFAULT_MAX_SENSORS, joint_l1_ranking
 from thermal_comp.host.train.axis_fit import AxisFit
 from thermal_comp.host.train.channel_budget import channels_of, drop_to_budget, fit_channel_budget
-from thermal_comp.host.train.next_day import channel_fill, lag_taus
+from thermal_comp.host.train.free_channels import channel_fill
+from thermal_comp.host.train.ridge_family import lag_taus
 from thermal_comp.host.train.training_data import Selections, TrainingData
 
 # an effect's flag: its index in the search's report, the key and the value model.json gives it
@@ -132,7 +133,7 @@ def selected_within_budget(data: TrainingData, targets: list[str], max_channels:
 def free_channel_fill(data: TrainingData, selected: Selections,
                        max_channels: int, rankings: Callable[[], list[list[str]]]
                        ) -> list[str]:
-    """The sensors the box's free channels get (the axes' L1 rankings, next_day.channel_fill),
+    """The sensors the box's free channels get (the axes' L1 rankings, free_channels.channel_fill),
     settled before the effects are searched. An effect that took a free channel changed what
     every axis's ridge reads: axes without an effect of their own got worse on unseen runs
     (docs/training.md). With one axis there is no other axis to harm, and its effects

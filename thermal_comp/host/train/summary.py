@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from thermal_comp.contract.terms import TEMPERATURE_KINDS
 from thermal_comp.host.effects.scoring import MIN_GAIN
-from thermal_comp.host.train.next_day import FAMILIES
+from thermal_comp.host.train.nested import FAMILIES
 
 
 def axis_sensors(axis: dict) -> list[str]:
@@ -36,8 +36,8 @@ def summary(model: dict, model_path: str) -> dict:
             "condition_number": m.get("condition_number"),
             "validation": m.get("validation"),
             # the RMS promised for an unseen day, from the folds of the pipeline refitted
-            # without each fold (next_day.promise_from_folds), and its coverage: "RMS on an
-            # unseen day <= X um on 80 % of days" (next_day.promise_statement)
+            # without each fold (nested.promise_from_folds), and its coverage: "RMS on an
+            # unseen day <= X um on 80 % of days" (nested.promise_statement)
             "promised_rmse_um": m.get("promised_rmse_um"),
             "promised_fold_rmse_um": m.get("promised_fold_rmse_um"),
             "promised_coverage": m.get("promised_coverage"),
@@ -72,7 +72,7 @@ def summary(model: dict, model_path: str) -> dict:
 
 def box_effects_evidence(axis: dict) -> dict | None:
     """The box's family refitted on the nested folds with its effects and without them
-    (host.train.next_day: the whole pipeline, effects search included, trained without each
+    (host.train.nested: the whole pipeline, effects search included, trained without each
     fold and scored on it): the closed loop's before/after on the model the box runs, where
     the effects' own before/after is least squares on the selected terms. None without
     effects or nested validation.
@@ -85,7 +85,7 @@ def box_effects_evidence(axis: dict) -> dict | None:
         return None
     shrunk = str(fit.get("family", "")).startswith("ridge")
 
-    def family(with_effects: bool) -> str:  # the box's kind of fit (next_day.FAMILIES)
+    def family(with_effects: bool) -> str:  # the box's kind of fit (nested.FAMILIES)
         return next(f for f, kind in FAMILIES.items() if kind == (with_effects, shrunk))
 
     with_key, without_key = family(True), family(False)
@@ -109,7 +109,7 @@ def dropped_reason(effect: dict) -> str | None:
 
 def ridge_lags_note(effect: dict) -> str | None:
     """How the box's ridge models a lag or rate effect (None: it runs the effect's own terms):
-    with its own lags of the effect's sensor (host.train.next_day.ridge_start)."""
+    with its own lags of the effect's sensor (host.train.ridge_family.ridge_start)."""
     lags = effect.get("in_ridge_lags")
     if lags is None:
         return None
