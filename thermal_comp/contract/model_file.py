@@ -100,12 +100,12 @@ def read_model_spec(path: str | Path) -> ModelSpec:
     return _read(path)[1]
 
 
-def spec_of(model: Mapping | ModelSpec) -> ModelSpec:
+def spec_of(model: Mapping | ModelSpec, where: str = "model") -> ModelSpec:
     """The typed view of a model: itself when already typed, else ``check_model``'s (a reader
     handed the dict at the edge types it once; the float output-range check is codegen's)."""
     if isinstance(model, ModelSpec):
         return model
-    return check_model(model, output_range=False)
+    return check_model(model, where, output_range=False)
 
 
 def _read(path: str | Path) -> tuple[dict, ModelSpec]:
