@@ -33,6 +33,7 @@ class GeneratedHeader:
     model: QModel
     bounds: tuple[AxisBound, ...]
     crc32: int
+    spec: ModelSpec  # the checked model it was generated from, typed
 
 
 def _check_bounds(bounds: list[AxisBound], model: QModel, max_error_um: float) -> None:
@@ -116,7 +117,7 @@ def generate(model: Mapping | ModelSpec, max_error_um: float = DEFAULT_MAX_ERROR
     text = render(q, bounds, crc, CODEGEN_VERSION, zero_at_powerup)
     return GeneratedHeader(text, _fixed_point_block(q, bounds, crc, max_error_um,
                                                     zero_at_powerup), q,
-                           tuple(bounds), crc)
+                           tuple(bounds), crc, spec)
 
 
 def load_model(path: str | Path) -> dict:
