@@ -261,17 +261,16 @@ def _check_reference(c: Checker, ref: object) -> ReferenceSpec:
     return ReferenceSpec(kind, samples)
 
 
-def model_sensors(model: dict) -> list[str]:
+def model_sensors(model: Mapping | ModelSpec) -> list[str]:
     """Sensors wired to the box, in channel order."""
-    return [c["sensor"] for c in sorted(model["channels"], key=lambda c: c["channel"])]
+    return spec_of(model).sensors
 
 
-def channel_ranges(model: Mapping) -> dict[str, tuple[float, float]]:
+def channel_ranges(model: Mapping | ModelSpec) -> dict[str, tuple[float, float]]:
     """Each wired sensor's valid range (min_c, max_c) in degC, defaults filled in."""
-    return {c["sensor"]: (float(c.get("min_c", CHANNEL_MIN_C)),
-                          float(c.get("max_c", CHANNEL_MAX_C)))
-            for c in model.get("channels", [])}
+    return {c.sensor: (c.min_c, c.max_c) for c in spec_of(model).channels}
 
 
-def model_aux(model: dict) -> list[str]:
-    return [a["name"] for a in sorted(model.get("aux", []), key=lambda a: a["input"])]
+def model_aux(model: Mapping | ModelSpec) -> list[str]:
+    """Aux inputs, in input order."""
+    return spec_of(model).aux_names

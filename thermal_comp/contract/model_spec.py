@@ -8,9 +8,13 @@ in-service estimator block; plus the tilts (how a µrad axis is measured). Each 
 where its rule is checked (``model_file``, ``model_axis``, ``model_checker``), so there is one
 home for each fact.
 
-Left in the dict: what explains or reports the model but changes nothing the box does
-(``metrics``, ``selection``, ``effects``, ``fit``, ``training``, a service block's ``why``...)
-and codegen's ``fixed_point`` block (its own output). Reports read those from the dict.
+Left in the dict ("JSON at the edge"): what explains or reports the model but changes nothing
+the box does (``metrics``, ``selection``, ``effects``, ``fit``, ``baseline``, ``training``, a
+service block's ``why``...) and codegen's ``fixed_point`` block (its own output). The reports
+(host.analysis.report*, metrology, host.train.summary, the demo) read those from the dict, and
+the writers (host train, the service refit, the campaigns' deliberate edits) build the dict.
+Readers get the typed view from ``model_file.read_model_spec`` (a file) or ``spec_of`` (a dict
+handed over at the edge).
 """
 
 from __future__ import annotations
