@@ -19,7 +19,7 @@ in a row (STUCK, docs/firmware.md). A model.json without it has no stuck check.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -32,8 +32,8 @@ from thermal_comp.contract.box import (
     STILL_FLOOR,
     STILL_MARGIN,
 )
-from thermal_comp.contract.model_file import ModelSpec, spec_of
-from thermal_comp.host.fitting.features import axis_terms, design_matrix
+from thermal_comp.contract.terms import Term
+from thermal_comp.host.fitting.features import design_matrix
 from thermal_comp.host.io import Run
 
 
@@ -73,30 +73,31 @@ def longest_still(values: np.ndarray, time_s: np.ndarray, period_s: float) -> in
     return int(np.max(ok[first].astype(np.int64) + total - total[first]))
 
 
-def still_limits(model: Mapping | ModelSpec, runs: Sequence[Run]) -> dict[str, int]:
+def still_limits(model: dict, runs: Sequence[Run]) -> dict[str, int]:
     """{sensor: max_still_samples} from the training runs."""
-    model = spec_of(model)
-    period = model.sample_period_s
+    period = float(model["sample_period_s"])
     out = {}
-    for sensor in model.sensors:
-        longest = max(longest_still(r.column(sensor), r.time_s, period) for r in runs)
-        out[sensor] = min(max(STILL_MARGIN * longest, STILL_FLOOR), MAX_STILL_SAMPLES)
+    for c in model["channels"]:
+        longest = max(longest_still(r.column(c["sensor"]), r.time_s, period) for r in runs)
+        out[c["sensor"]] = min(max(STILL_MARGIN * longest, STILL_FLOOR), MAX_STILL_SAMPLES)
     return out
 
 
-def step_limits(model: Mapping | ModelSpec, runs: Sequence[Run]
-                ) -> tuple[dict[str, float], dict[str, float]]:
-    """({sensor: max_step_c}, {axis: max_step_um}) from the training runs (the model's
-    function: its typed view, or the dict's)."""
-    model = spec_of(model)
-    period = model.sample_period_s
+def step_limits(model: dict, runs: Sequence[Run]) -> tuple[dict[str, float], dict[str, float]]:
+    """({sensor: max_step_c}, {axis: max_step_um}) from the training runs.
+
+    ``model`` is the dict host train is still writing (the box's limits are part of it), not
+    yet a checked model, so it is read as a dict, not through ``contract.model_spec``."""
+    period = float(model["sample_period_s"])
     channels = {}
-    for sensor in model.sensors:
-        fastest = max(fastest_step(r.column(sensor), r.time_s, period) for r in runs)
-        channels[sensor] = max(STEP_MARGIN * fastest, CHANNEL_STEP_FLOOR_C)
+    for c in model["channels"]:
+        fastest = max(fastest_step(r.column(c["sensor"]), r.time_s, period) for r in runs)
+        channels[c["sensor"]] = max(STEP_MARGIN * fastest, CHANNEL_STEP_FLOOR_C)
     axes = {}
-    for name in model.axis_names:
-        terms, coefs, intercept = axis_terms(model, name)
+    for name, ax in model["axes"].items():
+        terms = [Term.from_json(t) for t in ax["terms"]]
+        coefs = np.array([float(t["coef"]) for t in ax["terms"]])
+        intercept = float(ax["intercept"])
         fastest = 0.0
         for r in runs:
             pred = intercept + (design_matrix(terms, r.columns(), period) @ coefs
@@ -110,9 +111,8 @@ def add_step_limits(model: dict, runs: Sequence[Run]) -> None:
     """Write ``max_step_c`` and ``max_still_samples`` into every channel and ``max_step_um``
     into every axis of a model.json dict (all part of what the box computes: hashed,
     CRC-covered)."""
-    spec = spec_of(model)
-    channels, axes = step_limits(spec, runs)
-    still = still_limits(spec, runs)
+    channels, axes = step_limits(model, runs)
+    still = still_limits(model, runs)
     for c in model["channels"]:
         c["max_step_c"] = channels[c["sensor"]]
         c["max_still_samples"] = still[c["sensor"]]
