@@ -14,6 +14,7 @@ from pathlib import Path
 from thermal_comp.contract import model_file
 from thermal_comp.contract.box import DEFAULT_AXIS_STEP_UM_PER_S
 from thermal_comp.contract.errors import InputError
+from thermal_comp.contract.model_spec import ModelSpec
 from thermal_comp.contract.tilt import unit_of
 
 UNITS_MM = {"mm": 1.0, "inch": 25.4}
@@ -158,17 +159,17 @@ def _box(ini: _Ini) -> Config:
     return cfg
 
 
-def _model(ini: _Ini, cfg: Config) -> dict | None:
+def _model(ini: _Ini, cfg: Config) -> ModelSpec | None:
     """[box] model and/or model_hash: the model the box must carry (its hash into cfg)."""
-    model: dict | None = None
+    model: ModelSpec | None = None
     if ini.has("box", "model"):
         model_path = ini.file("box", "model")
         try:
-            model = model_file.read_model(model_path)
+            model = model_file.read_model_spec(model_path)
         except (InputError, OSError) as exc:
             raise ini.fail(f"[box] model = {model_path}: {exc}") from None
         cfg.model_path = model_path
-        cfg.model_hash = model_file.model_hash(model)
+        cfg.model_hash = model.model_hash
     if ini.has("box", "model_hash"):
         given = ini.parser.get("box", "model_hash").strip()
         if not given:
@@ -180,7 +181,7 @@ def _model(ini: _Ini, cfg: Config) -> dict | None:
     return model
 
 
-def _axis(ini: _Ini, section: str, model: dict | None, need_step: bool) -> AxisMap:
+def _axis(ini: _Ini, section: str, model: ModelSpec | None, need_step: bool) -> AxisMap:
     """One [axis.<letter>] section: the LinuxCNC axis, its box axis, sign, count and step."""
     path, get = ini.path, ini.get
     letter = section[5:].lower()
@@ -224,7 +225,7 @@ def _probe(ini: _Ini, cfg: Config, letters: list[str]) -> None:
         raise ini.fail(f"[probe] timeout_s = {cfg.probe_timeout_s:g} must be positive")
 
 
-def axis_step_nm(path: Path, section: str, box_axis: str, model: dict | None,
+def axis_step_nm(path: Path, section: str, box_axis: str, model: ModelSpec | None,
                   given_um: float | None, need: bool) -> float | None:
     """An axis's step limit per sample line in nm: the model's ``axes.<name>.max_step_um``
     rounded up to nm as codegen does for the box (a model without it: codegen's default, the
@@ -234,14 +235,14 @@ def axis_step_nm(path: Path, section: str, box_axis: str, model: dict | None,
         raise ConfigError(f"{path}: [{section}] max_step_um = {given_um:g} must be positive")
     steps = [given_um * 1000.0] if given_um is not None else []
     if model is not None:
-        axes = model.get("axes", {})
+        axes = model.axis_names
         if box_axis not in axes:
             raise ConfigError(f"{path}: [{section}] box_axis = {box_axis}: the model has axes "
                               f"{', '.join(axes) or '(none)'}")
-        ax = axes[box_axis]
-        step_um = ax["max_step_um"] if "max_step_um" in ax else (
-            DEFAULT_AXIS_STEP_UM_PER_S * float(model["sample_period_s"]))
-        steps.append(float(math.ceil(float(step_um) * 1000.0)))
+        step_um = model.axis(box_axis).max_step_um
+        if step_um is None:
+            step_um = DEFAULT_AXIS_STEP_UM_PER_S * model.sample_period_s
+        steps.append(float(math.ceil(step_um * 1000.0)))
     if not steps and need:
         raise ConfigError(f"{path}: [{section}] needs 'max_step_um' (the model's "
                           f"axes.{box_axis}.max_step_um) when [box] gives model_hash without "

@@ -205,7 +205,7 @@ def run_campaign(build: Path, quiet: bool = False, linuxcnc: bool = True) -> dic
     build.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     setup = hil_replay.prepare(demo_model(build), DEMO_TEST, build / "hil")
-    model, feed = setup.model, setup.feed
+    model, feed = setup.spec, setup.feed
     axes = list(feed.measured)
     bounds = {a: v / 1000.0 for a, v in step_limits_nm(model).items() if a in axes}
     n = feed.n_samples

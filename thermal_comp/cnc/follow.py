@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from thermal_comp.cnc.thermalcomp import AxisMap, Compensator, Config, Port, handle_line
-from thermal_comp.contract import model_file, protocol
+from thermal_comp.contract import protocol
+from thermal_comp.contract.model_spec import ModelSpec
 from thermal_comp.hil.checks import step_limits_nm
 from thermal_comp.hil.runner import Capture
 
@@ -83,13 +84,13 @@ class Followed:
 class _Follower:
     """The component's logic fed the box's lines as they came, with the wire's events."""
 
-    def __init__(self, model: dict, axes: Sequence[str], n: int,
+    def __init__(self, model: ModelSpec, axes: Sequence[str], n: int,
                  wire: Sequence[WireEvent]) -> None:
-        self.period = float(model["sample_period_s"])
+        self.period = model.sample_period_s
         steps = step_limits_nm(model)
         self.cfg = Config(port="(campaign)", axes=[AxisMap(a, a, 1, 1.0, float(steps[a]))
                                                    for a in axes],
-                          model_hash=model_file.model_hash(model))
+                          model_hash=model.model_hash)
         self.out = Followed(np.zeros((n, len(axes))), np.zeros(n, dtype=bool),
                             np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64))
         self.comp = Compensator(self.cfg, log=self.out.log.append)
@@ -175,7 +176,7 @@ class _Follower:
         self.k += 1
 
 
-def follow(model: dict, capture: Capture, axes: Sequence[str],
+def follow(model: ModelSpec, capture: Capture, axes: Sequence[str],
            wire: Sequence[WireEvent] = ()) -> Followed:
     """Feed the box's lines, in the order it sent them, to the component's logic."""
     f = _Follower(model, axes, capture.n_samples, wire)

@@ -219,7 +219,7 @@ def clean_reference(setup, scenario: Scenario) -> dict:
     from thermal_comp.contract.fixed_point import CODE_MAX, CODE_MIN
     from thermal_comp.hil.expect import expect_session, sr_timeline
 
-    feed, model = setup.feed, setup.model
+    feed, model = setup.feed, setup.spec
     n = feed.n_samples
     codes = np.clip(np.asarray(feed.codes, dtype=np.int64), CODE_MIN, CODE_MAX)
     faults = []
@@ -232,11 +232,11 @@ def clean_reference(setup, scenario: Scenario) -> dict:
     exp = expect_session(setup.twin, codes, feed.aux, sr, setup.output, zero_before=zeros,
                          zero_at_powerup=setup.build.zero_at_powerup)
     cfg = thermalcomp.load_config(CONFIG_DIR / "thermalcomp.conf")
-    names = list(model["axes"])
+    names = model.axis_names
     steps = {a.letter: float(thermalcomp.axis_step_nm(CONFIG_DIR, f"axis.{a.letter}",
                                                         a.box_axis, model, None, True))
              for a in cfg.axes}
-    offset = _component_offsets(cfg, names, exp, zeros, steps, float(model["sample_period_s"]))
+    offset = _component_offsets(cfg, names, exp, zeros, steps, model.sample_period_s)
     return {"corr_nm": [[int(v) for v in row] for row in exp.out_nm],
             "status": [int(v) for v in exp.status], "offset_nm": offset, "step_nm": steps,
             "nm_per_count": {a.letter: a.nm_per_count for a in cfg.axes},

@@ -58,9 +58,9 @@ class _Probing:
                  samples: dict[int, dict], problems: list[str]) -> None:
         self.setup, self.scenario, self.static, self.ref = setup, scenario, static, ref
         self.samples, self.problems = samples, problems
-        self.ai = list(setup.model["axes"]).index(dict(AXES)[PROBE_AXIS])
+        self.ai = setup.spec.axis_names.index(dict(AXES)[PROBE_AXIS])
         self.drift = drift_nm(setup)
-        self.period_s = float(setup.model["sample_period_s"])
+        self.period_s = setup.spec.sample_period_s
         self.chip = scenario.chip_sample()
 
     def row(self, p: dict, meas: dict) -> dict:

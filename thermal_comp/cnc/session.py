@@ -336,7 +336,7 @@ def run_session(build: Path, scenario: Scenario | None = None, timeout_s: float 
     probing = bool(scenario.probe_every)
     # with readings the box's lines carry the estimate: judge_probes compares them with the
     # twin given the same readings instead of the clean run
-    result = judge(raw, step_nm=1000.0 * setup.model["sample_period_s"],
+    result = judge(raw, step_nm=1000.0 * setup.spec.sample_period_s,
                    clean=None if probing else clean, events=scenario.controller_events())
     if probing:
         pr = judge_probes(raw, setup, scenario, clean)

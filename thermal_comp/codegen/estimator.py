@@ -44,6 +44,7 @@ from fractions import Fraction
 
 from thermal_comp.codegen.errors import CodegenError
 from thermal_comp.contract.fixed_point import INT32_MAX, INT32_MIN, rdiv, round_half_away
+from thermal_comp.contract.model_file import ModelSpec, spec_of
 from thermal_comp.contract.service import (
     BIAS_MAX_NM,
     GAIN_FRAC_BITS,
@@ -109,14 +110,16 @@ class FixedParams:
             pmax_q8=pmax, p0_q8=0 if start else pmax, reopen_after=int(reopen_after))
 
     @staticmethod
-    def of_model(model: Mapping, axis: str) -> FixedParams:
-        """An axis's parameters from model.json: its ``service`` block, else
-        contract.service.SERVICE_FALLBACKS; p0 = 0 for a ``start`` model, else p_max (as
-        host.service.service_params)."""
-        block = dict(SERVICE_FALLBACKS) | dict(model["axes"][axis].get("service") or {})
-        start = (model.get("reference") or {}).get("kind", "none") == "start"
-        return FixedParams.of(**{k: float(block[k]) for k in SERVICE_FIELDS},
-                              period_s=float(model["sample_period_s"]), start=start)
+    def of_model(model: Mapping | ModelSpec, axis: str) -> FixedParams:
+        """An axis's parameters from a model (its typed view, or the dict): its ``service``
+        block, else contract.service.SERVICE_FALLBACKS; p0 = 0 for a ``start`` model, else
+        p_max (as host.service.service_params)."""
+        spec = spec_of(model)
+        service = spec.axis(axis).service
+        values = service.values() if service is not None else SERVICE_FALLBACKS
+        return FixedParams.of(**{k: float(values[k]) for k in SERVICE_FIELDS},
+                              period_s=spec.sample_period_s,
+                              start=spec.reference.kind == "start")
 
 
 @dataclass

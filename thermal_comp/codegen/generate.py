@@ -11,12 +11,17 @@ from pathlib import Path
 from thermal_comp.codegen.bound import FINAL_ROUNDING_NM, AxisBound, model_bounds
 from thermal_comp.codegen.crc import model_crc32
 from thermal_comp.codegen.errors import BoundError, CodegenError
-from thermal_comp.codegen.quantise import QModel, quantise
+from thermal_comp.codegen.quantise import QModel, checked_spec, quantise
 from thermal_comp.codegen.render import render
 from thermal_comp.contract import __version__ as CODEGEN_VERSION
 from thermal_comp.contract.box import HEADER_FORMAT
 from thermal_comp.contract.fixed_point import ACC_LIMIT, DEFAULT_MAX_ERROR_UM
-from thermal_comp.contract.model_file import ModelFormatError, read_model, write_text_atomic
+from thermal_comp.contract.model_file import (
+    ModelFormatError,
+    ModelSpec,
+    read_model,
+    write_text_atomic,
+)
 
 
 @dataclass(frozen=True)
@@ -28,6 +33,7 @@ class GeneratedHeader:
     model: QModel
     bounds: tuple[AxisBound, ...]
     crc32: int
+    spec: ModelSpec  # the checked model it was generated from, typed
 
 
 def _check_bounds(bounds: list[AxisBound], model: QModel, max_error_um: float) -> None:
@@ -91,25 +97,27 @@ def _fixed_point_block(model: QModel, bounds: list[AxisBound], crc32: int,
     }
 
 
-def generate(model: Mapping, max_error_um: float = DEFAULT_MAX_ERROR_UM,
+def generate(model: Mapping | ModelSpec, max_error_um: float = DEFAULT_MAX_ERROR_UM,
              zero_at_powerup: bool | None = None) -> GeneratedHeader:
-    """Quantise, prove and render ``model`` (a model.json dict); raises CodegenError.
+    """Quantise, prove and render ``model`` (a model.json dict, or its typed view); raises
+    CodegenError.
 
     ``zero_at_powerup``: the header's TCM_ZERO_AT_POWERUP (the box behaves as if ZERO was
     received before its first sample, docs/protocol.md); by default it follows the model's
     reference: a model of the change since the start (``start``) zeroes at power-up."""
-    if zero_at_powerup is None:
-        zero_at_powerup = (model.get("reference") or {}).get("kind") == "start"
     if not max_error_um > 0:
         raise CodegenError(f"--max-error-um must be positive, got {max_error_um!r}")
-    q = quantise(model)
+    spec = checked_spec(model)
+    if zero_at_powerup is None:
+        zero_at_powerup = spec.reference.kind == "start"
+    q = quantise(spec)
     bounds = model_bounds(q)
     _check_bounds(bounds, q, max_error_um)
     crc = model_crc32(q)
     text = render(q, bounds, crc, CODEGEN_VERSION, zero_at_powerup)
     return GeneratedHeader(text, _fixed_point_block(q, bounds, crc, max_error_um,
                                                     zero_at_powerup), q,
-                           tuple(bounds), crc)
+                           tuple(bounds), crc, spec)
 
 
 def load_model(path: str | Path) -> dict:

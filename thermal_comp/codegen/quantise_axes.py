@@ -18,14 +18,12 @@ from thermal_comp.codegen.estimator import FixedParams
 from thermal_comp.codegen.qmodel import (
     COEF_UNIT,
     MAX_STATES,
-    MAX_TERMS_PER_AXIS,
     X_UNIT_TEXT,
     QAux,
     QAxis,
     QChannel,
     QTerm,
 )
-from thermal_comp.codegen.quantise_inputs import check_name, number
 from thermal_comp.contract.box import DEFAULT_AXIS_STEP_UM_PER_S
 from thermal_comp.contract.fixed_point import (
     ACC_LIMIT,
@@ -39,14 +37,14 @@ from thermal_comp.contract.fixed_point import (
     rdiv,
     round_half_away,
 )
-from thermal_comp.contract.service import SERVICE_FIELDS, SERVICE_OPTIONAL
+from thermal_comp.contract.model_spec import AxisSpec, ServiceSpec
 from thermal_comp.contract.terms import (
     AUX_KINDS,
     FILTER_KINDS,
     KIND_CODES,
     TEMPERATURE_KINDS,
+    Term,
 )
-from thermal_comp.contract.tilt import AXIS_UNITS
 
 # Value of one unit of x_j in the unit the coefficient is per (degC, degC^2, rpm, rpm^2, s);
 # `time` uses the sample period and is filled in per model.
@@ -60,15 +58,12 @@ _X_UNIT = {
 }
 
 
-def _label(kind: str, source: str | None, t: Mapping) -> str:
+def _label(term: Term) -> str:
+    kind, source, p = term.kind, term.source, term.params
     if kind in FILTER_KINDS:
-        tau = t.get("tau_s")
-        return f"{kind}({source}, tau={tau:g}s)" if isinstance(tau, (int, float)) \
-            else f"{kind}({source})"
+        return f"{kind}({source}, tau={p['tau_s']:g}s)"
     if kind == "square":
-        ref = t.get("ref_c")
-        return f"square({source}-{ref:g}C)" if isinstance(ref, (int, float)) \
-            else f"square({source})"
+        return f"square({source}-{p['ref_c']:g}C)"
     if kind == "time":
         return "time"
     return f"{kind}({source})"
@@ -107,62 +102,39 @@ class _RawTerm:
     params: Mapping[str, float]
 
 
-def _parse_term(axis: str, j: int, t: Mapping, channels: Sequence[QChannel],
+def _parse_term(axis: str, j: int, term: Term, coef: float, channels: Sequence[QChannel],
                 aux: Sequence[QAux], period_s: float, time_max_samples: int | None) -> _RawTerm:
-    where = f"axis '{axis}' term {j}"
-    if not isinstance(t, Mapping):
-        raise CodegenError(f"{where}: expected an object")
-    kind = t.get("kind")
-    if kind not in KIND_CODES:
-        raise CodegenError(f"{where}: unknown term kind {kind!r} "
-                           f"(known: {', '.join(KIND_CODES)})")
-    source = t.get("source")
-    label = _label(kind, source, t)
-    where = f"{where} {label}"
-    coef = number(t.get("coef"), f"{where}: coef")
-    params = {k: float(v) for k, v in t.items()
-              if k not in ("kind", "source", "coef") and isinstance(v, (int, float))}
-    index, lo, hi, param = _term_input(kind, source, where, channels, aux, time_max_samples)
-    param = _term_param(kind, t, where, lo, hi, param)
+    """Term ``j`` of ``axis`` (checked by contract.model_axis) in the box's integers."""
+    kind = term.kind
+    label = _label(term)
+    where = f"axis '{axis}' term {j} {label}"
+    index, lo, hi, param = _term_input(term, channels, aux, time_max_samples)
+    param = _term_param(term, where, lo, hi, param)
     unit = Fraction(period_s) if kind == "time" else _X_UNIT[kind]
     c = Fraction(coef) * 1000 * unit
-    return _RawTerm(j, kind, source, index, param, coef, c, _xmax(kind, lo, hi, param),
-                    label, params)
+    return _RawTerm(j, kind, term.source, index, param, coef, c, _xmax(kind, lo, hi, param),
+                    label, term.params)
 
 
-def _term_input(kind: str, source: object, where: str, channels: Sequence[QChannel],
-                aux: Sequence[QAux], time_max_samples: int | None
-                ) -> tuple[int, int, int, int]:
-    """(input index, lowest and highest input value, time's parameter) of a term's source."""
-    param = 0
-    if kind in TEMPERATURE_KINDS:
-        by_name = {c.sensor: c for c in channels}
-        if source not in by_name:
-            raise CodegenError(f"{where}: source {source!r} is not in channels "
-                               f"({', '.join(by_name) or 'none'})")
-        ch = by_name[source]
-        index, lo, hi = ch.index, ch.min_code, ch.max_code
-    elif kind in AUX_KINDS:
-        by_name = {a.name: a for a in aux}
-        if source not in by_name:
-            raise CodegenError(f"{where}: source {source!r} is not in aux "
-                               f"({', '.join(by_name) or 'none'})")
-        ax = by_name[source]
-        index, lo, hi = ax.index, ax.min, ax.max
-    else:  # time
-        if source is not None:
-            raise CodegenError(f"{where}: a time term has no source (got {source!r})")
-        if time_max_samples is None:
-            raise CodegenError(f"{where}: the model needs time_max_s for a time term")
-        index, lo, hi = 0, 0, 0
-        param = time_max_samples
-    return index, lo, hi, param
+def _term_input(term: Term, channels: Sequence[QChannel], aux: Sequence[QAux],
+                time_max_samples: int | None) -> tuple[int, int, int, int]:
+    """(input index, lowest and highest input value, time's parameter) of a term's source
+    (wired to a channel or aux input of the model: contract.model_axis checked it)."""
+    if term.kind in TEMPERATURE_KINDS:
+        ch = next(c for c in channels if c.sensor == term.source)
+        return ch.index, ch.min_code, ch.max_code, 0
+    if term.kind in AUX_KINDS:
+        a = next(a for a in aux if a.name == term.source)
+        return a.index, a.min, a.max, 0
+    assert time_max_samples is not None  # a time term needs time_max_s (check_model)
+    return 0, 0, 0, time_max_samples
 
 
-def _term_param(kind: str, t: Mapping, where: str, lo: int, hi: int, param: int) -> int:
+def _term_param(term: Term, where: str, lo: int, hi: int, param: int) -> int:
     """The term's integer parameter: a filter's alpha in 2^-30, a square's reference code."""
+    kind = term.kind
     if kind in FILTER_KINDS:
-        alpha = number(t.get("alpha"), f"{where}: alpha")
+        alpha = term.params["alpha"]
         a = Fraction(alpha) * (1 << ALPHA_FRAC_BITS)
         if a.denominator != 1 or not 1 <= a <= (1 << ALPHA_FRAC_BITS):
             raise CodegenError(f"{where}: alpha {alpha!r} must be a multiple of 2^-30 in "
@@ -175,7 +147,7 @@ def _term_param(kind: str, t: Mapping, where: str, lo: int, hi: int, param: int)
                 f"(channel range {lo}..{hi} codes, a = {param}); narrow the channel's "
                 "declared range or use a longer tau")
     elif kind == "square":
-        ref_c = number(t.get("ref_c"), f"{where}: ref_c")
+        ref_c = term.params["ref_c"]
         ref = Fraction(ref_c) * 128
         if ref.denominator != 1 or not CODE_MIN <= ref <= CODE_MAX:
             raise CodegenError(f"{where}: ref_c {ref_c!r} must be a multiple of 1/128 degC "
@@ -209,24 +181,13 @@ def _choose_shift(axis: str, c0: Fraction, raw: Sequence[_RawTerm]) -> tuple[int
         f"{ACC_LIMIT} even at shift 0 (max |x| = {term.xmax} x {X_UNIT_TEXT[term.kind]})")
 
 
-def parse_axis(index: int, name: str, ax: Mapping, channels: Sequence[QChannel],
-                aux: Sequence[QAux], period_s: float,
-                time_max_samples: int | None) -> QAxis:
-    check_name(name, f"axes.{name}")
-    if not isinstance(ax, Mapping):
-        raise CodegenError(f"axis '{name}': expected an object")
-    unit = ax.get("unit", "um")
-    if unit not in AXIS_UNITS:  # a tilt axis (urad) is computed like any: in thousandths
-        raise CodegenError(f"axis '{name}': unit {unit!r} is not supported (one of "
-                           f"{', '.join(AXIS_UNITS)})")
-    intercept = number(ax.get("intercept"), f"axis '{name}': intercept")
-    terms = ax.get("terms", [])
-    if not isinstance(terms, list):
-        raise CodegenError(f"axis '{name}': terms must be a list")
-    if len(terms) > MAX_TERMS_PER_AXIS:
-        raise CodegenError(f"axis '{name}': {len(terms)} terms exceed {MAX_TERMS_PER_AXIS}")
-    raw = [_parse_term(name, j, t, channels, aux, period_s, time_max_samples)
-           for j, t in enumerate(terms)]
+def parse_axis(index: int, ax: AxisSpec, channels: Sequence[QChannel], aux: Sequence[QAux],
+               period_s: float, time_max_samples: int | None) -> QAxis:
+    """Axis ``ax`` (checked by contract.model_axis; a tilt axis in urad is computed like any,
+    in thousandths) in the box's integers: shift, coefficients, output and step limits."""
+    name, intercept = ax.name, ax.intercept
+    raw = [_parse_term(name, j, t, coef, channels, aux, period_s, time_max_samples)
+           for j, (t, coef) in enumerate(zip(ax.terms, ax.coefs, strict=True))]
     c0 = Fraction(intercept) * 1000
     shift, iq, cqs, acc = _choose_shift(name, c0, raw)
     out_max = rdiv(acc, shift)
@@ -238,8 +199,8 @@ def parse_axis(index: int, name: str, ax: Mapping, channels: Sequence[QChannel],
         raise CodegenError(
             f"axis '{name}': the output can reach {out_max / 1000:.6g} um over the declared "
             f"input ranges, beyond the int32 nanometre limit {INT32_MAX / 1000:.6g} um{part}")
-    step, source = _axis_step(ax, name, period_s)
-    return QAxis(index, name, unit, intercept, c0, shift, iq, tuple(
+    step, source = _axis_step(ax, period_s)
+    return QAxis(index, name, ax.unit, intercept, c0, shift, iq, tuple(
         QTerm(t.position, t.kind, KIND_CODES[t.kind], t.source, t.input, t.param, None,
               t.coef_um, t.c, q, t.xmax, t.label, t.params)
         for t, q in zip(raw, cqs, strict=True)), acc, out_max, step, source)
@@ -266,32 +227,26 @@ def number_states(axes: list[QAxis]) -> tuple[QAxis, ...]:
     return tuple(out)
 
 
-def _axis_step(ax: Mapping, name: str, period_s: float) -> tuple[int, str]:
+def _axis_step(ax: AxisSpec, period_s: float) -> tuple[int, str]:
     """The largest output step per sample, in nm: ``max_step_um`` (host train: the training
     runs' fastest change of the model output with a margin) rounded up; a model.json without
     it gets the box's walk-back rate, 1 um/s x period."""
-    if "max_step_um" in ax:
-        step_um = Fraction(number(ax.get("max_step_um"), f"axis '{name}': max_step_um"))
+    if ax.max_step_um is not None:
+        step_um = Fraction(ax.max_step_um)
         source = "model"
-        if step_um <= 0:
-            raise CodegenError(f"axis '{name}': max_step_um {float(step_um)!r} um must be "
-                               "positive (the largest output step per sample)")
     else:
         step_um = Fraction(str(DEFAULT_AXIS_STEP_UM_PER_S)) * Fraction(period_s)
         source = "default"
     return max(1, min(math.ceil(step_um * 1000), INT32_MAX)), source
 
 
-def with_service(ax: QAxis, raw: Mapping, period_s: float, start: bool) -> QAxis:
+def with_service(ax: QAxis, service: ServiceSpec | None, period_s: float, start: bool) -> QAxis:
     """The axis with its estimator parameters quantised (docs/service.md, "Fixed point"),
     when model.json has a ``service`` block for it."""
-    block = raw.get("service")
-    if block is None:
+    if service is None:
         return ax
     try:
-        block = dict(SERVICE_OPTIONAL) | dict(block)
-        params = FixedParams.of(**{k: float(block[k]) for k in SERVICE_FIELDS},
-                                period_s=period_s, start=start)
+        params = FixedParams.of(**service.values(), period_s=period_s, start=start)
     except CodegenError as exc:
         raise CodegenError(f"axis '{ax.name}': {exc}") from None
     return QAxis(**{**ax.__dict__, "service": params})

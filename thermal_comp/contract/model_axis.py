@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from thermal_comp.contract.box import RUNTIME_MAX_TERMS_PER_AXIS
 from thermal_comp.contract.fixed_point import INT32_MAX
 from thermal_comp.contract.model_checker import Checker, is_number
-from thermal_comp.contract.model_spec import AuxSpec, AxisSpec, ChannelSpec
+from thermal_comp.contract.model_spec import AuxSpec, AxisSpec, ChannelSpec, ServiceSpec
 from thermal_comp.contract.service import SERVICE_FIELDS, SERVICE_OPTIONAL, service_value_problem
 from thermal_comp.contract.terms import AUX_KINDS, FILTER_KINDS, KINDS, TEMPERATURE_KINDS, Term
 from thermal_comp.contract.tilt import AXIS_UNITS, unit_of
@@ -46,8 +46,8 @@ def check_axis(c: Checker, name: object, ax: object, channels: list[ChannelSpec]
         c.fail(f"axis '{name}': unit {unit!r}, but the name declares {unit_of(name)!r} (a tilt "
                "axis's name ends in '_urad', every other axis is in um)")
     intercept = c.number(ax.get("intercept"), f"axis '{name}': intercept")
-    c.step_limit(ax, f"axis '{name}'", name, "max_step_um", unit)
-    _check_service(c, name, ax.get("service"))
+    max_step = c.step_limit(ax, f"axis '{name}'", name, "max_step_um", unit)
+    service = _check_service(c, name, ax.get("service"))
     raw = ax.get("terms")
     if not isinstance(raw, list):
         c.fail(f"axis '{name}': 'terms' must be a list")
@@ -64,7 +64,7 @@ def check_axis(c: Checker, name: object, ax: object, channels: list[ChannelSpec]
         reach.append(part)
     if output_range:
         _check_output_range(c, name, intercept, reach)
-    return AxisSpec(name, unit, intercept, tuple(terms), tuple(coefs))
+    return AxisSpec(name, unit, intercept, tuple(terms), tuple(coefs), max_step, service)
 
 
 def _check_term(c: Checker, name: str, j: int, t: object, by_sensor: Mapping[str, ChannelSpec],
@@ -135,25 +135,30 @@ def _check_output_range(c: Checker, name: str, intercept: float,
                f"{OUTPUT_LIMIT_UM:.6g} um{part}")
 
 
-def _check_service(c: Checker, axis: str, block: object) -> None:
+def _check_service(c: Checker, axis: str, block: object) -> ServiceSpec | None:
     """``axes.<axis>.service`` (docs/service.md): the in-service estimator's parameters, each
-    within the range its fixed-point arithmetic is proven for (contract.service)."""
+    within the range its fixed-point arithmetic is proven for (contract.service); the optional
+    ones a block leaves out get SERVICE_OPTIONAL's values."""
     if block is None:
-        return  # a model trained before issue 42: the estimator uses its fallbacks
+        return None  # a model trained before issue 42: the estimator uses its fallbacks
     where = f"axis '{axis}': service"
     if not isinstance(block, Mapping):
         c.fail(f"{where}: expected an object of {', '.join(SERVICE_FIELDS)}, got {block!r}")
+    values = {}
     for key in SERVICE_FIELDS:
         if key not in block and key in SERVICE_OPTIONAL:
+            values[key] = SERVICE_OPTIONAL[key]
             continue
         if key not in block:
             c.fail(f"{where}.{key}: missing (one of {', '.join(SERVICE_FIELDS)})")
         v = c.number(block[key], f"{where}.{key}")
         if problem := service_value_problem(key, v):
             c.fail(f"{where}.{key}: {problem}")
+        values[key] = v
     why = block.get("why", "")
     if not isinstance(why, str):
         c.fail(f"{where}.why: expected text, got {why!r}")
+    return ServiceSpec(**values)
 
 
 def _feature_reach(kind: str, lo: float, hi: float, params: Mapping[str, float]) -> float:

@@ -66,26 +66,29 @@ class Checker:
                       f"(one per entry), got {sorted(indices)}")
         return [raw[indices.index(i)] for i in range(len(raw))]
 
-    def step_limit(self, e: Mapping, where: str, label: str, key: str, unit: str) -> None:
+    def step_limit(self, e: Mapping, where: str, label: str, key: str, unit: str
+                   ) -> float | None:
         """An optional step limit: a positive finite number when present."""
         if key not in e:
-            return  # a model written before the step limits were kept
+            return None  # a model written before the step limits were kept
         v = self.number(e[key], f"{where}.{key}")
         if not v > 0:
             self.fail(f"{where}.{key} ({label}): {v!r} {unit} per sample must be positive (the "
                       "largest change the box accepts per sample)")
+        return v
 
-    def still_limit(self, e: Mapping, where: str, label: str) -> None:
+    def still_limit(self, e: Mapping, where: str, label: str) -> int | None:
         """The optional stuck limit: a whole number of samples the box's uint16_t holds."""
         key = "max_still_samples"
         if key not in e:
-            return  # a model written before the stuck check: the box has none for it
+            return None  # a model written before the stuck check: the box has none for it
         v = e[key]
         if isinstance(v, bool) or not isinstance(v, int) \
                 or not MIN_STILL_SAMPLES <= v <= MAX_STILL_SAMPLES:
             self.fail(f"{where}.{key} ({label}): {v!r} must be a whole number of samples from "
                       f"{MIN_STILL_SAMPLES} to {MAX_STILL_SAMPLES} (the box faults the channel "
                       "as STUCK when its code stays the same that many samples in a row)")
+        return v
 
     def trained(self, e: Mapping, where: str, label: str, keys: tuple[str, str]
                 ) -> tuple[float | None, float | None]:

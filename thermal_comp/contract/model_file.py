@@ -51,17 +51,24 @@ from thermal_comp.contract.model_axis import OUTPUT_LIMIT_UM, check_axis
 from thermal_comp.contract.model_checker import NAME_RE, Checker
 from thermal_comp.contract.model_errors import ModelFormatError, ModelHashError
 from thermal_comp.contract.model_hash import check_model_hash, model_hash, stored_hashes
-from thermal_comp.contract.model_spec import AuxSpec, AxisSpec, ChannelSpec, ModelSpec
+from thermal_comp.contract.model_spec import (
+    AuxSpec,
+    AxisSpec,
+    ChannelSpec,
+    ModelSpec,
+    ReferenceSpec,
+    ServiceSpec,
+)
 from thermal_comp.contract.terms import TC_TYPES, filter_states
 from thermal_comp.contract.textfile import read_utf8
 from thermal_comp.contract.tilt import Tilt
 
 __all__ = [  # the model file's API, wherever each part lives
     "NAME_RE", "OUTPUT_LIMIT_UM", "REFERENCE_KINDS", "SCHEMA", "AuxSpec", "AxisSpec",
-    "ChannelSpec", "ModelFormatError", "ModelHashError", "ModelSpec", "channel_ranges",
-    "check_model", "check_model_hash", "current_umask", "dumps", "jsonable", "model_aux",
-    "model_hash", "model_sensors", "read_model", "stored_hashes", "write_model",
-    "write_text_atomic",
+    "ChannelSpec", "ModelFormatError", "ModelHashError", "ModelSpec", "ReferenceSpec",
+    "ServiceSpec", "channel_ranges", "check_model", "check_model_hash", "current_umask", "dumps",
+    "jsonable", "model_aux", "model_hash", "model_sensors", "read_model", "read_model_spec",
+    "spec_of", "stored_hashes", "write_model", "write_text_atomic",
 ]
 
 SCHEMA = "thermal-model/1"
@@ -83,7 +90,25 @@ def write_model(model: dict, path: str | Path) -> None:
 
 
 def read_model(path: str | Path) -> dict:
-    """Read, check (structure and stored hash) and return a model file as a dict."""
+    """Read, check (structure and stored hash) and return a model file as a dict (its report
+    fields too: metrics, training, ...; readers of the function use ``read_model_spec``)."""
+    return _read(path)[0]
+
+
+def read_model_spec(path: str | Path) -> ModelSpec:
+    """Read and check a model file as ``read_model`` does; return its function, typed."""
+    return _read(path)[1]
+
+
+def spec_of(model: Mapping | ModelSpec, where: str = "model") -> ModelSpec:
+    """The typed view of a model: itself when already typed, else ``check_model``'s (a reader
+    handed the dict at the edge types it once; the float output-range check is codegen's)."""
+    if isinstance(model, ModelSpec):
+        return model
+    return check_model(model, where, output_range=False)
+
+
+def _read(path: str | Path) -> tuple[dict, ModelSpec]:
     path = Path(path)
     if not path.is_file():
         raise ModelFormatError(f"{path}: model file not found")
@@ -93,9 +118,9 @@ def read_model(path: str | Path) -> dict:
     except json.JSONDecodeError as exc:
         raise ModelFormatError(f"{path}, line {exc.lineno}, column {exc.colno}: not valid JSON "
                                f"({exc.msg})") from None
-    check_model(model, str(path))
+    spec = check_model(model, str(path))
     check_model_hash(model, str(path))
-    return model
+    return model, spec
 
 
 def check_model(model: Any, where: str = "model", *, output_range: bool = True) -> ModelSpec:
@@ -124,16 +149,16 @@ def check_model(model: Any, where: str = "model", *, output_range: bool = True) 
         if time_max_s < 0:
             c.fail(f"time_max_s: {time_max_s!r} s must not be negative")
 
-    _check_reference(c, model.get("reference"))
+    reference = _check_reference(c, model.get("reference"))
 
     axes = _check_axes(c, model.get("axes"), channels, aux, time_max_s, output_range)
-    _check_tilts(c, model.get("tilts"), axes)
+    tilts = _check_tilts(c, model.get("tilts"), axes)
     states = filter_states(t for ax in axes for t in ax.terms)
     if states > BOX_STATES:
         c.fail(f"the model has {states} distinct lag/rate filters (sensor and time constant); "
                f"the box holds {BOX_STATES} filter states (contract.box.BOX_STATES)")
     return ModelSpec(period, tuple(channels), tuple(aux), time_max_s, tuple(axes),
-                     model_hash(model))
+                     model_hash(model), reference, tilts)
 
 
 def _check_channels(c: Checker, model: Mapping) -> list[ChannelSpec]:
@@ -154,9 +179,9 @@ def _check_channels(c: Checker, model: Mapping) -> list[ChannelSpec]:
             c.fail(f"{key} ({sensor}): valid range {lo:g}..{hi:g} degC is empty "
                    "(min_c must be below max_c)")
         t_lo, t_hi = c.trained(ch, key, sensor, ("trained_min_c", "trained_max_c"))
-        c.step_limit(ch, key, sensor, "max_step_c", "degC")
-        c.still_limit(ch, key, sensor)
-        channels.append(ChannelSpec(ch["channel"], sensor, tc, lo, hi, t_lo, t_hi))
+        step = c.step_limit(ch, key, sensor, "max_step_c", "degC")
+        still = c.still_limit(ch, key, sensor)
+        channels.append(ChannelSpec(ch["channel"], sensor, tc, lo, hi, t_lo, t_hi, step, still))
     sensors = [ch.sensor for ch in channels]
     if len(set(sensors)) != len(sensors):
         c.fail(f"channels: sensor names must be unique (got {', '.join(sensors)})")
@@ -199,13 +224,14 @@ def _check_axes(c: Checker, axes_raw: object, channels: list[ChannelSpec], aux: 
 REFERENCE_KINDS = ("start", "none")
 
 
-def _check_tilts(c: Checker, raw: object, axes: list[AxisSpec]) -> None:
+def _check_tilts(c: Checker, raw: object, axes: list[AxisSpec]) -> tuple[Tilt, ...]:
     """``tilts`` (docs/model-json.md): how each µrad axis is computed from two gap probes."""
     if raw is None:
-        return
+        return ()
     if not isinstance(raw, list):
         c.fail(f"tilts: expected a list of {{name, upper, lower, distance_mm}}, got {raw!r}")
     units = {ax.name: ax.unit for ax in axes}
+    tilts = []
     for i, entry in enumerate(raw):
         try:
             tilt = Tilt.from_json(entry)
@@ -215,12 +241,14 @@ def _check_tilts(c: Checker, raw: object, axes: list[AxisSpec]) -> None:
             c.fail(f"tilts[{i}]: expected {{name, upper, lower, distance_mm}} ({exc})")
         if units.get(tilt.name) != "urad":
             c.fail(f"tilts[{i}]: '{tilt.name}' is not an axis in urad of this model")
+        tilts.append(tilt)
+    return tuple(tilts)
 
 
-def _check_reference(c: Checker, ref: object) -> None:
+def _check_reference(c: Checker, ref: object) -> ReferenceSpec:
     """``reference`` (docs/model-json.md): absent/null (none), or {kind, samples}."""
     if ref is None:
-        return
+        return ReferenceSpec()
     if not isinstance(ref, Mapping):
         c.fail(f"reference: expected an object such as {{\"kind\": \"start\", \"samples\": 8}}, "
                f"got {ref!r}")
@@ -230,19 +258,19 @@ def _check_reference(c: Checker, ref: object) -> None:
     samples = ref.get("samples", 1)
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
         c.fail(f"reference.samples: expected a whole number of samples >= 1, got {samples!r}")
+    return ReferenceSpec(kind, samples)
 
 
-def model_sensors(model: dict) -> list[str]:
+def model_sensors(model: Mapping | ModelSpec) -> list[str]:
     """Sensors wired to the box, in channel order."""
-    return [c["sensor"] for c in sorted(model["channels"], key=lambda c: c["channel"])]
+    return spec_of(model).sensors
 
 
-def channel_ranges(model: Mapping) -> dict[str, tuple[float, float]]:
+def channel_ranges(model: Mapping | ModelSpec) -> dict[str, tuple[float, float]]:
     """Each wired sensor's valid range (min_c, max_c) in degC, defaults filled in."""
-    return {c["sensor"]: (float(c.get("min_c", CHANNEL_MIN_C)),
-                          float(c.get("max_c", CHANNEL_MAX_C)))
-            for c in model.get("channels", [])}
+    return {c.sensor: (c.min_c, c.max_c) for c in spec_of(model).channels}
 
 
-def model_aux(model: dict) -> list[str]:
-    return [a["name"] for a in sorted(model.get("aux", []), key=lambda a: a["input"])]
+def model_aux(model: Mapping | ModelSpec) -> list[str]:
+    """Aux inputs, in input order."""
+    return spec_of(model).aux_names

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from thermal_comp.codegen import GeneratedHeader, generate, load_model
 from thermal_comp.contract import checkout
+from thermal_comp.contract.model_file import ModelSpec
 
 
 def firmware_dir() -> Path:
@@ -39,9 +40,14 @@ class BuildError(RuntimeError):
 class ModelBuild:
     """A model and the header generated from it."""
 
-    model: dict
+    model: dict  # the file's content (written out again by the cnc session and the tests)
     generated: GeneratedHeader
     header_path: Path
+
+    @property
+    def spec(self) -> ModelSpec:
+        """The model's function, typed: what the replay and its judges read."""
+        return self.generated.spec
 
     def bound_um(self, axis: str) -> float:
         return float(self.generated.fixed_point["axes"][axis]["bound_um"])

@@ -11,13 +11,13 @@ The report they fill in, and its judgement (``Judging``), live in ``hil.replay_r
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from thermal_comp.contract.model_file import ModelSpec, spec_of
 from thermal_comp.contract.protocol import ErrorReply, Info, ProtocolError, Sample, decode
-from thermal_comp.contract.terms import Term
 from thermal_comp.hil.expect import (
     CLAMP,
     HOLD,
@@ -79,23 +79,20 @@ def sequence_problems(seqs: list[int], n_fed: int) -> tuple[int, int, int]:
     return lost, duplicated, reordered
 
 
-def float_predictions(model: dict, feed: Feed, codes: np.ndarray, rows: slice) -> np.ndarray:
+def float_predictions(model: ModelSpec, feed: Feed, codes: np.ndarray, rows: slice
+                      ) -> np.ndarray:
     """The float model (contract/terms.py) on the quantised inputs of one session: (n, axes) um."""
-    from thermal_comp.hil.feed import aux_names, channel_sensors
-
     cols: dict[str, np.ndarray] = {}
-    for c, name in enumerate(channel_sensors(model)):
+    for c, name in enumerate(model.sensors):
         cols[name] = codes[rows, c].astype(float) / 128.0
-    for k, name in enumerate(aux_names(model)):
+    for k, name in enumerate(model.aux_names):
         cols[name] = feed.aux[rows, k].astype(float)
-    period = float(model["sample_period_s"])
     out = []
     for axis in feed.axes:
-        spec = model["axes"][axis]
-        terms = [Term.from_json(t) for t in spec["terms"]]
-        coefs = np.array([float(t["coef"]) for t in spec["terms"]])
-        x = design_matrix(terms, cols, period) if cols else np.empty((rows.stop - rows.start, 0))
-        out.append(float(spec["intercept"]) + x @ coefs)
+        ax = model.axis(axis)
+        x = design_matrix(list(ax.terms), cols, model.sample_period_s) if cols \
+            else np.empty((rows.stop - rows.start, 0))
+        out.append(ax.intercept + x @ np.array(ax.coefs))
     return np.column_stack(out) if out else np.empty((rows.stop - rows.start, 0))
 
 
@@ -189,7 +186,7 @@ def _check_lines(rep: ReplayReport, s_index: int, session: Session, lines: Sessi
                      f"{exp.codes[j].tolist()}")
 
 
-def _float_differences(session: Session, exp: Expected, model: dict, feed: Feed,
+def _float_differences(session: Session, exp: Expected, model: ModelSpec, feed: Feed,
                        codes_fed: np.ndarray, rx: _Received) -> tuple[np.ndarray, int] | None:
     """2. The float model against the box, per axis (largest |difference| in um, samples
     compared), where the box outputs the model's value directly and no fault has touched
@@ -258,7 +255,7 @@ def _steps(rep: ReplayReport, s_index: int, session: Session, exp: Expected,
                 min(ax.first_step_over, first)
 
 
-def step_limits_nm(model: dict) -> dict[str, int]:
+def step_limits_nm(model: Mapping | ModelSpec) -> dict[str, int]:
     """Each axis's output step limit as the header carries it (codegen's quantisation)."""
     from thermal_comp.codegen.quantise import quantise
 
@@ -285,7 +282,7 @@ def _residuals(rep: ReplayReport, feed: Feed, rx: _Received, zeroed: bool) -> No
 
 
 def _judge_session(rep: ReplayReport, s_index: int, session: Session, exp: Expected,
-                   feed: Feed, model: dict, codes_fed: np.ndarray, zero_at: Sequence[int],
+                   feed: Feed, model: ModelSpec, codes_fed: np.ndarray, zero_at: Sequence[int],
                    rx: _Received) -> tuple[np.ndarray, int] | None:
     """One power-up's lines: health, ZERO replies, sequence, the twin, the steps; returns the
     float model's differences (``_float_differences``) for the caller to gather."""
@@ -333,7 +330,7 @@ def _float_verdict(rep: ReplayReport, axes: Sequence[str], float_diff: np.ndarra
                          f"bound {ax.bound_um:.6g} um")
 
 
-def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
+def judge(capture: Capture, expected: list[Expected], feed: Feed, model: Mapping | ModelSpec,
           bounds_um: dict[str, float], judging: Judging | None = None,
           zero_at: Sequence[int] = (), box_zeroes: bool = False,
           step_limits: dict[str, int] | None = None) -> ReplayReport:
@@ -342,8 +339,10 @@ def judge(capture: Capture, expected: list[Expected], feed: Feed, model: dict,
     ``zero_at``: samples before which ZERO was sent (each reply must name the sample before).
     ``box_zeroes``: the header was built with TCM_ZERO_AT_POWERUP (the box's output is already
     the change since its start). ``step_limits``: each axis's output step limit in nm
-    (default: the model's, as codegen puts it into the header).
+    (default: the model's, as codegen puts it into the header). ``model``: the typed view
+    (``ReplaySetup.spec``), or the dict.
     """
+    model = spec_of(model)
     n = capture.n_samples
     n_axes = len(feed.axes)
     rep = ReplayReport(samples=n, sessions=len(capture.sessions), judging=judging)

@@ -9,14 +9,15 @@ box's ADC path delivers it. Which run column feeds which channel comes from mode
 from __future__ import annotations
 
 import csv
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from thermal_comp.contract.errors import InputError
-from thermal_comp.contract.model_file import model_aux, model_sensors
-from thermal_comp.contract.tilt import available_axes, model_tilts
+from thermal_comp.contract.model_file import ModelSpec, spec_of
+from thermal_comp.contract.tilt import available_axes
 from thermal_comp.host.fitting import NO_REFERENCE, Reference
 from thermal_comp.host.io import Run, load_run
 
@@ -58,20 +59,18 @@ def _header(path: Path) -> list[str]:
         return [h.strip() for h in next(csv.reader(fh), [])]
 
 
-channel_sensors = model_sensors  # the box's channel order, from the one model.json reader
-aux_names = model_aux
-
-
-def build_feed(model: dict, data_path: str | Path, reference: str | None = None,
+def build_feed(model: Mapping | ModelSpec, data_path: str | Path, reference: str | None = None,
                max_aux: int = 1) -> Feed:
     """Load ``data_path`` with the model's sensors/aux/axes and quantise it like the box does;
-    judged with ``reference`` (``start``/``none``), by default the model's own."""
+    judged with ``reference`` (``start``/``none``), by default the model's own. ``model``: the
+    typed view (``ModelBuild.spec``), or the dict."""
     from thermal_comp.codegen.fixed import temp_to_code
 
+    model = spec_of(model)
     path = Path(data_path)
     header = _header(path)
-    sensors = channel_sensors(model)
-    aux = aux_names(model)
+    sensors = model.sensors
+    aux = model.aux_names
     if len(aux) > max_aux:
         raise FeedError(f"model uses {len(aux)} aux inputs ({', '.join(aux)}); the feed "
                         f"carries {max_aux}")
@@ -79,11 +78,11 @@ def build_feed(model: dict, data_path: str | Path, reference: str | None = None,
         if name not in header:
             raise FeedError(f"{path}, line 1, column '{name}': the model needs this column "
                             f"but the run does not have it")
-    axes = list(model["axes"])
-    tilts = model_tilts(model)
+    axes = model.axis_names
+    tilts = list(model.tilts)
     targets = available_axes(header, axes, tilts)
     run = load_run(path, targets=targets, sensors=sensors, aux=aux, tilts=tilts)
-    period = float(model["sample_period_s"])
+    period = model.sample_period_s
     if abs(run.period_s - period) > 1e-6 * max(1.0, period):
         raise FeedError(f"{path}: the run is sampled every {run.period_s:g} s but the model "
                         f"(and the box) every {period:g} s")

@@ -17,6 +17,7 @@ import numpy as np
 
 from thermal_comp.codegen.fixed import FixedModel
 from thermal_comp.contract.fixed_point import CODE_MAX, CODE_MIN
+from thermal_comp.contract.model_file import ModelSpec
 from thermal_comp.contract.protocol import MeasReply, ProtocolError, decode
 from thermal_comp.hil.build import ModelBuild, build_firmware, prepare_header
 from thermal_comp.hil.checks import Judging, ReplayReport, judge
@@ -48,6 +49,11 @@ class ReplaySetup:
     @property
     def model(self) -> dict:
         return self.build.model
+
+    @property
+    def spec(self) -> ModelSpec:
+        """The model's function, typed (``model`` is the file's dict)."""
+        return self.build.spec
 
     def bounds_um(self) -> dict[str, float]:
         return {a: self.build.bound_um(a) for a in self.feed.axes}
@@ -81,7 +87,7 @@ def prepare(model_json: str | Path, data: str | Path, build_dir: str | Path | No
     output.check_fits(len(q.channels), len(q.axes), len(q.aux), str(model_json))
     exe = Path(binary) if binary is not None else build_firmware(mb.header_path, build_dir,
                                                                  "native", cflags)
-    feed = build_feed(mb.model, data, reference)
+    feed = build_feed(mb.spec, data, reference)
     return ReplaySetup(mb, feed, FixedModel(q), exe, output)
 
 
@@ -178,7 +184,7 @@ def run(setup: ReplaySetup, events: Sequence[Event] = (), model_bad: bool = Fals
     # a deliberately corrupted model is expected to correct nothing
     judging = replace(setup.judging, require_correction=False) if model_bad else setup.judging
     report = judge(capture, expectations(setup, capture, events, model_bad), setup.feed,
-                   setup.model, setup.bounds_um(), judging,
+                   setup.spec, setup.bounds_um(), judging,
                    [e.at for e in events if isinstance(e, Zero)],
                    box_zeroes=setup.build.zero_at_powerup)
     report.elapsed_s = elapsed

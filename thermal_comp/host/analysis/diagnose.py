@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from thermal_comp.contract.errors import InputError
-from thermal_comp.contract.model_file import channel_ranges, model_aux, model_sensors
-from thermal_comp.contract.tilt import available_axes, model_tilts, probe_columns, unit_of
+from thermal_comp.contract.model_file import channel_ranges, spec_of
+from thermal_comp.contract.tilt import available_axes, probe_columns, unit_of
 from thermal_comp.host.analysis.evaluate import measured, model_reference, predict
 from thermal_comp.host.effects import (
     TAU_GRID_S,
@@ -81,29 +81,31 @@ def load_for_diagnosis(model: Mapping, path: str | Path, fill_gaps: int = 0,
                        fmt: CsvFormat | None = None) -> Run:
     """Load a run with every sensor of the training glob, the model's axes and aux inputs."""
     header = _header(path, fmt)
-    training = model.get("training", {})
+    spec = spec_of(model)
+    tilts = list(spec.tilts)
+    training = model.get("training", {})  # how it was trained: a report field, in the dict
     pattern = training.get("sensors", "T*")
-    targets = available_axes(header, list(model["axes"]), model_tilts(model))
-    aux = model_aux(model)
+    targets = available_axes(header, spec.axis_names, tilts)
+    aux = spec.aux_names
     missing_aux = [a for a in aux if a not in header]
     if missing_aux:
         raise DiagnoseError(f"{path}, line 1: missing aux column(s) {', '.join(missing_aux)} "
                             "the model reads")
     aux = aux + [a for a in training.get("aux", []) if a in header and a not in aux]
-    reserved = {"time_s", *probe_columns(list(model["axes"]), model_tilts(model)), *aux}
+    reserved = {"time_s", *probe_columns(spec.axis_names, tilts), *aux}
     if isinstance(pattern, str):
         sensors = [h for h in header if fnmatch.fnmatchcase(h, pattern) and h not in reserved]
     else:
         sensors = [s for s in pattern if s in header]
-    missing = [s for s in model_sensors(model) if s not in header]
+    missing = [s for s in spec.sensors if s not in header]
     if missing:
         raise DiagnoseError(f"{path}, line 1: " + missing_sensors(
             missing, [h for h in header if h not in reserved], "the model reads them"))
-    for s in model_sensors(model):
+    for s in spec.sensors:
         if s not in sensors:
             sensors.append(s)
     return load_run(path, targets, sensors, aux, fill_gaps=fill_gaps, min_samples=6, fmt=fmt,
-                    temperature_ranges=channel_ranges(model), tilts=model_tilts(model))
+                    temperature_ranges=channel_ranges(spec), tilts=tilts)
 
 
 # ------------------------------------------------------------------ the model's error
@@ -117,14 +119,15 @@ def diagnose_axis(model: Mapping, axis: str, run: Run, *, ambient: str | None = 
     Measured and predicted drift are referenced as ``host evaluate`` does (the model's
     reference unless ``reference`` is given), and so are the candidates' features."""
     rule = rule or Rule()
-    period = float(model["sample_period_s"])
-    terms, _, _ = axis_terms(dict(model), axis)
-    ref_kind = model_reference(dict(model), reference)
-    y = measured(dict(model), run, axis, reference)
-    pred = predict(dict(model), run, reference)[axis]
+    spec = spec_of(model)
+    period = spec.sample_period_s
+    terms, _, _ = axis_terms(spec, axis)
+    ref_kind = model_reference(spec, reference)
+    y = measured(spec, run, axis, reference)
+    pred = predict(spec, run, reference)[axis]
     e = y - pred
-    spec = model["axes"][axis]
-    trained = (spec.get("metrics") or {}).get("validation_rmse_um")
+    # its validation error: a report field (metrics), in the dict
+    trained = (model["axes"][axis].get("metrics") or {}).get("validation_rmse_um")
     out: dict = {
         "rmse_um": rmse(e),
         "max_abs_um": float(np.max(np.abs(e))),
@@ -311,7 +314,7 @@ def check_sensors(model: Mapping, run: Run) -> dict[str, dict]:
     """Checks of every sensor the model reads."""
     refs = _references(model)
     return {s: check_sensor(run, s, refs.get(s), _mates_from_trace(model, s))
-            for s in model_sensors(dict(model)) if s in run.sensor_names}
+            for s in spec_of(model).sensors if s in run.sensor_names}
 
 
 # ------------------------------------------------------------------ the whole report
@@ -323,19 +326,20 @@ def diagnose(model: Mapping, run: Run, *, ambient: str | None = None,
     if run.n_samples < 2 * n_blocks:
         raise DiagnoseError(f"{run.path}: {run.n_samples} samples is too few for {n_blocks} "
                             "time blocks")
-    period = float(model["sample_period_s"])
+    spec = spec_of(model)
+    period = spec.sample_period_s
     if abs(run.period_s - period) > 0.01 * period:
         raise DiagnoseError(f"{run.path}: sample period {run.period_s:g} s differs from the "
                             f"model's {period:g} s (its lag terms assume that period)")
     axes = {a: diagnose_axis(model, a, run, ambient=ambient, n_blocks=n_blocks,
                              reference=reference)
-            for a in model["axes"] if a in run.target_names}
+            for a in spec.axis_names if a in run.target_names}
     sensors = check_sensors(model, run)
     faulty = [{"sensor": s, **f, "evidence": c["evidence"]}
               for s, c in sensors.items() for f in c["faults"]]
-    missing = [a for a in model["axes"] if a not in run.target_names]
+    missing = [a for a in spec.axis_names if a not in run.target_names]
     return {"run": run.path, "samples": run.n_samples,
-            "reference": model_reference(dict(model), reference).kind, "axes": axes,
+            "reference": model_reference(spec, reference).kind, "axes": axes,
             "axes_without_measurement": missing, "sensors": sensors, "faulty": faulty,
             "outside_training_range": outside_training(model, run)}
 

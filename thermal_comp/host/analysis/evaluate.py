@@ -11,13 +11,13 @@ at power-up).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from thermal_comp.contract.errors import InputError
-from thermal_comp.contract.model_file import channel_ranges, model_aux, model_sensors
-from thermal_comp.contract.tilt import model_tilts
+from thermal_comp.contract.model_file import ModelSpec, channel_ranges, spec_of
 from thermal_comp.host.fitting import Reference, axis_terms, design_matrix, rmse
 from thermal_comp.host.io import CsvFormat, Run, load_run
 from thermal_comp.host.train import outside_training
@@ -30,26 +30,27 @@ class EvaluationError(InputError):
     """The run cannot be evaluated with this model (missing column, other sample period)."""
 
 
-def load_for_model(path: str | Path, model: dict, fill_gaps: int = 0,
+def load_for_model(path: str | Path, model: Mapping | ModelSpec, fill_gaps: int = 0,
                    axes: list[str] | None = None, fmt: CsvFormat | None = None) -> Run:
     """Load a run with exactly the columns the model needs (temperatures within the model's
     channel ranges)."""
-    axes = list(model["axes"]) if axes is None else axes
-    return load_run(path, axes, model_sensors(model), model_aux(model), fill_gaps, fmt=fmt,
-                    temperature_ranges=channel_ranges(model), tilts=model_tilts(model),
+    spec = spec_of(model)
+    axes = spec.axis_names if axes is None else axes
+    return load_run(path, axes, spec.sensors, spec.aux_names, fill_gaps, fmt=fmt,
+                    temperature_ranges=channel_ranges(spec), tilts=list(spec.tilts),
                     targets_from="an axis of the model", sensors_from="the model reads them",
                     aux_from="an input the model reads")
 
 
-def _check_period(model: dict, run: Run) -> None:
-    dynamic = any(t["kind"] in DYNAMIC_KINDS for a in model["axes"].values() for t in a["terms"])
-    period = float(model["sample_period_s"])
+def _check_period(model: ModelSpec, run: Run) -> None:
+    dynamic = any(t.kind in DYNAMIC_KINDS for a in model.axes for t in a.terms)
+    period = model.sample_period_s
     if dynamic and run.n_samples > 1 and abs(run.period_s - period) > PERIOD_TOLERANCE * period:
         raise EvaluationError(f"{run.path}: sample period {run.period_s:g} s, the model's dynamic "
                               f"terms were fitted at {period:g} s; resample the run")
 
 
-def model_reference(model: dict, reference: str | None = None) -> Reference:
+def model_reference(model: Mapping | ModelSpec, reference: str | None = None) -> Reference:
     """The reference to judge by: the one given, else the model's own (``none`` for old ones)."""
     own = Reference.of_model(model)
     if reference is None or reference == own.kind:
@@ -57,17 +58,19 @@ def model_reference(model: dict, reference: str | None = None) -> Reference:
     return Reference.of_kind(reference)
 
 
-def predict(model: dict, run: Run, reference: str | None = None) -> dict[str, np.ndarray]:
+def predict(model: Mapping | ModelSpec, run: Run, reference: str | None = None
+            ) -> dict[str, np.ndarray]:
     """Predicted displacement (um) per axis over the run, referenced as the box outputs it
     (with ``start``: the change since the run's first samples)."""
+    model = spec_of(model)
     ref = model_reference(model, reference)
     _check_period(model, run)
     columns = run.columns()
     out = {}
-    for axis in model["axes"]:
+    for axis in model.axis_names:
         terms, coefs, intercept = axis_terms(model, axis)
         try:
-            X = design_matrix(terms, columns, float(model["sample_period_s"]))
+            X = design_matrix(terms, columns, model.sample_period_s)
         except KeyError as exc:
             raise EvaluationError(f"{run.path}: axis {axis}: {exc.args[0]}") from None
         raw = X @ coefs + intercept if len(terms) else np.full(run.n_samples, intercept)
@@ -75,7 +78,8 @@ def predict(model: dict, run: Run, reference: str | None = None) -> dict[str, np
     return out
 
 
-def measured(model: dict, run: Run, axis: str, reference: str | None = None) -> np.ndarray:
+def measured(model: Mapping | ModelSpec, run: Run, axis: str, reference: str | None = None
+             ) -> np.ndarray:
     """The run's measured displacement of ``axis``, referenced like the prediction."""
     return model_reference(model, reference).apply(run.target(axis))
 
@@ -95,12 +99,13 @@ def axis_metrics(measured: np.ndarray, predicted: np.ndarray) -> dict:
     }
 
 
-def evaluate_model(model: dict, run: Run, reference: str | None = None) -> dict:
+def evaluate_model(model: Mapping | ModelSpec, run: Run, reference: str | None = None) -> dict:
     """``{"run": path, "axes": {axis: metrics}}`` for every model axis the run measures.
 
     ``reference`` (``start`` or ``none``) defaults to the model's; measured and predicted
     displacement are referenced the same way."""
-    missing = [a for a in model["axes"] if a not in run.target_names]
+    model = spec_of(model)
+    missing = [a for a in model.axis_names if a not in run.target_names]
     if missing:
         raise EvaluationError(f"{run.path}: no measured column for axis "
                               f"{', '.join(missing)}")

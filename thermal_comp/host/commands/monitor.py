@@ -60,19 +60,18 @@ def run(args: argparse.Namespace) -> int:
 
     expected, windows, axis_inputs, promises = None, {}, {}, {}
     if args.model:
-        from thermal_comp.codegen import generate, model_hash
-        from thermal_comp.contract.model_file import read_model
-        from thermal_comp.contract.terms import TEMPERATURE_KINDS
+        from thermal_comp.codegen import generate
+        from thermal_comp.contract.model_file import check_model, read_model
 
-        model = read_model(args.model)
-        expected = model_hash(model)
+        model = read_model(args.model)  # its metrics too: the promises
+        spec = check_model(model, args.model)
+        expected = spec.model_hash
         windows = {c.sensor: (c.window_lo_code, c.window_hi_code)
-                   for c in generate(model).model.channels}
+                   for c in generate(spec).model.channels}
         # which thermocouples each axis reads: a fault on one of them holds that axis
-        axis_inputs = {a: sorted({t["source"] for t in ax["terms"]
-                                  if t["kind"] in TEMPERATURE_KINDS})
-                       for a, ax in model["axes"].items()}
-        # the model's promise per axis, in the words host train and the report use
+        axis_inputs = {ax.name: sorted(ax.sensors) for ax in spec.axes}
+        # the model's promise per axis (a report field, in the dict), in the words host train
+        # and the report use
         promises = {a: ax.get("metrics", {}).get("promise") for a, ax in model["axes"].items()
                     if ax.get("metrics", {}).get("promise")}
     if args.count is not None and args.count < 1:

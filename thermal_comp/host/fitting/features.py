@@ -12,6 +12,7 @@ from collections.abc import Iterator, Mapping, Sequence
 import numpy as np
 
 from thermal_comp.contract.errors import MissingColumnError
+from thermal_comp.contract.model_file import ModelSpec, spec_of
 from thermal_comp.contract.terms import Term
 
 
@@ -88,9 +89,7 @@ def terms_values(terms: Sequence[Term], columns: Mapping[str, np.ndarray],
         yield term_values(t, columns, period_s, lag)
 
 
-def axis_terms(model: dict, axis: str) -> tuple[list[Term], np.ndarray, float]:
-    """Terms, coefficients and intercept of one axis."""
-    spec = model["axes"][axis]
-    terms = [Term.from_json(t) for t in spec["terms"]]
-    coefs = np.array([float(t["coef"]) for t in spec["terms"]])
-    return terms, coefs, float(spec["intercept"])
+def axis_terms(model: Mapping | ModelSpec, axis: str) -> tuple[list[Term], np.ndarray, float]:
+    """Terms, coefficients and intercept of one axis (of the typed model, or the dict's)."""
+    ax = spec_of(model).axis(axis)
+    return list(ax.terms), np.array(ax.coefs, dtype=float), ax.intercept

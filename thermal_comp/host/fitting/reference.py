@@ -17,12 +17,14 @@ tracks; docs/training.md has the measurement.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from thermal_comp.contract.box import ZERO_SAMPLES
 from thermal_comp.contract.errors import InputError
+from thermal_comp.contract.model_file import ModelSpec, spec_of
 
 KINDS = ("start", "none")
 
@@ -74,10 +76,11 @@ class Reference:
         return Reference(kind, ZERO_SAMPLES if kind == "start" else 1)
 
     @staticmethod
-    def of_model(model: dict) -> Reference:
-        """The model's reference; a model written before references were kept has ``none``."""
-        spec = model.get("reference") or {"kind": "none"}
-        return Reference(str(spec.get("kind", "none")), int(spec.get("samples", 1)))
+    def of_model(model: Mapping | ModelSpec) -> Reference:
+        """The model's reference (its typed view's; a model written before references were
+        kept has ``none``)."""
+        ref = spec_of(model).reference
+        return Reference(ref.kind, ref.samples)
 
     def to_json(self) -> dict:
         out: dict = {"kind": self.kind}

@@ -32,7 +32,8 @@ from thermal_comp.contract.box import (
     STILL_FLOOR,
     STILL_MARGIN,
 )
-from thermal_comp.host.fitting.features import axis_terms, design_matrix
+from thermal_comp.contract.terms import Term
+from thermal_comp.host.fitting.features import design_matrix
 from thermal_comp.host.io import Run
 
 
@@ -83,15 +84,20 @@ def still_limits(model: dict, runs: Sequence[Run]) -> dict[str, int]:
 
 
 def step_limits(model: dict, runs: Sequence[Run]) -> tuple[dict[str, float], dict[str, float]]:
-    """({sensor: max_step_c}, {axis: max_step_um}) from the training runs."""
+    """({sensor: max_step_c}, {axis: max_step_um}) from the training runs.
+
+    ``model`` is the dict host train is still writing (the box's limits are part of it), not
+    yet a checked model, so it is read as a dict, not through ``contract.model_spec``."""
     period = float(model["sample_period_s"])
     channels = {}
     for c in model["channels"]:
         fastest = max(fastest_step(r.column(c["sensor"]), r.time_s, period) for r in runs)
         channels[c["sensor"]] = max(STEP_MARGIN * fastest, CHANNEL_STEP_FLOOR_C)
     axes = {}
-    for name in model["axes"]:
-        terms, coefs, intercept = axis_terms(model, name)
+    for name, ax in model["axes"].items():
+        terms = [Term.from_json(t) for t in ax["terms"]]
+        coefs = np.array([float(t["coef"]) for t in ax["terms"]])
+        intercept = float(ax["intercept"])
         fastest = 0.0
         for r in runs:
             pred = intercept + (design_matrix(terms, r.columns(), period) @ coefs

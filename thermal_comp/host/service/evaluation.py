@@ -18,6 +18,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from thermal_comp.contract.model_file import ModelSpec, spec_of
 from thermal_comp.host.fitting import rmse
 from thermal_comp.host.service.estimators import (
     DEFAULT_ESTIMATOR,
@@ -76,16 +77,17 @@ def service_axis(measured: np.ndarray, prediction: np.ndarray, time_s: np.ndarra
     }
 
 
-def service_metrics(model: dict, time_s: np.ndarray, measured: Mapping[str, np.ndarray],
-                    predicted: Mapping[str, np.ndarray], readings: ProbeReadings,
+def service_metrics(model: Mapping | ModelSpec, time_s: np.ndarray,
+                    measured: Mapping[str, np.ndarray], predicted: Mapping[str, np.ndarray],
+                    readings: ProbeReadings,
                     estimator: str = DEFAULT_ESTIMATOR, **overrides: float) -> dict[str, dict]:
     """``service_axis`` for every axis of ``predicted`` (axes without readings: none)."""
+    model = spec_of(model)
     out = {}
     for axis, pred in predicted.items():
         idx = readings.index.get(axis, np.zeros(0, dtype=int))
         val = readings.value.get(axis, np.zeros(0))
-        max_step = model["axes"][axis].get("max_step_um")
         out[axis] = service_axis(np.asarray(measured[axis], dtype=float), pred, time_s, idx,
                                  val, service_params(model, axis, **overrides), estimator,
-                                 None if max_step is None else float(max_step))
+                                 model.axis(axis).max_step_um)
     return out

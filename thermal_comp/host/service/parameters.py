@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from thermal_comp.contract.model_file import ModelSpec, spec_of
 from thermal_comp.contract.service import (
     REOPEN_AFTER_DEFAULT,
     SERVICE_DEFAULTS,
@@ -70,13 +71,14 @@ class ServiceParams:
         return asdict(self)
 
 
-def service_params(model: Mapping, axis: str, **overrides: float) -> ServiceParams:
+def service_params(model: Mapping | ModelSpec, axis: str, **overrides: float) -> ServiceParams:
     """An axis's parameters: its ``service`` block, else the fallbacks; ``overrides`` win."""
-    block = model["axes"][axis].get("service") or {}
-    known = {k: float(block[k]) for k in SERVICE_FIELDS if k in block}
+    spec = spec_of(model)
+    service = spec.axis(axis).service
+    known = service.values() if service is not None else {}
     known |= {k: float(v) for k, v in overrides.items()}
     if "p0_um2" not in known:
-        start = Reference.of_model(dict(model)).kind == "start"
+        start = spec.reference.kind == "start"
         known["p0_um2"] = 0.0 if start else known.get("p_max_um2", FALLBACK_P_MAX_UM2)
     return ServiceParams(**known)
 

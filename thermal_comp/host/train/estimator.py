@@ -39,8 +39,8 @@ from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
 from thermal_comp.contract.errors import InputError
-from thermal_comp.contract.terms import Term
-from thermal_comp.host.fitting import Reference, design_matrix
+from thermal_comp.contract.model_file import spec_of
+from thermal_comp.host.fitting import Reference, axis_terms, design_matrix
 from thermal_comp.host.io import Run
 from thermal_comp.host.train.options import TrainOptions
 from thermal_comp.host.train.pipeline import train_model
@@ -242,18 +242,16 @@ class ThermalModel(RegressorMixin, BaseEstimator):
         check_is_fitted(self, "model_")
         X = validate_data(self, X, reset=False, dtype=np.float64)
         runs = self._runs(X, None, groups, self.axes_)
-        ref = Reference.of_model(self.model_)
-        period = float(self.model_["sample_period_s"])
+        spec = spec_of(self.model_)
+        ref = Reference.of_model(spec)
         out = np.empty((X.shape[0], len(self.axes_)))
         start = 0
         for run in runs:
             cols = run.columns()
             for a, name in enumerate(self.axes_):
-                axis = self.model_["axes"][name]
-                terms = [Term.from_json(t) for t in axis["terms"]]
-                coefs = np.array([float(t["coef"]) for t in axis["terms"]])
-                M = design_matrix(terms, cols, period)
-                pred = float(axis["intercept"]) + (M @ coefs if coefs.size else 0.0)
+                terms, coefs, intercept = axis_terms(spec, name)
+                M = design_matrix(terms, cols, spec.sample_period_s)
+                pred = intercept + (M @ coefs if coefs.size else 0.0)
                 out[start:start + run.n_samples, a] = ref.apply(pred)
             start += run.n_samples
         return out[:, 0] if self._single else out

@@ -19,6 +19,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from thermal_comp.contract.fixed_point import EXTRAPOLATION_MARGIN
+from thermal_comp.contract.model_file import ModelSpec, spec_of
 from thermal_comp.host.io import Run
 
 TOLERANCE_SHARE = float(EXTRAPOLATION_MARGIN)  # a few % is noise; the FL 5000 rpm cycle: 20-41 %
@@ -36,20 +37,21 @@ def add_training_ranges(channels: Sequence[dict], aux: Sequence[dict],
         a["trained_min"], a["trained_max"] = float(np.min(values)), float(np.max(values))
 
 
-def training_ranges(model: Mapping) -> dict[str, dict[str, float]] | None:
+def training_ranges(model: Mapping | ModelSpec) -> dict[str, dict[str, float]] | None:
     """{input: {"min", "max"}} from the model's declarations, channel order then aux; None
     when the model was trained before ranges were stored."""
+    spec = spec_of(model)
     out = {}
-    for c in sorted(model.get("channels", []), key=lambda c: c["channel"]):
-        if "trained_min_c" in c:
-            out[c["sensor"]] = {"min": float(c["trained_min_c"]), "max": float(c["trained_max_c"])}
-    for a in sorted(model.get("aux", []), key=lambda a: a["input"]):
-        if "trained_min" in a:
-            out[a["name"]] = {"min": float(a["trained_min"]), "max": float(a["trained_max"])}
+    for c in spec.channels:
+        if c.trained_min_c is not None and c.trained_max_c is not None:
+            out[c.sensor] = {"min": c.trained_min_c, "max": c.trained_max_c}
+    for a in spec.aux:
+        if a.trained_min is not None and a.trained_max is not None:
+            out[a.name] = {"min": a.trained_min, "max": a.trained_max}
     return out or None
 
 
-def outside_training(model: Mapping, run: Run) -> list[dict] | None:
+def outside_training(model: Mapping | ModelSpec, run: Run) -> list[dict] | None:
     """Inputs of ``run`` that leave their training range, in the model's input order.
 
     Listed when the run leaves the range by more than ``TOLERANCE_SHARE`` of its span. Per
@@ -80,9 +82,9 @@ def outside_training(model: Mapping, run: Run) -> list[dict] | None:
     return rows
 
 
-def input_units(model: Mapping) -> dict[str, str]:
+def input_units(model: Mapping | ModelSpec) -> dict[str, str]:
     """Thermocouples read degrees C; an aux input's unit is whatever its column holds."""
-    return {c["sensor"]: " °C" for c in model.get("channels", [])}
+    return {s: " °C" for s in spec_of(model).sensors}
 
 
 def describe(rows: list[dict] | None, units: Mapping[str, str] | None = None) -> list[str]:

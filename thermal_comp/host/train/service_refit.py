@@ -25,13 +25,14 @@ any model.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from thermal_comp.contract.errors import InputError
+from thermal_comp.contract.model_file import ModelSpec, ServiceSpec, spec_of
 from thermal_comp.host.fitting import Reference, axis_terms, design_matrix
 from thermal_comp.host.io import CsvFormat, Run, load_run
 from thermal_comp.host.service import logged_probes
@@ -53,17 +54,16 @@ class ServiceLog:
     value: dict[str, np.ndarray]
 
 
-def load_service_logs(paths: Sequence[str | Path], model: dict, fill_gaps: int = 0,
-                      fmt: CsvFormat | None = None) -> list[ServiceLog]:
+def load_service_logs(paths: Sequence[str | Path], model: Mapping | ModelSpec,
+                      fill_gaps: int = 0, fmt: CsvFormat | None = None) -> list[ServiceLog]:
     """Each log with the model's channels and aux inputs, and its logged readings."""
-    sensors = [c["sensor"] for c in model["channels"]]
-    aux = [a["name"] for a in model.get("aux", [])]
-    axes = list(model["axes"])
+    spec = spec_of(model)
+    axes = spec.axis_names
     logs = []
     for path in paths:
-        run = load_run(path, [], sensors, aux, fill_gaps, fmt=fmt,
+        run = load_run(path, [], spec.sensors, spec.aux_names, fill_gaps, fmt=fmt,
                        sensors_from="the model's channels", aux_from="an input the model reads")
-        period = float(model["sample_period_s"])
+        period = spec.sample_period_s
         if run.n_samples > 1 and abs(run.period_s - period) > 0.01 * period:
             raise ServiceLogError(f"{path}: sample period {run.period_s:g} s, the model's is "
                                   f"{period:g} s (its lags are per sample): resample the log")
@@ -75,23 +75,24 @@ def load_service_logs(paths: Sequence[str | Path], model: dict, fill_gaps: int =
     return logs
 
 
-def _features(model: dict, axis: str, run: Run) -> np.ndarray:
+def _features(model: ModelSpec, axis: str, run: Run) -> np.ndarray:
     """[1, terms] over the run, referenced as the model is: (n, 1 + n_terms)."""
     terms, _, _ = axis_terms(model, axis)
-    X = design_matrix(terms, run.columns(), float(model["sample_period_s"]))
+    X = design_matrix(terms, run.columns(), model.sample_period_s)
     A = np.column_stack([np.ones(run.n_samples), X])
     ref = Reference.of_model(model)
     return np.column_stack([ref.apply(A[:, j]) for j in range(A.shape[1])])
 
 
-def reading_weight(spec: dict, train_residuals: Sequence[np.ndarray]) -> float:
+def reading_weight(service: ServiceSpec | None, train_residuals: Sequence[np.ndarray]
+                   ) -> float:
     """How many training rows one reading is worth: the training residual's variance over the
     reading's (R = the probe's noise² + the residual's white part², the service block's), times
     the rows one independent piece of that residual spans ((1 + ρ) / (1 - ρ), ρ its lag-1
     autocorrelation): a smooth, small training residual outweighs a noisy reading."""
-    service = spec.get("service") or {}
-    r = float(service.get("probe_noise_um", 0.5)) ** 2 + float(
-        service.get("residual_noise_um", 0.0)) ** 2
+    probe, white = (0.5, 0.0) if service is None else (service.probe_noise_um,
+                                                       service.residual_noise_um)
+    r = probe ** 2 + white ** 2
     e = [x - x.mean() for x in train_residuals if x.size > 2]
     var = float(np.mean(np.concatenate(e) ** 2)) if e else 0.0
     if var <= 0.0:
@@ -124,19 +125,20 @@ def _rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e)))
 
 
-def refit_axis(model: dict, axis: str, runs: Sequence[Run], logs: Sequence[ServiceLog]
-               ) -> dict | None:
+def refit_axis(model: Mapping | ModelSpec, axis: str, runs: Sequence[Run],
+               logs: Sequence[ServiceLog]) -> dict | None:
     """The axis's new intercept and coefficients and the record of why; None when the logs
     hold fewer than MIN_READINGS readings of it. Kept only if, each log held out in turn,
     the refit on the others predicts its readings better than the trained model by KEEP_GAIN:
     a refit judged on days it did not see, as training is."""
+    model = spec_of(model)
     ref = Reference.of_model(model)
     _, coefs, intercept = axis_terms(model, axis)
     theta0 = np.concatenate([[intercept], coefs])
     train_rows = [_features(model, axis, run) for run in runs]
     train_e = [ref.apply(run.target(axis)) - A @ theta0
                for run, A in zip(runs, train_rows, strict=True)]
-    rows_per_reading = reading_weight(model["axes"][axis], train_e)
+    rows_per_reading = reading_weight(model.axis(axis).service, train_e)
     readings = [_Readings(_features(model, axis, log.run)[log.index[axis]], log.value[axis],
                           math.sqrt(min(rows_per_reading,
                                         log.run.n_samples / log.index[axis].size)))
