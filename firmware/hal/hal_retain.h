@@ -1,7 +1,7 @@
 /* Memory that survives a warm reset (watchdog, brown-out with the backup domain powered, a
  * software reset) but not a power cut without a backup battery: the STM32F405's 4 KiB backup
  * SRAM (BKPSRAM). The application keeps its state there every sample and resumes from it
- * after a warm reset (docs/firmware.md, "Restart"). */
+ * after a warm reset (docs/firmware.md, "Never worse than no compensation"). */
 #ifndef HAL_RETAIN_H
 #define HAL_RETAIN_H
 

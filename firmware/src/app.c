@@ -76,7 +76,7 @@ typedef struct {
     bool sampled;     /* a sample has been taken since power-up */
     /* A cold power-up found this model's retained block intact (a battery on VBAT kept it
      * through the power cut): it is left untouched until RESUME <n> continues it or a ZERO
-     * starts afresh (docs/firmware.md, "Restart"). */
+     * starts afresh (docs/firmware.md, "Never worse than no compensation"). */
     bool resumable;
     bool skipping; /* RESUME: running the samples the box was off for (no chip, no line) */
     uint32_t next_sample_ms;
@@ -776,7 +776,8 @@ static void send_ok(const char *what, uint32_t value)
 /* RESUME <n>: continue the retained state of the last power-up, as if the box had sampled
  * every channel as open for the n periods it was off and the ones since this power-up (the
  * filters catch up over the gap, the guards judge the next reading, the output holds and
- * walks back); its reference and sequence go on (docs/firmware.md, "Restart"). */
+ * walks back); its reference and sequence go on (docs/firmware.md, "Never worse than no
+ * compensation"). */
 static void handle_resume(uint32_t off)
 {
     if (!app.resumable || !retained_valid()) {
@@ -806,8 +807,9 @@ static void handle_resume(uint32_t off)
  * `$B,<offset>,<size>,<hex>` lines of SNAP_LINE_BYTES bytes, then `$OK,SNAP,<seq of the
  * latest sample>`. After a power cut that took the retained memory with it (no battery on
  * VBAT), LOAD puts the controller's copy back and RESUME continues it, as after a cut on a
- * battery (docs/firmware.md, "Restart"). The block is opaque to the controller: the box
- * checks its magic, model CRC and CRC-32 before it continues anything. */
+ * battery (docs/firmware.md, "Never worse than no compensation"). The block is opaque to
+ * the controller: the box checks its magic, model CRC and CRC-32 before it continues
+ * anything. */
 #define SNAP_LINE_BYTES 256u
 static void handle_snap(void)
 {

@@ -1,6 +1,7 @@
 """A power cut with the backup SRAM kept on a battery (VBAT): RESUME <periods off> continues the
-box's state (docs/firmware.md, "Restart"; issue 41's "power cut" event). Native firmware
-against the host's twin, which runs the periods off as samples with every channel open."""
+box's state (docs/firmware.md, "Never worse than no compensation"; issue 41's "power cut"
+event). Native firmware against the host's twin, which runs the periods off as samples with
+every channel open."""
 
 from __future__ import annotations
 

@@ -220,7 +220,7 @@ def to_nm(um: float) -> int:
     return _sat32(round_half_away(Fraction(um) * NM_PER_UM))
 
 
-# proven in docs/service.md ("Ranges"): the products above stay below 2^63
+# proven in docs/service.md ("Fixed point"): the products above stay below 2^63
 assert (INNOVATION_MAX_NM ** 2) << GAIN_FRAC_BITS < INT64_MAX
 assert 2 * BIAS_MAX_NM < INT32_MAX
 assert ((2 * INNOVATION_MAX_NM) ** 2) << GAIN_FRAC_BITS <= 1 << 62  # the streak's difference

@@ -20,7 +20,7 @@ RATE_MIN, RATE_MAX = 1, 3600
 ERROR_REASONS = ("UNKNOWN", "TOO_LONG", "BINARY", "BAD_ARG", "HOLDING", "NO_STATE", "IN_USE",
                  "NO_RETAIN")
 RESUME_MAX = 65535  # RESUME <n>: sample periods the box was off (CMD_RESUME_MAX in cmd.h)
-# SNAP / LOAD (docs/protocol.md, "State kept by the controller"): the box's state block, sent
+# SNAP / LOAD (docs/protocol.md, "Commands"): the box's state block, sent
 # in $B pieces of at most BLOCK_LINE_BYTES bytes and put back in LOAD pieces of at most
 # LOAD_MAX_BYTES (CMD_LOAD_MAX_BYTES in cmd.h) at offsets up to LOAD_OFFSET_MAX
 BLOCK_LINE_BYTES = 256

@@ -204,7 +204,7 @@ def expect_session(twin: FixedModel, codes: np.ndarray, aux: np.ndarray, sr: np.
                    meas: dict[int, list[tuple[int, int, int, bool]]] | None = None,
                    meas_samples: int = 4) -> Expected:
     """Expected lines for samples fed to one box from a cold power-up, through any number of
-    warm resets (which it survives: docs/firmware.md, "Restart").
+    warm resets (which it survives: docs/firmware.md, "Never worse than no compensation").
 
     ``codes`` [n, ch] are the chips' readings, ``sr`` [n, ch] their fault status registers,
     ``aux`` [n, n_aux] the aux inputs; ``zero_before``: local sample indices before which the

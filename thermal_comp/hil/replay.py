@@ -117,7 +117,8 @@ def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],
             spans.append([k])
     # A resumed session (RESUME after a power cut with the backup SRAM kept) continues the
     # one before it as if every channel had read open, and no aux, for the samples the box
-    # was off (its RESUME runs them so: docs/firmware.md, "Restart"); they send no line.
+    # was off (its RESUME runs them so: docs/firmware.md, "Never worse than no
+    # compensation"); they send no line.
     aux_all = setup.feed.aux.copy()
     for k, s in enumerate(capture.sessions):
         if k > 0 and s.resumed:

@@ -18,7 +18,7 @@ import numpy as np
 
 from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.model_file import ModelSpec, channel_ranges, spec_of
-from thermal_comp.host.fitting import Reference, axis_terms, design_matrix, rmse
+from thermal_comp.host.fitting import Reference, axis_terms, linear_prediction, rmse
 from thermal_comp.host.io import CsvFormat, Run, load_run
 from thermal_comp.host.train import outside_training
 
@@ -70,10 +70,10 @@ def predict(model: Mapping | ModelSpec, run: Run, reference: str | None = None
     for axis in model.axis_names:
         terms, coefs, intercept = axis_terms(model, axis)
         try:
-            X = design_matrix(terms, columns, model.sample_period_s)
+            raw = linear_prediction(terms, coefs, intercept, columns, model.sample_period_s,
+                                    run.n_samples)
         except KeyError as exc:
             raise EvaluationError(f"{run.path}: axis {axis}: {exc.args[0]}") from None
-        raw = X @ coefs + intercept if len(terms) else np.full(run.n_samples, intercept)
         out[axis] = ref.apply(raw)
     return out
 

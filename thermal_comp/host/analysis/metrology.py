@@ -40,6 +40,7 @@ from thermal_comp.host.fitting import (
     DEFAULT_BLOCKS,
     NO_REFERENCE,
     Reference,
+    coefficient_terms,
     design_matrix,
     fit_linear,
     fold_groups,
@@ -278,8 +279,7 @@ def coefficient_table(axis_name: str, axis: Mapping, runs: Sequence[Run], period
     With a ``reference`` (``start``: the model predicts the change since the run's start) the
     fit's columns are referenced the same way per run; the intercept then cancels and has no
     standard error. Without ``runs`` (not readable here) only what the model file holds."""
-    terms = [Term.from_json(t) for t in axis["terms"]]
-    coefs = np.array([float(t["coef"]) for t in axis["terms"]], dtype=float)
+    terms, coefs = coefficient_terms(axis["terms"])
     intercept = float(axis["intercept"])
     metrics = axis.get("metrics") or {}
     fit = axis.get("fit") or {}

@@ -14,14 +14,13 @@ import html
 import io
 import json
 import math
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from thermal_comp.contract.model_file import read_model
+from thermal_comp.contract.model_file import model_hash, read_model, write_text_atomic
 from thermal_comp.contract.tilt import unit_text
 from thermal_comp.host.analysis import plots
 from thermal_comp.host.analysis.evaluate import model_reference
@@ -426,8 +425,8 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
         report.figures.append(Figure(kind, kind, title, caption, file, groups, clipped))
     report.summary = _summary(model_path, inp, report, hil_results, where)
     _write_wiring_csv(out / "wiring.csv", report.summary["wiring"])
-    _write_atomic(out / "summary.json", json.dumps(report.summary, indent=2, default=_json_num))
-    _write_atomic(report.index, render_html(model, report))
+    write_text_atomic(out / "summary.json", json.dumps(report.summary, indent=2, default=_json_num))
+    write_text_atomic(report.index, render_html(model, report))
     return report
 
 
@@ -437,7 +436,7 @@ def _summary(model_path: str | Path, inp: _Inputs, report: Report, hil_results: 
     model = inp.model
     summary: dict = {
         "model": str(model_path),
-        "model_hash": _model_hash(model),
+        "model_hash": model_hash(model),
         "axes": summary_rows(model),
         "runs": inp.run_table,
         "outside_training": {run.name: outside_training(model, run) for run in inp.runs},
@@ -475,24 +474,10 @@ def _write_wiring_csv(path: Path, rows: list[dict]) -> None:
         w.writerow([r["channel"], r["sensor"], r["tc_type"], r["location"] or "",
                     " ".join(r["axes"]), r["trained_min_c"] if r["trained_min_c"] is not None
                     else "", r["trained_max_c"] if r["trained_max_c"] is not None else ""])
-    _write_atomic(path, buf.getvalue())
+    write_text_atomic(path, buf.getvalue())
 
 
 def _json_num(value):
     if isinstance(value, np.generic):
         return value.item()
     raise TypeError(type(value))
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
-def _model_hash(model: dict) -> str | None:
-    try:
-        from thermal_comp.codegen import model_hash  # lands with the code generator
-    except ImportError:
-        return None
-    return model_hash(model)

@@ -15,9 +15,15 @@ import numpy as np
 
 from thermal_comp.contract.errors import InputError
 from thermal_comp.contract.model_file import channel_ranges
-from thermal_comp.contract.terms import TEMPERATURE_KINDS, Term
+from thermal_comp.contract.terms import TEMPERATURE_KINDS
 from thermal_comp.contract.tilt import available_axes, model_tilts
-from thermal_comp.host.fitting import NO_REFERENCE, Reference, design_matrix
+from thermal_comp.host.fitting import (
+    NO_REFERENCE,
+    Reference,
+    coefficient_terms,
+    design_matrix,
+    linear_prediction,
+)
 from thermal_comp.host.io import CsvFormat, Run, load_run, missing_sensors, read_header
 from thermal_comp.host.train import (
     dropped_reason,
@@ -31,25 +37,19 @@ class ReportError(InputError):
 
 # ---------------------------------------------------------------- model and predictions
 
-def axis_terms(axis: dict) -> tuple[list[Term], np.ndarray]:
-    terms = [Term.from_json(t) for t in axis["terms"]]
-    coefs = np.array([float(t["coef"]) for t in axis["terms"]], dtype=float)
-    return terms, coefs
-
-
 def predict(intercept: float, term_dicts: list[dict], run: Run, period_s: float,
             reference: Reference = NO_REFERENCE) -> np.ndarray:
-    """Float prediction of one axis on a whole run (filters start at the run's first sample),
-    referenced as the box outputs it (``start``: the change since the run's start)."""
-    terms = [Term.from_json(t) for t in term_dicts]
-    coefs = np.array([float(t["coef"]) for t in term_dicts], dtype=float)
-    X = design_matrix(terms, run.columns(), period_s)
-    return reference.apply(float(intercept) + (X @ coefs if coefs.size else np.zeros(len(X))))
+    """Float prediction of a JSON term list on a whole run (the model's axis, its baseline or
+    an effect stage: host.fitting.linear_prediction), referenced as the box outputs it
+    (``start``: the change since the run's start)."""
+    terms, coefs = coefficient_terms(term_dicts)
+    return reference.apply(linear_prediction(terms, coefs, intercept, run.columns(), period_s,
+                                             run.n_samples))
 
 
 def sensor_contributions(axis: dict, run: Run, period_s: float) -> dict[str, np.ndarray]:
     """Each sensor's summed contribution (µm) over the run, from all its terms."""
-    terms, coefs = axis_terms(axis)
+    terms, coefs = coefficient_terms(axis["terms"])
     out: dict[str, np.ndarray] = {}
     columns = run.columns()
     for term, coef in zip(terms, coefs, strict=True):

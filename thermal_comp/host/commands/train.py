@@ -156,11 +156,12 @@ def _fmt(x: float | None, digits: int = 3) -> str:
     return "-" if x is None else f"{x:.{digits}g}"
 
 
-# measured in docs/accuracy.md (the independent simulator against its oracle)
+# measured in docs/lab/accuracy.md ("Against the floor": sim_dev's 78 cases against its
+# oracle, 2.5-3.9x trained on one day, 1.37x on two)
 ONE_RUN_HINT = ("one training run: its blocks judge the model; a second day with another "
                 "spindle program is the largest gain measured (on an independent simulator, "
                 "unseen days at 2.5-3.9x the physical floor with one day, 1.4x with two; "
-                "docs/accuracy.md)")
+                "docs/lab/accuracy.md)")
 
 
 def print_table(doc: dict, model: dict) -> None:

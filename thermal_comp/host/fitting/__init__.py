@@ -8,8 +8,10 @@ from __future__ import annotations
 
 from thermal_comp.host.fitting.features import (
     axis_terms,
+    coefficient_terms,
     design_matrix,
     first_order_lag,
+    linear_prediction,
     shared_filter,
     term_values,
 )
@@ -49,9 +51,11 @@ __all__ = [
     "DEFAULT_BLOCKS",
     "FoldGram",
     "axis_terms",
+    "coefficient_terms",
     "common_period",
     "condition_number",
     "design_matrix",
+    "linear_prediction",
     "first_order_lag",
     "fit_linear",
     "fold_groups",

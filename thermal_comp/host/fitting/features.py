@@ -93,3 +93,20 @@ def axis_terms(model: Mapping | ModelSpec, axis: str) -> tuple[list[Term], np.nd
     """Terms, coefficients and intercept of one axis (of the typed model, or the dict's)."""
     ax = spec_of(model).axis(axis)
     return list(ax.terms), np.array(ax.coefs, dtype=float), ax.intercept
+
+
+def coefficient_terms(term_dicts: Sequence[Mapping]) -> tuple[list[Term], np.ndarray]:
+    """Terms and coefficients of a JSON term list with ``coef`` (model.json's form, also the
+    baseline's and each effect stage's in its report)."""
+    return ([Term.from_json(t) for t in term_dicts],
+            np.array([float(t["coef"]) for t in term_dicts], dtype=float))
+
+
+def linear_prediction(terms: Sequence[Term], coefs: np.ndarray, intercept: float,
+                      columns: Mapping[str, np.ndarray], period_s: float, n_rows: int
+                      ) -> np.ndarray:
+    """intercept + the terms' values weighted by ``coefs`` over a run's ``columns`` (filters
+    start at its first sample): the float model, unreferenced."""
+    if not len(terms):
+        return np.full(n_rows, float(intercept))
+    return design_matrix(list(terms), columns, period_s) @ coefs + intercept
