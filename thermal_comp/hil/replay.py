@@ -115,10 +115,9 @@ def expectations(setup: ReplaySetup, capture: Capture, events: Sequence[Event],
             spans[-1].append(k)
         else:
             spans.append([k])
-    # A resumed session (RESUME after a power cut with the backup SRAM kept) continues the
-    # one before it as if every channel had read open, and no aux, for the samples the box
-    # was off (its RESUME runs them so: docs/firmware.md, "Never worse than no
-    # compensation"); they send no line.
+    # A resumed session (RESUME after a power cut, the backup SRAM kept) continues the one
+    # before as if every channel read open, and no aux, for the samples the box was off (no
+    # line; its RESUME runs them so: docs/firmware.md, "Never worse than no compensation").
     aux_all = setup.feed.aux.copy()
     for k, s in enumerate(capture.sessions):
         if k > 0 and s.resumed:

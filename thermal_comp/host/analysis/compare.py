@@ -100,6 +100,12 @@ def best_subset(X: np.ndarray, y: np.ndarray, k: int, quiet: bool = True) -> lis
     return best or []
 
 
+def most_correlated(X: np.ndarray, y: np.ndarray, k: int) -> np.ndarray:
+    """Paper 002's peer: the columns of the ``k`` largest |Pearson r| with ``y`` (ties in
+    column order); `host compare` and the report fit OLS on them."""
+    return np.argsort(-np.abs(pearson_r(X, y)), kind="stable")[:k]
+
+
 def _peers(names: list[str], X: np.ndarray, y: np.ndarray, folds: np.ndarray, k: int,
            k_corr: int, engineering: list[str] | None, exhaustive_limit: int, quiet: bool
            ) -> list[tuple[str, Callable, str]]:
@@ -116,9 +122,7 @@ def _peers(names: list[str], X: np.ndarray, y: np.ndarray, folds: np.ndarray, k:
     ]
 
     def top_correlated():
-        r = np.abs(pearson_r(X, y))
-        order = np.argsort(-r, kind="stable")[:k_corr]
-        return _ols_on([names[i] for i in order], names, X, y)
+        return _ols_on([names[i] for i in most_correlated(X, y, k_corr)], names, X, y)
     out.append((f"{k_corr} most correlated (paper 002)", top_correlated, ""))
 
     if engineering:

@@ -11,6 +11,7 @@ import numpy as np
 
 from thermal_comp.contract.tilt import available_axes, model_tilts, unit_text
 from thermal_comp.host.analysis import plots
+from thermal_comp.host.analysis.compare import DEFAULT_K_CORRELATED, most_correlated
 from thermal_comp.host.analysis.report_data import box_sensors, dropped_sensors, predict, run_header
 from thermal_comp.host.fitting import NO_REFERENCE, Reference, fit_linear
 from thermal_comp.host.io import Run, load_run
@@ -305,17 +306,6 @@ def effect_stages(axis: dict, axis_name: str, run: Run, period: float,
     return stages
 
 
-K_CORRELATED = 4  # paper 002's four most correlated sensors
-
-
-def _abs_correlation(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    Xc, yc = X - X.mean(axis=0), y - y.mean()
-    den = np.sqrt((Xc ** 2).sum(axis=0) * (yc ** 2).sum())
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r = np.where(den > 0, (Xc.T @ yc) / den, 0.0)
-    return np.abs(r)
-
-
 def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, str], np.ndarray]]:
     """Predictions of the static peers `host compare` also fits (OLS on all sensors, OLS on the
     k most correlated), trained on the model's own training runs so the comparison is fair.
@@ -338,7 +328,7 @@ def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, 
     if any(r.sensor_names != names for r in train_runs) or \
             not all(set(names) <= set(r.sensor_names) for r in runs):
         return {}
-    k = min(K_CORRELATED, len(names))
+    k = min(DEFAULT_K_CORRELATED, len(names))
     labels = ("OLS, all sensors", f"{k} most correlated (paper 002)")
     out: dict[str, dict[tuple[str, str], np.ndarray]] = {label: {} for label in labels}
     for axis in axes:
@@ -347,7 +337,7 @@ def peer_predictions(model: dict, runs: list[Run]) -> dict[str, dict[tuple[str, 
             continue
         X = np.vstack([ref.apply(r.temperatures) for r in have])
         y = np.concatenate([ref.apply(r.target(axis)) for r in have])
-        top = np.argsort(-_abs_correlation(X, y), kind="stable")[:k]
+        top = most_correlated(X, y, k)
         for label, idx in zip(labels, (np.arange(len(names)), top), strict=True):
             fit = fit_linear(X[:, idx], y)
             cols = [names[i] for i in idx]

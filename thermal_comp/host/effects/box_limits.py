@@ -21,8 +21,6 @@ STATE_SHARE = 0.75  # share of the codegen bound the filter states may use
 FINAL_ROUNDING_UM = float(FINAL_ROUNDING_NM) / 1000.0
 
 
-
-
 def state_quantisation_um(terms: Sequence[Term], coefs: Sequence[float]) -> float:
     """docs/fixed-point.md: sum over lag/rate of |c| * 0.5/alpha state units (STATE_LSB_C,
     2^-23 degC)."""
