@@ -16,7 +16,8 @@ from thermal_comp.contract.model_errors import ModelFormatError
 
 # Names end up in C string literals, comments and the wire protocol's INFO line
 # (separators , ; : *), so they are restricted to characters safe in all three.
-NAME_RE = re.compile(r"^[A-Za-z0-9_.+-]{1,32}$")
+NAME_CHARS = "A-Za-z0-9_.+-"  # a regex character class's contents
+NAME_RE = re.compile(rf"^[{NAME_CHARS}]{{1,32}}$")
 
 
 def is_number(v: object) -> bool:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 
+from thermal_comp.contract.model_checker import NAME_CHARS
 from thermal_comp.contract.protocol_frame import LINE_RE, crc16
 from thermal_comp.contract.protocol_messages import (
     BLOCK_LINE_BYTES,
@@ -35,7 +36,7 @@ from thermal_comp.contract.protocol_messages import (
 _DEC_RE = re.compile(r"-?(0|[1-9][0-9]*)")
 _UDEC_RE = re.compile(r"0|[1-9][0-9]*")
 _HEX4_RE = re.compile(r"[0-9A-F]{4}")
-_NAME_RE = re.compile(r"[A-Za-z0-9_.+-]*")
+_NAME_RE = re.compile(rf"[{NAME_CHARS}]*")  # a model's names (contract.model_checker)
 _HEX_BYTES_RE = re.compile(r"(?:[0-9A-F]{2})+")
 
 
