@@ -20,7 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from thermal_comp.contract.model_file import model_hash, read_model, write_text_atomic
+from thermal_comp.contract.model_file import (
+    ModelSpec,
+    model_hash,
+    read_model,
+    spec_of,
+    write_text_atomic,
+)
 from thermal_comp.contract.tilt import unit_text
 from thermal_comp.host.analysis import plots
 from thermal_comp.host.analysis.evaluate import model_reference
@@ -58,7 +64,7 @@ from thermal_comp.host.analysis.report_story import (
     selection_groups,
 )
 from thermal_comp.host.analysis.service import readings_for, service_day
-from thermal_comp.host.fitting import Reference
+from thermal_comp.host.fitting import Reference, axis_terms, linear_prediction
 from thermal_comp.host.io import CsvFormat, Run
 from thermal_comp.host.progress import progress
 from thermal_comp.host.service import ProbePlan
@@ -132,6 +138,7 @@ class _Inputs:
     per-run error table the figures fill in for the summary."""
 
     model: dict
+    spec: ModelSpec  # the model's function, typed (the dict holds its report fields)
     runs: list[Run]
     ref: Reference
     period: float
@@ -143,6 +150,12 @@ class _Inputs:
     # run path -> axis -> host.analysis.service.service_day (runs with probe readings)
     service: dict[str, dict[str, dict]] = field(default_factory=dict)
     service_source: dict[str, str] = field(default_factory=dict)  # run path -> readings
+
+    def prediction(self, axis: str, run: Run) -> np.ndarray:
+        """The model's float prediction of ``axis`` on ``run``, referenced as the box's."""
+        terms, coefs, intercept = axis_terms(self.spec, axis)
+        return self.ref.apply(linear_prediction(terms, coefs, intercept, run.columns(),
+                                                self.period, run.n_samples))
 
 
 # A figure: (matplotlib figure, title, caption HTML, file name), or None when it has nothing
@@ -221,7 +234,7 @@ def _fig_ec(inp: _Inputs, axis_name: str, axis: dict, run: Run | None) -> Drawn:
 def _fig_run(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn:
     """The run against every model's prediction; fills the run's row of the error table."""
     measured = run.target(axis_name)
-    preds = {"our model": predict(axis["intercept"], axis["terms"], run, inp.period, inp.ref)}
+    preds = {"our model": inp.prediction(axis_name, run)}
     drift = {"measured": iso230_drift(run.time_s, measured),
              "compensated": iso230_drift(run.time_s, measured - preds["our model"])}
     for peer_name, per_run in inp.peer_models.items():
@@ -322,7 +335,7 @@ def _fig_hysteresis(inp: _Inputs, axis_name: str, axis: dict, run: Run) -> Drawn
     if sensor is None:
         return None
     measured = run.target(axis_name)
-    residual = measured - predict(axis["intercept"], axis["terms"], run, inp.period, inp.ref)
+    residual = measured - inp.prediction(axis_name, run)
     fig_obj = plots.hysteresis(run.name, axis_name, sensor, run.column(sensor),
                                measured, residual, inp.period)
     caption = (f"{sensor} contributes most to the {axis_name} prediction on this run. "
@@ -402,7 +415,8 @@ def build_report(model_path: str | Path, run_paths: list[str | Path], out_dir: s
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     report = Report(out)
-    inp = _Inputs(model, runs, ref, float(model["sample_period_s"]),
+    spec = spec_of(model)
+    inp = _Inputs(model, spec, runs, ref, spec.sample_period_s,
                   peer_predictions(model, runs) if peers else {}, matrix,
                   training_ranges(model), delay_limit_s(model))
     for run in raw:  # issue 42: host evaluate's service computation on the unreferenced run
