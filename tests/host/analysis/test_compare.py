@@ -190,3 +190,17 @@ def test_compare_fits_the_box_model_of_a_bending_axis_as_host_train_would():
     assert box["test_rmse_um"] == pytest.approx(float(np.sqrt(np.mean(err ** 2))), rel=1e-9)
     with pytest.raises(Exception, match="--bending dx_um: not among the targets"):
         compare_methods(train, test, ["dz_um"], bending=["dx_um"])
+
+
+def test_paper_002_peer_takes_the_largest_absolute_correlations_ties_in_column_order():
+    """most_correlated (host compare's and the report's peer) against numpy's corrcoef."""
+    from thermal_comp.host.analysis.compare import most_correlated
+
+    rng = np.random.default_rng(3)
+    y = rng.normal(size=400)
+    X = np.column_stack([0.2 * y + rng.normal(size=400), -3 * y + 0.1 * rng.normal(size=400),
+                         np.ones(400), y + rng.normal(size=400), np.zeros(400)])
+    X[:, 4] = X[:, 1]  # a tie: the earlier column first
+    r = [abs(np.corrcoef(X[:, j], y)[0, 1]) if np.std(X[:, j]) > 0 else 0.0 for j in range(5)]
+    expected = sorted(range(5), key=lambda j: (-round(r[j], 12), j))[:3]
+    assert most_correlated(X, y, 3).tolist() == expected == [1, 4, 3]
