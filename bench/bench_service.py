@@ -315,9 +315,23 @@ def table(summ: dict) -> str:
                          f"{iv(r['updated/static']):>20} {iv(r['updated/hold']):>20} "
                          f"{iv(r['updated/peer updated']):>20} "
                          f"{len(r['worse_than_static']):>5}")
-        ch = ", ".join(f"{v} {x:.3f}" for v, x in s["choice"].items())
-        lines.append(f"estimator choice at {key(*CHOICE)} (updated / static): {ch}")
-    return "\n".join(lines)
+    return "\n".join(lines + choice_table(summ))
+
+
+def choice_table(summ: dict) -> list[str]:
+    """The estimators, the bound of a bias update and the gate's stress rows at the choice's
+    scheme, one row each, the sources side by side (geometric means of updated / static)."""
+    sources = [s for s in summ if summ[s]["choice"]]
+    if not sources:
+        return []
+    names = list(summ[sources[0]]["choice"])
+    width = max(len(n) for n in names)
+    out = [f"\nestimator choice at {key(*CHOICE)} (geometric mean of updated / static)",
+           f"{'':<{width}} " + " ".join(f"{s:>8}" for s in sources)]
+    for n in names:
+        out.append(f"{n:<{width}} " + " ".join(f"{summ[s]['choice'].get(n, math.nan):>8.3f}"
+                                                 for s in sources))
+    return out
 
 
 def targets_met(summ: dict) -> list[str]:
