@@ -134,6 +134,7 @@ def _mean_rmse(rows: list[dict[str, float]]) -> dict[str, float]:
 def case_rows(model: dict, run, target: str, peer_pred: np.ndarray, seeds: Sequence[int],
               salt: int) -> tuple[dict[str, dict[str, float]], dict[str, float]]:
     """Every (scheme, noise)'s columns and the estimator choice for one test run and axis."""
+    from thermal_comp.contract.model_file import spec_of
     from thermal_comp.host.analysis.evaluate import model_reference
     from thermal_comp.host.service import ProbePlan, service_params, synthesise_probes
     from thermal_comp.host.service.evaluation import service_axis
@@ -141,7 +142,8 @@ def case_rows(model: dict, run, target: str, peer_pred: np.ndarray, seeds: Seque
     ref = model_reference(model)
     meas = ref.apply(run.target(target))
     pred = ref.apply(acc.raw_prediction(model, run)[target])
-    max_step = model["axes"][target].get("max_step_um")
+    spec = spec_of(model)  # checked once: service_params runs for every scheme and variant
+    max_step = spec.axis(target).max_step_um
     out: dict[str, dict[str, float]] = {}
     choice: dict[str, list[float]] = {}
     for scheme, (every, when) in SCHEMES.items():
@@ -153,7 +155,7 @@ def case_rows(model: dict, run, target: str, peer_pred: np.ndarray, seeds: Seque
                 plan = ProbePlan(every, noise, 7919 * salt + seed, when)
                 rd = synthesise_probes(run, {target: meas}, plan)
                 idx, val = rd.index[target], rd.value[target]
-                params = service_params(model, target, probe_noise_um=max(noise, 0.01))
+                params = service_params(spec, target, probe_noise_um=max(noise, 0.01))
                 ours = service_axis(meas, pred, run.time_s, idx, val, params, "bias", max_step)
                 peer = service_axis(meas, peer_pred, run.time_s, idx, val, params, "bias",
                                     max_step)
@@ -164,7 +166,7 @@ def case_rows(model: dict, run, target: str, peer_pred: np.ndarray, seeds: Seque
                              "peer updated": peer["rmse_um"]})
                 if (scheme, noise) == CHOICE:
                     for name, (est, scale) in VARIANTS.items():
-                        p = service_params(model, target, probe_noise_um=noise,
+                        p = service_params(spec, target, probe_noise_um=noise,
                                            q_um2_per_h=params.q_um2_per_h * scale)
                         r = service_axis(meas, pred, run.time_s, idx, val, p, est, max_step)
                         choice.setdefault(name, []).append(r["rmse_um"])

@@ -198,9 +198,10 @@ def test_paper_002_peer_takes_the_largest_absolute_correlations_ties_in_column_o
 
     rng = np.random.default_rng(3)
     y = rng.normal(size=400)
-    X = np.column_stack([0.2 * y + rng.normal(size=400), -3 * y + 0.1 * rng.normal(size=400),
-                         np.ones(400), y + rng.normal(size=400), np.zeros(400)])
-    X[:, 4] = X[:, 1]  # a tie: the earlier column first
+    strong = -3 * y + 0.1 * rng.normal(size=400)
+    # column 2 is constant (r = 0); column 4 repeats column 1, a tie: the earlier column first
+    X = np.column_stack([0.2 * y + rng.normal(size=400), strong, np.ones(400),
+                         y + rng.normal(size=400), strong])
     r = [abs(np.corrcoef(X[:, j], y)[0, 1]) if np.std(X[:, j]) > 0 else 0.0 for j in range(5)]
     expected = sorted(range(5), key=lambda j: (-round(r[j], 12), j))[:3]
     assert most_correlated(X, y, 3).tolist() == expected == [1, 4, 3]
